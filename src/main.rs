@@ -1,1 +1,71 @@
-fn main() {}
+//! `amstack`: the command line of the amstack flight stack.
+//!
+//! Thin by design: it parses flags, reads files, calls the crates and writes results.
+//! Exit codes: 0 success, 2 bad input (one line on stderr naming what was wrong), 1 failure.
+
+mod cli_error;
+mod output;
+mod platforms;
+mod vehicles;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+use crate::cli_error::BadInput;
+
+/// amstack — flight stack and simulator twin for multirotor aerial manipulators (AM-Bench).
+///
+/// The same allocation, saturation and control code flies the simulator twin or a PX4-style
+/// autopilot. Every command exits 0 on success and 2 on bad input, with a one-line error.
+#[derive(Debug, Parser)]
+#[command(
+    name = "amstack",
+    version,
+    propagate_version = true,
+    max_term_width = 100
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// The vehicles and their figures: mass, inertia, rotors, reach, thrust margins.
+    Platforms(platforms::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        // --help and --version print to stdout and succeed.
+        Err(e) if !e.use_stderr() => {
+            let _ = e.print();
+            return ExitCode::SUCCESS;
+        }
+        Err(e) => {
+            // clap's message is several lines (usage, hint); keep the first, the problem.
+            let rendered = e.render().to_string();
+            let first = rendered.lines().next().unwrap_or("invalid arguments");
+            let first = first.strip_prefix("error: ").unwrap_or(first);
+            eprintln!("amstack: {first} (see 'amstack --help')");
+            return ExitCode::from(2);
+        }
+    };
+    let result = match cli.command {
+        Command::Platforms(args) => platforms::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            let code = if e.downcast_ref::<BadInput>().is_some() {
+                2
+            } else {
+                1
+            };
+            eprintln!("amstack: {}", cli_error::one_line(&e));
+            ExitCode::from(code)
+        }
+    }
+}

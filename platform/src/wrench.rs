@@ -50,7 +50,10 @@ impl Wrench {
 
     /// True when all six components are finite (no NaN, no infinity).
     pub fn is_finite(&self) -> bool {
-        self.force.iter().chain(self.torque.iter()).all(|x| x.is_finite())
+        self.force
+            .iter()
+            .chain(self.torque.iter())
+            .all(|x| x.is_finite())
     }
 }
 

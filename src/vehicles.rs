@@ -1,0 +1,39 @@
+//! Loading vehicles: the built-in five, or a user's vehicle file and the URDF it names.
+
+use std::path::Path;
+
+use anyhow::Result;
+use platform::{Vehicle, VehicleFile};
+
+use crate::cli_error::bad_input;
+
+/// Reads a vehicle file (TOML) and the URDF it names (relative to the vehicle file), and
+/// validates both. Any problem is bad input naming the file, the field and the value.
+pub fn load_vehicle_file(path: &Path) -> Result<Vehicle> {
+    let label = path.display().to_string();
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| bad_input(format!("cannot read vehicle file {label}: {e}")))?;
+    let file = VehicleFile::parse(&label, &text).map_err(|e| bad_input(e.to_string()))?;
+    let urdf_path = path.parent().unwrap_or(Path::new(".")).join(&file.urdf);
+    let urdf_label = urdf_path.display().to_string();
+    let urdf_text = std::fs::read_to_string(&urdf_path)
+        .map_err(|e| bad_input(format!("{label}: urdf: cannot read {urdf_label}: {e}")))?;
+    Vehicle::assemble(&label, &file, &urdf_label, &urdf_text).map_err(|e| bad_input(e.to_string()))
+}
+
+/// The built-in vehicles followed by the user's, refusing a user id that is already taken.
+pub fn all_vehicles(extra: &[std::path::PathBuf]) -> Result<Vec<Vehicle>> {
+    let mut vehicles = Vehicle::builtins()?;
+    for path in extra {
+        let v = load_vehicle_file(path)?;
+        if vehicles.iter().any(|known| known.id == v.id) {
+            return Err(bad_input(format!(
+                "{}: id: vehicle '{}' is already defined",
+                path.display(),
+                v.id
+            )));
+        }
+        vehicles.push(v);
+    }
+    Ok(vehicles)
+}

@@ -1,0 +1,219 @@
+//! The `amstack` command line, run as a user runs it: a real process, real files.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn amstack(args: &[&str]) -> Output {
+    match Command::new(env!("CARGO_BIN_EXE_amstack"))
+        .args(args)
+        .output()
+    {
+        Ok(out) => out,
+        Err(e) => panic!("cannot start amstack: {e}"),
+    }
+}
+
+fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Bad input: exit 2 and exactly one line on stderr, containing every `needle`.
+fn assert_bad_input(out: &Output, needles: &[&str]) {
+    let err = stderr(out);
+    assert_eq!(out.status.code(), Some(2), "exit code; stderr: {err}");
+    assert_eq!(err.lines().count(), 1, "one line: {err:?}");
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "{n:?} not in {err:?}");
+    }
+}
+
+fn vehicles_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("platform/vehicles")
+}
+
+/// A temporary copy of the FA-Hexa's two files, with `edit` applied to (toml, urdf).
+fn fa_hexa_copy(edit: impl Fn(String, String) -> (String, String)) -> (tempfile::TempDir, PathBuf) {
+    let dir = match tempfile::tempdir() {
+        Ok(d) => d,
+        Err(e) => panic!("tempdir: {e}"),
+    };
+    let read = |name: &str| std::fs::read_to_string(vehicles_dir().join(name)).unwrap_or_default();
+    let (toml, urdf) = edit(read("fa-hexa.toml"), read("fa-hexa.urdf"));
+    let toml_path = dir.path().join("my-hexa.toml");
+    let written =
+        std::fs::write(&toml_path, toml).and(std::fs::write(dir.path().join("fa-hexa.urdf"), urdf));
+    assert!(written.is_ok(), "{written:?}");
+    (dir, toml_path)
+}
+
+#[test]
+fn platforms_lists_the_five_vehicles() {
+    let out = amstack(&["platforms"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let table = stdout(&out);
+    for id in ["ua-quad", "ua-hexa", "fa-hexa", "omni-hexa", "ee-only"] {
+        assert!(
+            table.contains(&format!("({id})")),
+            "{id} missing from\n{table}"
+        );
+    }
+    assert!(table.contains("6.635"), "FA-Hexa mass in\n{table}");
+}
+
+#[test]
+fn platforms_json_holds_the_figures_keyed_by_vehicle_id() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let path = dir.path().join("platforms.json");
+    let out = amstack(&["platforms", "--json", &path.to_string_lossy()]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&path).unwrap_or_default();
+    let json: serde_json::Value =
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+    let Some(object) = json.as_object() else {
+        panic!("not an object: {json}")
+    };
+    let ids: Vec<&str> = object.keys().map(String::as_str).collect();
+    assert_eq!(ids.len(), 5, "{ids:?}");
+    let num = |id: &str, field: &str| json[id][field].as_f64().unwrap_or(f64::NAN);
+    // AMBENCH_SPEC §1 / §2.10.
+    assert!((num("fa-hexa", "mass_kg") - 6.635).abs() < 1e-9);
+    assert!((num("ua-quad", "mass_kg") - 4.407).abs() < 0.01);
+    assert!((num("omni-hexa", "mass_kg") - 3.345).abs() < 1e-9);
+    assert!((num("fa-hexa", "hover_thrust_per_rotor_n") - 12.53).abs() < 0.01);
+    assert!((num("fa-hexa", "thrust_to_weight") - 1.836).abs() < 0.001);
+    assert!((num("fa-hexa", "max_thrust_per_rotor_n") - 23.0).abs() < 1e-12);
+    assert!((num("fa-hexa", "max_reach_m") - 1.24).abs() < 1e-12);
+    assert_eq!(json["fa-hexa"]["rotors"], 6);
+    assert_eq!(json["omni-hexa"]["arm_dof"], 3);
+    assert_eq!(
+        json["fa-hexa"]["inertia_diag_kgm2"]
+            .as_array()
+            .map(Vec::len),
+        Some(3)
+    );
+    // Undefined figures are null, not zero.
+    assert!(json["ee-only"]["hover_thrust_per_rotor_n"].is_null());
+    assert!(json["ee-only"]["max_reach_m"].is_null());
+}
+
+#[test]
+fn platforms_json_into_a_missing_directory_is_bad_input() {
+    let out = amstack(&["platforms", "--json", "/no/such/dir/x.json"]);
+    assert_bad_input(&out, &["--json", "/no/such/dir/x.json", "does not exist"]);
+    assert!(
+        stdout(&out).is_empty(),
+        "nothing is printed before the check"
+    );
+}
+
+#[test]
+fn a_user_vehicle_is_loaded_and_listed() {
+    let (_dir, path) = fa_hexa_copy(|toml, urdf| {
+        (
+            toml.replace("id = \"fa-hexa\"", "id = \"my-hexa\"")
+                .replace("name = \"FA-Hexa\"", "name = \"My-Hexa\""),
+            urdf,
+        )
+    });
+    let out = amstack(&["platforms", "--vehicle", &path.to_string_lossy()]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stdout(&out).contains("My-Hexa (my-hexa)"),
+        "{}",
+        stdout(&out)
+    );
+}
+
+#[test]
+fn a_user_vehicle_with_a_taken_id_is_refused() {
+    let (_dir, path) = fa_hexa_copy(|toml, urdf| (toml, urdf));
+    let out = amstack(&["platforms", "--vehicle", &path.to_string_lossy()]);
+    assert_bad_input(
+        &out,
+        &["my-hexa.toml", "vehicle 'fa-hexa' is already defined"],
+    );
+}
+
+#[test]
+fn a_malformed_urdf_is_bad_input_naming_file_field_and_value() {
+    let (_dir, path) = fa_hexa_copy(|toml, urdf| {
+        (
+            toml.replace("id = \"fa-hexa\"", "id = \"my-hexa\""),
+            urdf.replace("<mass value=\"0.2\"/>", "<mass value=\"-0.2\"/>"),
+        )
+    });
+    let out = amstack(&["platforms", "--vehicle", &path.to_string_lossy()]);
+    assert_bad_input(
+        &out,
+        &[
+            "fa-hexa.urdf",
+            "link 'arm_link1_pitch_link' inertial",
+            "negative mass -0.2 kg",
+        ],
+    );
+
+    let (_dir, path) = fa_hexa_copy(|toml, urdf| {
+        (
+            toml.replace("id = \"fa-hexa\"", "id = \"my-hexa\""),
+            urdf.replace("<robot", "<robt"),
+        )
+    });
+    let out = amstack(&["platforms", "--vehicle", &path.to_string_lossy()]);
+    assert_bad_input(&out, &["fa-hexa.urdf", "cannot parse"]);
+}
+
+#[test]
+fn a_malformed_rotor_layout_is_bad_input_naming_file_field_and_value() {
+    let (_dir, path) = fa_hexa_copy(|toml, urdf| {
+        (
+            toml.replace("id = \"fa-hexa\"", "id = \"my-hexa\"")
+                .replace("count = 6", "count = 4"),
+            urdf,
+        )
+    });
+    let out = amstack(&["platforms", "--vehicle", &path.to_string_lossy()]);
+    assert_bad_input(
+        &out,
+        &[
+            "my-hexa.toml",
+            "rotors.count",
+            "rotors.count = 4 but 6 rotors are listed",
+        ],
+    );
+
+    let (_dir, path) = fa_hexa_copy(|toml, urdf| {
+        (
+            toml.replace("id = \"fa-hexa\"", "id = \"my-hexa\"")
+                .replace("spin = -1 }", "spin = \"cw\" }"),
+            urdf,
+        )
+    });
+    let out = amstack(&["platforms", "--vehicle", &path.to_string_lossy()]);
+    assert_bad_input(&out, &["my-hexa.toml", "line "]);
+}
+
+#[test]
+fn missing_files_and_unknown_flags_are_bad_input() {
+    assert_bad_input(
+        &amstack(&["platforms", "--vehicle", "/no/such/vehicle.toml"]),
+        &["/no/such/vehicle.toml"],
+    );
+    assert_bad_input(&amstack(&["platforms", "--bogus"]), &["--bogus"]);
+    assert_bad_input(&amstack(&["fly-to-the-moon"]), &["fly-to-the-moon"]);
+}
+
+#[test]
+fn help_teaches_and_succeeds() {
+    let out = amstack(&["platforms", "--help"]);
+    assert!(out.status.success());
+    let text = stdout(&out);
+    assert!(
+        text.contains("--json") && text.contains("Examples:"),
+        "{text}"
+    );
+}
