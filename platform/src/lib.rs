@@ -26,6 +26,7 @@ mod mass;
 mod model;
 mod parts;
 mod rotor;
+mod state;
 mod vehicle;
 mod vehicle_file;
 mod wrench;
@@ -43,6 +44,7 @@ pub use model::{
 };
 pub use parts::{CameraMount, Gripper, JointDrive};
 pub use rotor::{Rotor, RotorLayout, Spin, Tilt};
+pub use state::RigidBodyState;
 pub use vehicle::{GRAVITY_MPS2, Vehicle};
 pub use vehicle_file::{VEHICLE_SCHEMA, VehicleFile};
 pub use wrench::Wrench;

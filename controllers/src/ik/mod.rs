@@ -1,0 +1,1 @@
+//! Whole-body inverse kinematics (being written).

@@ -1,0 +1,241 @@
+//! Nested 4-DoF geometric PID for the under-actuated vehicles (AMBENCH_SPEC §2.3): the
+//! position loop builds a desired thrust vector and, with the target's heading, a desired
+//! attitude; the attitude loop tracks it every tick. The body force is restricted to
+//! [0, 0, f].
+//!
+//! Outer loop, every `outer_loop_decimation` ticks (and on the first tick):
+//!
+//! ```text
+//! A = m (K_p e_p + K_v e_v + K_i ∫e_p + g ẑ + a_d)      K = diag(xy, xy, z)
+//! f = A · (R ê3)                                        held until the next outer update
+//! b3d = A/|A|,  b2d = (b3d × b1)/|b3d × b1|,  b1d = b2d × b3d,  b1 = heading x axis
+//! R_d = [b1d b2d b3d]
+//! ```
+//!
+//! Inner loop: the torque law of [`crate::Pid6`] toward R_d.
+//!
+//! Differences from the reference, each noted where it is made:
+//! - the reference differentiates R_d every tick although R_d only changes at outer
+//!   updates, so its Ω_d is a spike of 3× the rate on one tick in three and zero otherwise;
+//!   here Ω_d = log(R_d,prevᵀ R_d)/outer_dt is computed at each outer update and held;
+//! - the reference's decimation counter is global across environments; here it belongs to
+//!   the controller.
+
+use nalgebra::{Isometry3, Matrix3, Rotation3, Vector3};
+use platform::{GRAVITY_MPS2, RigidBodyState, Wrench};
+
+use crate::controller::{
+    BaseController, BodyParams, ControllerStatus, InputHealth, WindupGuard, attitude_errors,
+    geometric_torque, guard_dt, safe_output,
+};
+use crate::desired::DesiredStateGenerator;
+use crate::gains::{Pid4Gains, limit_norm};
+use crate::so3::clamp_elementwise;
+
+/// Below this norm (N) the desired thrust vector has no direction: body +z is used.
+const THRUST_DIRECTION_EPS: f64 = 1e-6;
+
+/// The nested 4-DoF geometric PID.
+#[derive(Debug, Clone)]
+pub struct Pid4 {
+    gains: Pid4Gains,
+    body: BodyParams,
+    desired: DesiredStateGenerator,
+    position_integral: Vector3<f64>,
+    attitude_integral: Vector3<f64>,
+    guard: WindupGuard,
+    tick: u64,
+    outer: Option<Outer>,
+    last_output: Option<Wrench>,
+    last_attitude: nalgebra::UnitQuaternion<f64>,
+    status: ControllerStatus,
+}
+
+/// What the outer loop hands the inner loop, held between outer updates.
+#[derive(Debug, Clone, Copy)]
+struct Outer {
+    thrust_n: f64,
+    r_d: Matrix3<f64>,
+    omega_d: Vector3<f64>,
+    omega_dot_d: Vector3<f64>,
+}
+
+impl Pid4 {
+    /// A controller with validated `gains` for a body with `body` mass properties.
+    pub fn new(gains: Pid4Gains, body: BodyParams) -> Self {
+        Self {
+            gains,
+            body,
+            desired: DesiredStateGenerator::default(),
+            position_integral: Vector3::zeros(),
+            attitude_integral: Vector3::zeros(),
+            guard: WindupGuard::default(),
+            tick: 0,
+            outer: None,
+            last_output: None,
+            last_attitude: nalgebra::UnitQuaternion::identity(),
+            status: ControllerStatus::new("pid4"),
+        }
+    }
+
+    /// The gains in use.
+    pub fn gains(&self) -> &Pid4Gains {
+        &self.gains
+    }
+
+    fn hold(&mut self, state: &RigidBodyState, input: InputHealth) -> Wrench {
+        let wrench = safe_output(self.last_output, &self.body, state);
+        self.status.input = input;
+        self.status.output = wrench;
+        wrench
+    }
+}
+
+/// Desired attitude from the thrust vector and the heading (the target's x axis).
+fn desired_attitude(thrust: &Vector3<f64>, heading: &Matrix3<f64>) -> Matrix3<f64> {
+    let norm = thrust.norm();
+    let b3 = if norm > THRUST_DIRECTION_EPS {
+        thrust / norm
+    } else {
+        Vector3::z()
+    };
+    let b1 = heading.column(0).into_owned();
+    let c = b3.cross(&b1);
+    let c_norm = c.norm();
+    let (b1d, b2d) = if c_norm > THRUST_DIRECTION_EPS {
+        let b2d = c / c_norm;
+        (b2d.cross(&b3), b2d)
+    } else {
+        // Heading along the thrust: fall back to the heading's own axes.
+        (b1, heading.column(1).into_owned())
+    };
+    Matrix3::from_columns(&[b1d, b2d, b3])
+}
+
+impl BaseController for Pid4 {
+    fn reset(&mut self, _state: &RigidBodyState) {
+        self.desired.reset();
+        self.position_integral = Vector3::zeros();
+        self.attitude_integral = Vector3::zeros();
+        self.guard.clear();
+        self.tick = 0;
+        self.outer = None;
+        self.last_output = None;
+        self.status = ControllerStatus::new("pid4");
+    }
+
+    fn update(&mut self, state: &RigidBodyState, target: &Isometry3<f64>, dt: f64) -> Wrench {
+        let mut status = ControllerStatus::new("pid4");
+        let Some((dt, dt_clamped)) = guard_dt(dt) else {
+            return self.hold(state, InputHealth::InvalidDt);
+        };
+        if !state.is_finite() {
+            return self.hold(state, InputHealth::NonFiniteState);
+        }
+        if !crate::desired::is_finite_pose(target) {
+            status.input = InputHealth::NonFiniteTarget;
+        }
+        status.dt_clamped = dt_clamped;
+        let g = self.gains;
+        let m = self.body.mass_kg;
+        let d = self.desired.update(target, dt, &state.pose());
+        let e_p = d.pose.translation.vector - state.position_in_world_m;
+        let e_v = d.velocity_mps - state.velocity_in_world_mps;
+
+        let decimation = u64::from(g.outer_loop_decimation.max(1));
+        let outer = match self.outer {
+            Some(held) if !self.tick.is_multiple_of(decimation) => held,
+            previous => {
+                let outer_dt = dt * decimation as f64;
+                let mut increment = e_p * outer_dt;
+                let ki = Vector3::new(g.ki_xy, g.ki_xy, g.ki_z);
+                let change = increment.component_mul(&ki) * m;
+                self.guard
+                    .gate_force(&mut increment, &change, &mut status.windup_blocked);
+                self.position_integral =
+                    limit_norm(self.position_integral + increment, g.integral_limit);
+                let kp = Vector3::new(g.kp_xy, g.kp_xy, g.kp_z);
+                let kd = Vector3::new(g.kd_xy, g.kd_xy, g.kd_z);
+                let thrust_vector = (kp.component_mul(&e_p)
+                    + kd.component_mul(&e_v)
+                    + ki.component_mul(&self.position_integral)
+                    + Vector3::z() * GRAVITY_MPS2
+                    + d.acceleration_mps2)
+                    * m;
+                let body_z = state.world_from_body * Vector3::z();
+                let mut thrust_n = thrust_vector.dot(&body_z);
+                if let Some(max) = g.max_force_n {
+                    thrust_n = thrust_n.clamp(-max, max);
+                }
+                let heading = d.pose.rotation.to_rotation_matrix().into_inner();
+                let r_d = desired_attitude(&thrust_vector, &heading);
+                // Desired rate from consecutive outer updates (see the module doc).
+                let (omega_d, omega_dot_d) = match previous {
+                    None => (Vector3::zeros(), Vector3::zeros()),
+                    Some(p) => {
+                        let step = Rotation3::from_matrix_unchecked(p.r_d.transpose() * r_d);
+                        let omega = step.scaled_axis() / outer_dt;
+                        (omega, (omega - p.omega_d) / outer_dt)
+                    }
+                };
+                let held = Outer {
+                    thrust_n,
+                    r_d,
+                    omega_d,
+                    omega_dot_d,
+                };
+                self.outer = Some(held);
+                held
+            }
+        };
+        self.tick = self.tick.wrapping_add(1);
+
+        let omega_d = clamp_elementwise(&outer.omega_d, self.desired.derivative_limit);
+        let omega_dot_d = clamp_elementwise(&outer.omega_dot_d, self.desired.derivative_limit);
+        let errors = attitude_errors(state, &outer.r_d, &omega_d, &omega_dot_d);
+        let mut increment = errors.e_r * dt;
+        let torque_change = -(self.body.inertia_kgm2 * increment) * g.ki_rot;
+        self.guard
+            .gate_torque(&mut increment, &torque_change, &mut status.windup_blocked);
+        self.attitude_integral = limit_norm(self.attitude_integral + increment, g.integral_limit);
+        let torque = geometric_torque(
+            &self.body,
+            state,
+            &errors,
+            &Vector3::repeat(g.kp_rot),
+            &Vector3::repeat(g.kd_rot),
+            &(self.attitude_integral * g.ki_rot),
+        );
+        let torque = limit_norm(torque, g.max_torque_nm);
+
+        let wrench = Wrench::new(Vector3::new(0.0, 0.0, outer.thrust_n), torque);
+        let wrench = if wrench.is_finite() {
+            wrench
+        } else {
+            safe_output(self.last_output, &self.body, state)
+        };
+        status.position_error_m = e_p;
+        status.velocity_error_mps = e_v;
+        status.attitude_error = errors.e_r;
+        status.angular_velocity_error_radps = errors.e_omega;
+        status.position_integral = self.position_integral;
+        status.attitude_integral = self.attitude_integral;
+        status.output = wrench;
+        self.status = status;
+        self.last_output = Some(wrench);
+        self.last_attitude = state.world_from_body;
+        wrench
+    }
+
+    fn saturation_feedback(&mut self, unallocated_in_body: &Wrench) {
+        self.guard.record(unallocated_in_body, &self.last_attitude);
+    }
+
+    fn set_body(&mut self, body: BodyParams) {
+        self.body = body;
+    }
+
+    fn status(&self) -> ControllerStatus {
+        self.status
+    }
+}
