@@ -5,6 +5,7 @@ use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
 use platform::{GRAVITY_MPS2, RigidBodyState, Vehicle, Wrench};
 use serde::Serialize;
 
+use crate::desired::{DesiredStateGenerator, is_finite_pose};
 use crate::so3::hat;
 
 /// Shortest time step a controller accepts, s; shorter ones are raised to it.
@@ -303,4 +304,120 @@ pub(crate) fn geometric_torque(
     let feedforward = hat(&omega) * errors.omega_d_in_body - errors.omega_dot_d_in_body;
     j * feedback + omega.cross(&(j * omega)) - j * feedforward
         + body.gravity_moment_compensation(&state.world_from_body)
+}
+
+/// What every base controller keeps besides its own law: the body, the desired-state
+/// generator, anti-windup, the last output and the status; and the bookkeeping around each
+/// update (input checks, safe output, recording).
+#[derive(Debug, Clone)]
+pub(crate) struct ControllerCore {
+    pub body: BodyParams,
+    pub desired: DesiredStateGenerator,
+    pub guard: WindupGuard,
+    name: &'static str,
+    last_output: Option<Wrench>,
+    last_attitude: UnitQuaternion<f64>,
+    status: ControllerStatus,
+}
+
+impl ControllerCore {
+    pub fn new(name: &'static str, body: BodyParams) -> Self {
+        Self {
+            body,
+            desired: DesiredStateGenerator::default(),
+            guard: WindupGuard::default(),
+            name,
+            last_output: None,
+            last_attitude: UnitQuaternion::identity(),
+            status: ControllerStatus::new(name),
+        }
+    }
+
+    pub fn reset(&mut self) {
+        self.desired.reset();
+        self.guard.clear();
+        self.last_output = None;
+        self.status = ControllerStatus::new(self.name);
+    }
+
+    /// Checks the inputs of an update. `Ok` carries the dt to use and a fresh status;
+    /// `Err` carries the safe output to return at once (nothing may be integrated).
+    pub fn begin(
+        &mut self,
+        state: &RigidBodyState,
+        target: &Isometry3<f64>,
+        dt: f64,
+    ) -> Result<(f64, ControllerStatus), Wrench> {
+        let refuse = |core: &mut Self, input| {
+            let wrench = safe_output(core.last_output, &core.body, state);
+            core.status.input = input;
+            core.status.output = wrench;
+            Err(wrench)
+        };
+        let Some((dt, dt_clamped)) = guard_dt(dt) else {
+            return refuse(self, InputHealth::InvalidDt);
+        };
+        if !state.is_finite() {
+            return refuse(self, InputHealth::NonFiniteState);
+        }
+        let mut status = ControllerStatus::new(self.name);
+        if !is_finite_pose(target) {
+            status.input = InputHealth::NonFiniteTarget;
+        }
+        status.dt_clamped = dt_clamped;
+        Ok((dt, status))
+    }
+
+    /// Records the update's result; a non-finite wrench (a bug upstream) is replaced by the
+    /// safe output so nothing non-finite leaves the controller.
+    pub fn finish(
+        &mut self,
+        state: &RigidBodyState,
+        wrench: Wrench,
+        mut status: ControllerStatus,
+    ) -> Wrench {
+        let wrench = if wrench.is_finite() {
+            wrench
+        } else {
+            safe_output(self.last_output, &self.body, state)
+        };
+        status.output = wrench;
+        self.status = status;
+        self.last_output = Some(wrench);
+        self.last_attitude = state.world_from_body;
+        wrench
+    }
+
+    /// The wrench returned by the last update.
+    pub fn last_output(&self) -> Option<Wrench> {
+        self.last_output
+    }
+
+    pub fn record_saturation(&mut self, unallocated_in_body: &Wrench) {
+        self.guard.record(unallocated_in_body, &self.last_attitude);
+    }
+
+    pub fn set_body(&mut self, body: BodyParams) {
+        self.body = body;
+    }
+
+    pub fn status(&self) -> ControllerStatus {
+        self.status
+    }
+}
+
+impl ControllerStatus {
+    /// Fills the tracking errors of one update.
+    pub(crate) fn with_errors(
+        mut self,
+        e_p: Vector3<f64>,
+        e_v: Vector3<f64>,
+        attitude: &AttitudeErrors,
+    ) -> Self {
+        self.position_error_m = e_p;
+        self.velocity_error_mps = e_v;
+        self.attitude_error = attitude.e_r;
+        self.angular_velocity_error_radps = attitude.e_omega;
+        self
+    }
 }

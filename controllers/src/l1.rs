@@ -27,10 +27,8 @@ use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
 use platform::{GRAVITY_MPS2, RigidBodyState, Wrench};
 
 use crate::controller::{
-    BaseController, BodyParams, ControllerStatus, InputHealth, WindupGuard, attitude_errors,
-    geometric_torque, guard_dt, safe_output,
+    BaseController, BodyParams, ControllerCore, ControllerStatus, attitude_errors, geometric_torque,
 };
-use crate::desired::DesiredStateGenerator;
 use crate::gains::{L1Config, limit_norm};
 
 /// Where |e^{A dt} − 1| is below this the adaptation gain is taken as zero.
@@ -40,19 +38,15 @@ const ADAPTATION_EPS: f64 = 1e-10;
 #[derive(Debug, Clone)]
 pub struct L1Adaptive {
     config: L1Config,
-    body: BodyParams,
+    core: ControllerCore,
     inertia_inverse: Matrix3<f64>,
-    desired: DesiredStateGenerator,
     predictor: Option<Predictor>,
     /// σ̄_F, body frame, N.
     filtered_force: Vector3<f64>,
     /// σ̄_τ, body frame, N·m.
     filtered_torque: Vector3<f64>,
-    guard: WindupGuard,
-    /// The last request, and what the allocator says it achieved of it.
-    last_output: Option<Wrench>,
+    /// What the allocator could not achieve of the last request.
     last_unallocated: Wrench,
-    status: ControllerStatus,
 }
 
 /// Predictor state and what propagating it needs from the last tick.
@@ -92,15 +86,11 @@ impl L1Adaptive {
         Self {
             config,
             inertia_inverse: body.inertia_inverse(),
-            body,
-            desired: DesiredStateGenerator::default(),
+            core: ControllerCore::new("l1", body),
             predictor: None,
             filtered_force: Vector3::zeros(),
             filtered_torque: Vector3::zeros(),
-            guard: WindupGuard::default(),
-            last_output: None,
             last_unallocated: Wrench::ZERO,
-            status: ControllerStatus::new("l1"),
         }
     }
 
@@ -108,50 +98,33 @@ impl L1Adaptive {
     pub fn config(&self) -> &L1Config {
         &self.config
     }
-
-    fn hold(&mut self, state: &RigidBodyState, input: InputHealth) -> Wrench {
-        let wrench = safe_output(self.last_output, &self.body, state);
-        self.status.input = input;
-        self.status.output = wrench;
-        wrench
-    }
 }
 
 impl BaseController for L1Adaptive {
     fn reset(&mut self, _state: &RigidBodyState) {
-        self.desired.reset();
+        self.core.reset();
         // The predictor restarts from the first measurement after the reset.
         self.predictor = None;
         self.filtered_force = Vector3::zeros();
         self.filtered_torque = Vector3::zeros();
-        self.guard.clear();
-        self.last_output = None;
         self.last_unallocated = Wrench::ZERO;
-        self.status = ControllerStatus::new("l1");
     }
 
     fn update(&mut self, state: &RigidBodyState, target: &Isometry3<f64>, dt: f64) -> Wrench {
-        let mut status = ControllerStatus::new("l1");
-        let Some((dt, dt_clamped)) = guard_dt(dt) else {
-            return self.hold(state, InputHealth::InvalidDt);
+        let (dt, mut status) = match self.core.begin(state, target, dt) {
+            Ok(ok) => ok,
+            Err(safe) => return safe,
         };
-        if !state.is_finite() {
-            return self.hold(state, InputHealth::NonFiniteState);
-        }
-        if !crate::desired::is_finite_pose(target) {
-            status.input = InputHealth::NonFiniteTarget;
-        }
-        status.dt_clamped = dt_clamped;
         let c = self.config;
-        let m = self.body.mass_kg;
-        let j = self.body.inertia_kgm2;
+        let m = self.core.body.mass_kg;
+        let j = self.core.body.inertia_kgm2;
         let r = state.world_from_body;
         let v = state.velocity_in_world_mps;
         let omega = state.angular_velocity_in_body_radps;
 
         // 1–2. Propagate the predictor over the last interval with the wrench applied in it,
         // then compare with this measurement.
-        let (v_hat, w_hat) = match (self.predictor, self.last_output) {
+        let (v_hat, w_hat) = match (self.predictor, self.core.last_output()) {
             (Some(p), Some(requested)) => {
                 let applied = requested - self.last_unallocated;
                 let v_dot = -Vector3::z() * GRAVITY_MPS2
@@ -193,11 +166,13 @@ impl BaseController for L1Adaptive {
         // The command moves by −mix·step: gate in the frames the allocator reports in.
         let mut step_force_world = r * step_force;
         let change = -step_force_world * c.adaptive_mix_lin;
-        self.guard
+        self.core
+            .guard
             .gate_force(&mut step_force_world, &change, &mut status.windup_blocked);
         step_force = r.inverse() * step_force_world;
         let change = -step_torque * c.adaptive_mix_ang;
-        self.guard
+        self.core
+            .guard
             .gate_torque(&mut step_torque, &change, &mut status.windup_blocked);
         self.filtered_force += step_force;
         self.filtered_torque += step_torque;
@@ -205,7 +180,7 @@ impl BaseController for L1Adaptive {
         let adaptive_torque = -self.filtered_torque;
 
         // 6. Baseline plus adaptation.
-        let d = self.desired.update(target, dt, &state.pose());
+        let d = self.core.desired.update(target, dt, &state.pose());
         let e_p = d.pose.translation.vector - state.position_in_world_m;
         let e_v = d.velocity_mps - v;
         let force_pd_world = (d.acceleration_mps2
@@ -221,7 +196,7 @@ impl BaseController for L1Adaptive {
             &d.angular_acceleration_radps2,
         );
         let torque_pd = geometric_torque(
-            &self.body,
+            &self.core.body,
             state,
             &errors,
             &c.k_ori,
@@ -231,42 +206,26 @@ impl BaseController for L1Adaptive {
         let force = r.inverse() * force_pd_world + adaptive_force * c.adaptive_mix_lin;
         let torque = torque_pd + adaptive_torque * c.adaptive_mix_ang;
 
-        let wrench = Wrench::new(force, torque);
-        let wrench = if wrench.is_finite() {
-            wrench
-        } else {
-            safe_output(self.last_output, &self.body, state)
-        };
-        status.position_error_m = e_p;
-        status.velocity_error_mps = e_v;
-        status.attitude_error = errors.e_r;
-        status.angular_velocity_error_radps = errors.e_omega;
+        let mut status = status.with_errors(e_p, e_v, &errors);
         status.adaptive_force_n = Some(adaptive_force);
         status.adaptive_torque_nm = Some(adaptive_torque);
-        status.output = wrench;
-        self.status = status;
-        self.last_output = Some(wrench);
         self.last_unallocated = Wrench::ZERO;
-        wrench
+        self.core.finish(state, Wrench::new(force, torque), status)
     }
 
     fn saturation_feedback(&mut self, unallocated_in_body: &Wrench) {
-        if !unallocated_in_body.is_finite() {
-            return;
+        if unallocated_in_body.is_finite() {
+            self.last_unallocated = *unallocated_in_body;
+            self.core.record_saturation(unallocated_in_body);
         }
-        self.last_unallocated = *unallocated_in_body;
-        let attitude = self
-            .predictor
-            .map_or_else(UnitQuaternion::identity, |p| p.attitude);
-        self.guard.record(unallocated_in_body, &attitude);
     }
 
     fn set_body(&mut self, body: BodyParams) {
         self.inertia_inverse = body.inertia_inverse();
-        self.body = body;
+        self.core.set_body(body);
     }
 
     fn status(&self) -> ControllerStatus {
-        self.status
+        self.core.status()
     }
 }

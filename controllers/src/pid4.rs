@@ -25,10 +25,8 @@ use nalgebra::{Isometry3, Matrix3, Rotation3, Vector3};
 use platform::{GRAVITY_MPS2, RigidBodyState, Wrench};
 
 use crate::controller::{
-    BaseController, BodyParams, ControllerStatus, InputHealth, WindupGuard, attitude_errors,
-    geometric_torque, guard_dt, safe_output,
+    BaseController, BodyParams, ControllerCore, ControllerStatus, attitude_errors, geometric_torque,
 };
-use crate::desired::DesiredStateGenerator;
 use crate::gains::{Pid4Gains, limit_norm};
 use crate::so3::clamp_elementwise;
 
@@ -39,16 +37,11 @@ const THRUST_DIRECTION_EPS: f64 = 1e-6;
 #[derive(Debug, Clone)]
 pub struct Pid4 {
     gains: Pid4Gains,
-    body: BodyParams,
-    desired: DesiredStateGenerator,
+    core: ControllerCore,
     position_integral: Vector3<f64>,
     attitude_integral: Vector3<f64>,
-    guard: WindupGuard,
     tick: u64,
     outer: Option<Outer>,
-    last_output: Option<Wrench>,
-    last_attitude: nalgebra::UnitQuaternion<f64>,
-    status: ControllerStatus,
 }
 
 /// What the outer loop hands the inner loop, held between outer updates.
@@ -65,29 +58,17 @@ impl Pid4 {
     pub fn new(gains: Pid4Gains, body: BodyParams) -> Self {
         Self {
             gains,
-            body,
-            desired: DesiredStateGenerator::default(),
+            core: ControllerCore::new("pid4", body),
             position_integral: Vector3::zeros(),
             attitude_integral: Vector3::zeros(),
-            guard: WindupGuard::default(),
             tick: 0,
             outer: None,
-            last_output: None,
-            last_attitude: nalgebra::UnitQuaternion::identity(),
-            status: ControllerStatus::new("pid4"),
         }
     }
 
     /// The gains in use.
     pub fn gains(&self) -> &Pid4Gains {
         &self.gains
-    }
-
-    fn hold(&mut self, state: &RigidBodyState, input: InputHealth) -> Wrench {
-        let wrench = safe_output(self.last_output, &self.body, state);
-        self.status.input = input;
-        self.status.output = wrench;
-        wrench
     }
 }
 
@@ -114,31 +95,21 @@ fn desired_attitude(thrust: &Vector3<f64>, heading: &Matrix3<f64>) -> Matrix3<f6
 
 impl BaseController for Pid4 {
     fn reset(&mut self, _state: &RigidBodyState) {
-        self.desired.reset();
+        self.core.reset();
         self.position_integral = Vector3::zeros();
         self.attitude_integral = Vector3::zeros();
-        self.guard.clear();
         self.tick = 0;
         self.outer = None;
-        self.last_output = None;
-        self.status = ControllerStatus::new("pid4");
     }
 
     fn update(&mut self, state: &RigidBodyState, target: &Isometry3<f64>, dt: f64) -> Wrench {
-        let mut status = ControllerStatus::new("pid4");
-        let Some((dt, dt_clamped)) = guard_dt(dt) else {
-            return self.hold(state, InputHealth::InvalidDt);
+        let (dt, mut status) = match self.core.begin(state, target, dt) {
+            Ok(ok) => ok,
+            Err(safe) => return safe,
         };
-        if !state.is_finite() {
-            return self.hold(state, InputHealth::NonFiniteState);
-        }
-        if !crate::desired::is_finite_pose(target) {
-            status.input = InputHealth::NonFiniteTarget;
-        }
-        status.dt_clamped = dt_clamped;
         let g = self.gains;
-        let m = self.body.mass_kg;
-        let d = self.desired.update(target, dt, &state.pose());
+        let m = self.core.body.mass_kg;
+        let d = self.core.desired.update(target, dt, &state.pose());
         let e_p = d.pose.translation.vector - state.position_in_world_m;
         let e_v = d.velocity_mps - state.velocity_in_world_mps;
 
@@ -150,7 +121,8 @@ impl BaseController for Pid4 {
                 let mut increment = e_p * outer_dt;
                 let ki = Vector3::new(g.ki_xy, g.ki_xy, g.ki_z);
                 let change = increment.component_mul(&ki) * m;
-                self.guard
+                self.core
+                    .guard
                     .gate_force(&mut increment, &change, &mut status.windup_blocked);
                 self.position_integral =
                     limit_norm(self.position_integral + increment, g.integral_limit);
@@ -190,16 +162,18 @@ impl BaseController for Pid4 {
         };
         self.tick = self.tick.wrapping_add(1);
 
-        let omega_d = clamp_elementwise(&outer.omega_d, self.desired.derivative_limit);
-        let omega_dot_d = clamp_elementwise(&outer.omega_dot_d, self.desired.derivative_limit);
+        let limit = self.core.desired.derivative_limit;
+        let omega_d = clamp_elementwise(&outer.omega_d, limit);
+        let omega_dot_d = clamp_elementwise(&outer.omega_dot_d, limit);
         let errors = attitude_errors(state, &outer.r_d, &omega_d, &omega_dot_d);
         let mut increment = errors.e_r * dt;
-        let torque_change = -(self.body.inertia_kgm2 * increment) * g.ki_rot;
-        self.guard
+        let torque_change = -(self.core.body.inertia_kgm2 * increment) * g.ki_rot;
+        self.core
+            .guard
             .gate_torque(&mut increment, &torque_change, &mut status.windup_blocked);
         self.attitude_integral = limit_norm(self.attitude_integral + increment, g.integral_limit);
         let torque = geometric_torque(
-            &self.body,
+            &self.core.body,
             state,
             &errors,
             &Vector3::repeat(g.kp_rot),
@@ -208,34 +182,25 @@ impl BaseController for Pid4 {
         );
         let torque = limit_norm(torque, g.max_torque_nm);
 
-        let wrench = Wrench::new(Vector3::new(0.0, 0.0, outer.thrust_n), torque);
-        let wrench = if wrench.is_finite() {
-            wrench
-        } else {
-            safe_output(self.last_output, &self.body, state)
-        };
-        status.position_error_m = e_p;
-        status.velocity_error_mps = e_v;
-        status.attitude_error = errors.e_r;
-        status.angular_velocity_error_radps = errors.e_omega;
+        let mut status = status.with_errors(e_p, e_v, &errors);
         status.position_integral = self.position_integral;
         status.attitude_integral = self.attitude_integral;
-        status.output = wrench;
-        self.status = status;
-        self.last_output = Some(wrench);
-        self.last_attitude = state.world_from_body;
-        wrench
+        self.core.finish(
+            state,
+            Wrench::new(Vector3::new(0.0, 0.0, outer.thrust_n), torque),
+            status,
+        )
     }
 
     fn saturation_feedback(&mut self, unallocated_in_body: &Wrench) {
-        self.guard.record(unallocated_in_body, &self.last_attitude);
+        self.core.record_saturation(unallocated_in_body);
     }
 
     fn set_body(&mut self, body: BodyParams) {
-        self.body = body;
+        self.core.set_body(body);
     }
 
     fn status(&self) -> ControllerStatus {
-        self.status
+        self.core.status()
     }
 }

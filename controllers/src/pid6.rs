@@ -16,24 +16,17 @@ use nalgebra::{Isometry3, Vector3};
 use platform::{GRAVITY_MPS2, RigidBodyState, Wrench};
 
 use crate::controller::{
-    BaseController, BodyParams, ControllerStatus, InputHealth, WindupGuard, attitude_errors,
-    geometric_torque, guard_dt, safe_output,
+    BaseController, BodyParams, ControllerCore, ControllerStatus, attitude_errors, geometric_torque,
 };
-use crate::desired::DesiredStateGenerator;
 use crate::gains::{Pid6Gains, limit_norm};
 
 /// The 6-DoF geometric PID.
 #[derive(Debug, Clone)]
 pub struct Pid6 {
     gains: Pid6Gains,
-    body: BodyParams,
-    desired: DesiredStateGenerator,
+    core: ControllerCore,
     position_integral: Vector3<f64>,
     attitude_integral: Vector3<f64>,
-    guard: WindupGuard,
-    last_output: Option<Wrench>,
-    last_attitude: nalgebra::UnitQuaternion<f64>,
-    status: ControllerStatus,
 }
 
 impl Pid6 {
@@ -41,14 +34,9 @@ impl Pid6 {
     pub fn new(gains: Pid6Gains, body: BodyParams) -> Self {
         Self {
             gains,
-            body,
-            desired: DesiredStateGenerator::default(),
+            core: ControllerCore::new("pid6", body),
             position_integral: Vector3::zeros(),
             attitude_integral: Vector3::zeros(),
-            guard: WindupGuard::default(),
-            last_output: None,
-            last_attitude: nalgebra::UnitQuaternion::identity(),
-            status: ControllerStatus::new("pid6"),
         }
     }
 
@@ -60,36 +48,27 @@ impl Pid6 {
 
 impl BaseController for Pid6 {
     fn reset(&mut self, _state: &RigidBodyState) {
-        self.desired.reset();
+        self.core.reset();
         self.position_integral = Vector3::zeros();
         self.attitude_integral = Vector3::zeros();
-        self.guard.clear();
-        self.last_output = None;
-        self.status = ControllerStatus::new("pid6");
     }
 
     fn update(&mut self, state: &RigidBodyState, target: &Isometry3<f64>, dt: f64) -> Wrench {
-        let mut status = ControllerStatus::new("pid6");
-        let Some((dt, dt_clamped)) = guard_dt(dt) else {
-            return self.hold(state, InputHealth::InvalidDt);
+        let (dt, mut status) = match self.core.begin(state, target, dt) {
+            Ok(ok) => ok,
+            Err(safe) => return safe,
         };
-        if !state.is_finite() {
-            return self.hold(state, InputHealth::NonFiniteState);
-        }
-        if !crate::desired::is_finite_pose(target) {
-            status.input = InputHealth::NonFiniteTarget;
-        }
-        status.dt_clamped = dt_clamped;
         let g = &self.gains;
-        let m = self.body.mass_kg;
-        let d = self.desired.update(target, dt, &state.pose());
+        let core = &mut self.core;
+        let m = core.body.mass_kg;
+        let d = core.desired.update(target, dt, &state.pose());
 
         // Position loop (world frame).
         let e_p = d.pose.translation.vector - state.position_in_world_m;
         let e_v = d.velocity_mps - state.velocity_in_world_mps;
         let mut increment = e_p * dt;
         let change = increment * (m * g.ki_pos);
-        self.guard
+        core.guard
             .gate_force(&mut increment, &change, &mut status.windup_blocked);
         self.position_integral = limit_norm(self.position_integral + increment, g.integral_limit);
         let force_in_world = (d.acceleration_mps2
@@ -112,12 +91,12 @@ impl BaseController for Pid6 {
             &d.angular_acceleration_radps2,
         );
         let mut increment = errors.e_r * dt;
-        let torque_change = -(self.body.inertia_kgm2 * increment) * g.ki_rot;
-        self.guard
+        let torque_change = -(core.body.inertia_kgm2 * increment) * g.ki_rot;
+        core.guard
             .gate_torque(&mut increment, &torque_change, &mut status.windup_blocked);
         self.attitude_integral = limit_norm(self.attitude_integral + increment, g.integral_limit);
         let torque = geometric_torque(
-            &self.body,
+            &core.body,
             state,
             &errors,
             &Vector3::repeat(g.kp_rot),
@@ -126,43 +105,21 @@ impl BaseController for Pid6 {
         );
         let torque = limit_norm(torque, g.max_torque_nm);
 
-        let wrench = Wrench::new(force, torque);
-        let wrench = if wrench.is_finite() {
-            wrench
-        } else {
-            safe_output(self.last_output, &self.body, state)
-        };
-        status.position_error_m = e_p;
-        status.velocity_error_mps = e_v;
-        status.attitude_error = errors.e_r;
-        status.angular_velocity_error_radps = errors.e_omega;
+        let mut status = status.with_errors(e_p, e_v, &errors);
         status.position_integral = self.position_integral;
         status.attitude_integral = self.attitude_integral;
-        status.output = wrench;
-        self.status = status;
-        self.last_output = Some(wrench);
-        self.last_attitude = state.world_from_body;
-        wrench
+        self.core.finish(state, Wrench::new(force, torque), status)
     }
 
     fn saturation_feedback(&mut self, unallocated_in_body: &Wrench) {
-        self.guard.record(unallocated_in_body, &self.last_attitude);
+        self.core.record_saturation(unallocated_in_body);
     }
 
     fn set_body(&mut self, body: BodyParams) {
-        self.body = body;
+        self.core.set_body(body);
     }
 
     fn status(&self) -> ControllerStatus {
-        self.status
-    }
-}
-
-impl Pid6 {
-    fn hold(&mut self, state: &RigidBodyState, input: InputHealth) -> Wrench {
-        let wrench = safe_output(self.last_output, &self.body, state);
-        self.status.input = input;
-        self.status.output = wrench;
-        wrench
+        self.core.status()
     }
 }
