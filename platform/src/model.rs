@@ -519,6 +519,11 @@ impl KinematicModel {
         self.dofs.len()
     }
 
+    /// Every joint, ordered so that a joint comes after the joint of its parent link.
+    pub fn topological_joints(&self) -> &[JointId] {
+        &self.topological
+    }
+
     /// The movable joint at configuration index `dof`.
     pub fn dof_joint(&self, dof: usize) -> &Joint {
         &self.joints[self.dofs[dof]]

@@ -1,8 +1,31 @@
-//! The simulator twin of amstack.
+//! The simulator twin of amstack: the five vehicles in rapier3d (f64), with the
+//! disturbances of AM-Bench, driven one control period per actuator command.
 //!
-//! This crate will own, once its issue lands: rapier3d (f64) physics of the five vehicles
-//! built from their `platform` descriptions and of the twelve task scenes; the aerodynamic
-//! disturbances (body drag, wind, ground effect and near-wall effect from parry ray casts);
-//! the rotor model (the `allocation` crate's rotor actuator, one implementation); simulated
-//! sensors and cameras (wgpu); task success criteria; and the servers that offer the twin to
-//! another process (iceoryx2 shared memory, a MAVLink autopilot emulator).
+//! - [`Twin`]: a vehicle built from its `platform` description as one multibody (floating
+//!   base, arm joints on position drives, gripper fingers, tilt hinges), per-rotor thrust at
+//!   the rotor positions along their current axes with reaction torques, the `allocation`
+//!   crate's rotor actuator as the motor model.
+//! - [`aero`]: ground effect, near-wall effect, drag and wind (AMBENCH_SPEC §3.2), with
+//!   distances from parry ray casts that skip the robot's own colliders.
+//! - [`TwinConfig`]: control rate (120 Hz), physics substeps, disturbance switches, motor
+//!   dynamics, noise, seed. Same seed, same commands → bit-identical results.
+//!
+//! Frames: world Z-up, gravity (0, 0, −9.81) m/s²; body FLU. rapier's glam types stay
+//! inside this crate ([`convert`] is the one boundary).
+
+pub mod aero;
+mod command;
+mod config;
+mod convert;
+mod error;
+mod twin;
+mod vehicle_body;
+
+#[cfg(test)]
+mod tests;
+
+pub use command::{ActuatorCommand, DisturbanceReport, Measurement, RotorReport};
+pub use config::{Disturbances, MotorConfig, NoiseConfig, TwinConfig};
+pub use error::TwinError;
+pub use twin::Twin;
+pub use vehicle_body::{ROBOT_GROUP, WORLD_GROUP};

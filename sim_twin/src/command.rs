@@ -1,0 +1,69 @@
+//! What the flight stack sends the twin each tick, and what the twin measures.
+
+use nalgebra::{Isometry3, Vector3};
+use platform::{RigidBodyState, Wrench};
+use serde::Serialize;
+
+/// Actuator commands for one control period.
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct ActuatorCommand {
+    /// Thrust per rotor, N, in the vehicle's rotor order (empty for the EE-only oracle).
+    pub rotor_thrusts_n: Vec<f64>,
+    /// Position target of every movable joint in configuration order — arm, gripper,
+    /// Omni-Hexa tilt hinges — rad or m. Clamped to the joint limits.
+    pub joint_targets: Vec<f64>,
+    /// A wrench on the base body, about its origin, body frame: the EE-only oracle's
+    /// actuation (no rotors, no allocation).
+    pub direct_wrench_in_body: Option<Wrench>,
+}
+
+/// One rotor over the last control period.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct RotorReport {
+    /// Thrust commanded, N.
+    pub commanded_n: f64,
+    /// Thrust the motor produced (limits and dynamics), N.
+    pub realised_n: f64,
+    /// Magnitude of the thrust vector after ground and near-wall effects, N.
+    pub applied_n: f64,
+    /// The command was outside [T_min, T_max].
+    pub saturated: bool,
+    /// Ground-effect gain 1/ratio applied (1 when off or far).
+    pub ground_effect_gain: f64,
+    /// Distance to the surface below along −thrust axis, m (the cast's maximum on a miss).
+    pub ground_distance_m: f64,
+    /// Horizontal distance to the nearest wall in the rotor's fan, m (maximum on a miss).
+    pub wall_distance_m: f64,
+}
+
+/// Forces of each disturbance model over the last control period, base body frame, N.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct DisturbanceReport {
+    /// −c ∘ v_body.
+    pub drag_n: Vector3<f64>,
+    /// Rᵀ F_wind.
+    pub wind_n: Vector3<f64>,
+    /// Extra rotor force from the ground effect (sum over rotors).
+    pub ground_effect_n: Vector3<f64>,
+    /// Extra rotor force from the near-wall effect (sum over rotors).
+    pub near_wall_n: Vector3<f64>,
+}
+
+/// What the twin measures at the end of a control period.
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct Measurement {
+    /// Simulated time, s.
+    pub time_s: f64,
+    /// Base link: pose, world velocity of its origin, body angular velocity.
+    pub base: RigidBodyState,
+    /// Every movable joint, configuration order, rad or m.
+    pub joint_positions: Vec<f64>,
+    /// Every movable joint, rad/s or m/s.
+    pub joint_velocities: Vec<f64>,
+    /// End-effector link frame in the world.
+    pub world_from_ee: Isometry3<f64>,
+    /// Per rotor.
+    pub rotors: Vec<RotorReport>,
+    /// Per disturbance model.
+    pub disturbances: DisturbanceReport,
+}

@@ -1,0 +1,217 @@
+//! Configuration of the twin: rates, which disturbances are on, motor dynamics, noise.
+
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+use crate::aero::AeroConfig;
+
+/// Which disturbances and limits act. All off by default, as in the reference
+/// (`base_env_cfg.py`); the reference's `--disturbance` evaluation flag turns on
+/// saturation, aerodynamics and wind together.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Disturbances {
+    /// Body-frame linear drag.
+    pub drag: bool,
+    /// Constant world-frame wind force ([`AeroConfig::wind_force_in_world_n`]).
+    pub wind: bool,
+    /// Ground effect from a ray cast along each rotor's −thrust axis.
+    pub ground_effect: bool,
+    /// Near-wall effect from a 10-ray horizontal fan per rotor.
+    pub near_wall: bool,
+    /// Gaussian noise and per-reset bias on every measured value.
+    pub observation_noise: bool,
+    /// Gaussian noise on every command value.
+    pub action_noise: bool,
+    /// Rotor thrust limits [T_min, T_max] (and with them the motor model). Off, thrust
+    /// commands act unclipped, as the reference does without `enable_saturation`.
+    pub saturation: bool,
+}
+
+impl Disturbances {
+    /// Everything on.
+    pub fn all() -> Self {
+        Self {
+            drag: true,
+            wind: true,
+            ground_effect: true,
+            near_wall: true,
+            observation_noise: true,
+            action_noise: true,
+            saturation: true,
+        }
+    }
+
+    /// Parses a comma-separated list of `drag, wind, ground, wall, noise, saturation`
+    /// (`noise` = observation and action noise), or `none` / `all`.
+    pub fn parse_list(list: &str) -> Result<Self, String> {
+        let mut d = Self::default();
+        for word in list.split(',').map(str::trim).filter(|w| !w.is_empty()) {
+            match word {
+                "none" => {}
+                "all" => d = Self::all(),
+                "drag" => d.drag = true,
+                "wind" => d.wind = true,
+                "ground" => d.ground_effect = true,
+                "wall" => d.near_wall = true,
+                "noise" => {
+                    d.observation_noise = true;
+                    d.action_noise = true;
+                }
+                "saturation" => d.saturation = true,
+                other => {
+                    return Err(format!(
+                        "unknown disturbance '{other}' (known: drag, wind, ground, wall, noise, saturation, all, none)"
+                    ));
+                }
+            }
+        }
+        Ok(d)
+    }
+
+    /// Names of the disturbances on, for logs.
+    pub fn names(&self) -> Vec<&'static str> {
+        [
+            (self.drag, "drag"),
+            (self.wind, "wind"),
+            (self.ground_effect, "ground"),
+            (self.near_wall, "wall"),
+            (self.observation_noise, "observation_noise"),
+            (self.action_noise, "action_noise"),
+            (self.saturation, "saturation"),
+        ]
+        .into_iter()
+        .filter_map(|(on, name)| on.then_some(name))
+        .collect()
+    }
+}
+
+/// Rotor dynamics (AMBENCH_SPEC §2.8; identified on the real FA-Hexa: τ = 47.5 ms,
+/// q̇_max = 0.75 s⁻¹). Both off by default (instantaneous rotors, as every reference robot).
+/// They act only with `saturation` on: the model works in normalised speed √(T/T_max).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotorConfig {
+    /// First-order time constant, s.
+    pub time_constant_s: Option<f64>,
+    /// Rate limit of the normalised speed, 1/s.
+    pub rate_limit_per_s: Option<f64>,
+}
+
+/// Noise models (AMBENCH_SPEC §3.1).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NoiseConfig {
+    /// Standard deviation of the per-tick observation noise. Default 0.002.
+    pub observation_std: f64,
+    /// Standard deviation of the per-reset observation bias. Default 1e-4.
+    pub observation_bias_std: f64,
+    /// Standard deviation of the action noise. Default 1e-4.
+    pub action_std: f64,
+}
+
+impl Default for NoiseConfig {
+    fn default() -> Self {
+        Self {
+            observation_std: 0.002,
+            observation_bias_std: 1e-4,
+            action_std: 1e-4,
+        }
+    }
+}
+
+/// Everything the twin needs besides the vehicle.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TwinConfig {
+    /// Control rate, Hz: one `step` advances 1/rate seconds. Default 120 (the paper's).
+    pub control_rate_hz: f64,
+    /// Physics substeps per control tick (the rotor forces are re-applied along the current
+    /// axes at each). Default 4: 480 Hz physics keeps the stiff arm drives (1e5 N·m/rad on
+    /// 0.2 kg links) stable while costing little.
+    pub physics_substeps: u32,
+    /// Constraint solver iterations per substep. Default 4.
+    pub solver_iterations: u32,
+    /// Which disturbances act.
+    pub disturbances: Disturbances,
+    /// Aerodynamic constants.
+    pub aero: AeroConfig,
+    /// Rotor dynamics.
+    pub motor: MotorConfig,
+    /// Noise levels.
+    pub noise: NoiseConfig,
+    /// Seed of every random draw of the twin.
+    pub seed: u64,
+    /// Base pose at reset (AMBENCH_SPEC §1.1: 1 m up, level).
+    #[serde(skip, default = "default_initial_pose")]
+    pub initial_base_pose: Isometry3<f64>,
+}
+
+fn default_initial_pose() -> Isometry3<f64> {
+    Isometry3::translation(0.0, 0.0, 1.0)
+}
+
+impl Default for TwinConfig {
+    fn default() -> Self {
+        Self {
+            control_rate_hz: 120.0,
+            physics_substeps: 4,
+            solver_iterations: 4,
+            disturbances: Disturbances::default(),
+            aero: AeroConfig::default(),
+            motor: MotorConfig::default(),
+            noise: NoiseConfig::default(),
+            seed: 0,
+            initial_base_pose: default_initial_pose(),
+        }
+    }
+}
+
+impl TwinConfig {
+    /// Control period, s.
+    pub fn control_dt_s(&self) -> f64 {
+        1.0 / self.control_rate_hz
+    }
+
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.control_rate_hz.is_finite() && self.control_rate_hz > 0.0) {
+            return Err(format!(
+                "control_rate_hz = {} must be finite and positive",
+                self.control_rate_hz
+            ));
+        }
+        if self.physics_substeps == 0 || self.solver_iterations == 0 {
+            return Err("physics_substeps and solver_iterations must be at least 1".to_owned());
+        }
+        self.aero.validate()?;
+        for (name, v) in [
+            ("motor.time_constant_s", self.motor.time_constant_s),
+            ("motor.rate_limit_per_s", self.motor.rate_limit_per_s),
+        ] {
+            if let Some(x) = v
+                && !(x.is_finite() && x > 0.0)
+            {
+                return Err(format!("{name} = {x} must be finite and positive"));
+            }
+        }
+        let motor_on =
+            self.motor.time_constant_s.is_some() || self.motor.rate_limit_per_s.is_some();
+        if motor_on && !self.disturbances.saturation {
+            return Err(
+                "motor dynamics need rotor limits: add 'saturation' to the disturbances".to_owned(),
+            );
+        }
+        let n = self.noise;
+        for (name, v) in [
+            ("noise.observation_std", n.observation_std),
+            ("noise.observation_bias_std", n.observation_bias_std),
+            ("noise.action_std", n.action_std),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{name} = {v} must be finite and not negative"));
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,551 @@
+//! The twin: a vehicle in a rapier world, advanced one control period per command.
+//!
+//! One control tick (AMBENCH_SPEC §3.3, with per-rotor forces instead of one reconstructed
+//! wrench):
+//! 1. rotor thrust commands → motor model (limits, lag, rate limit; `allocation`'s
+//!    [`RotorActuator`]) → realised thrust T_i along the rotor's current axis;
+//! 2. ground effect (ray along −axis) → near-wall effect (10-ray horizontal fan), from the
+//!    poses at the start of the tick;
+//! 3. drag and wind on the base;
+//! 4. `physics_substeps` rapier steps; before each, every rotor force is re-applied at the
+//!    rotor's current position along its current axis, with its reaction torque s_i k_f T_i,
+//!    and the joint drives' setpoints move toward their targets at no more than the drive's
+//!    velocity limit.
+//!
+//! The Omni-Hexa's thrust follows the measured tilt of each hinge (the reference applies the
+//! commanded angle, AMBENCH_SPEC §9 item 5). Observation noise, when on, is added to the
+//! measurement handed out; [`Twin::truth`] keeps the exact one.
+
+use allocation::{RotorActuator, RotorActuatorConfig};
+use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use platform::{RigidBodyState, Vehicle, Wrench};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use rapier3d_f64::prelude::*;
+
+use crate::aero::{drag_force_in_body, near_wall_thrust, wall_fan_directions};
+use crate::command::{ActuatorCommand, DisturbanceReport, Measurement, RotorReport};
+use crate::config::TwinConfig;
+use crate::convert::{
+    pose_from_rapier, pose_to_rapier, rotation_from_rapier, vector_from_rapier, vector_to_rapier,
+};
+use crate::error::TwinError;
+use crate::vehicle_body::{self, ROBOT_GROUP, VehicleBody, WORLD_GROUP, material};
+
+/// Standard gravity of the world, m/s² (AMBENCH_SPEC §0).
+const GRAVITY_MPS2: f64 = platform::GRAVITY_MPS2;
+
+/// A rotor's force for the current tick, in its own frame (so it turns with the rotor
+/// during substeps), and where it is mounted.
+#[derive(Debug, Clone, Copy)]
+struct RotorForce {
+    body: RigidBodyHandle,
+    body_from_rotor: Isometry3<f64>,
+    force_in_rotor: Vector3<f64>,
+    reaction_sign: f64,
+}
+
+/// The simulator twin of one vehicle.
+pub struct Twin {
+    vehicle: Vehicle,
+    config: TwinConfig,
+    world: PhysicsWorld,
+    body: VehicleBody,
+    rotors: Vec<RotorForce>,
+    actuator: Option<RotorActuator>,
+    rng: ChaCha8Rng,
+    observation_bias: Vec<f64>,
+    joint_targets: Vec<f64>,
+    base_force_in_body: Vector3<f64>,
+    direct_wrench: Option<Wrench>,
+    time_s: f64,
+    truth: Measurement,
+}
+
+impl std::fmt::Debug for Twin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Twin")
+            .field("vehicle", &self.vehicle.id)
+            .field("config", &self.config)
+            .field("time_s", &self.time_s)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Twin {
+    /// A twin of `vehicle` at its reset pose.
+    pub fn new(vehicle: Vehicle, config: TwinConfig) -> Result<Self, TwinError> {
+        config.validate().map_err(TwinError::Config)?;
+        let actuator = if config.disturbances.saturation && !vehicle.rotors.is_empty() {
+            let actuator_config = RotorActuatorConfig {
+                time_constant_s: config.motor.time_constant_s,
+                speed_rate_limit_per_s: config.motor.rate_limit_per_s,
+                ..RotorActuatorConfig::from_layout(&vehicle.rotors)
+            };
+            Some(
+                RotorActuator::new(actuator_config, vehicle.rotors.len())
+                    .map_err(|e| TwinError::Config(e.to_string()))?,
+            )
+        } else {
+            None
+        };
+        let (world, body) = Self::build_world(&vehicle, &config)?;
+        let rotors = Self::rotor_mounts(&vehicle, &body)?;
+        let mut twin = Self {
+            joint_targets: vehicle.initial_configuration(),
+            vehicle,
+            rng: ChaCha8Rng::seed_from_u64(config.seed),
+            config,
+            world,
+            body,
+            rotors,
+            actuator,
+            observation_bias: Vec::new(),
+            base_force_in_body: Vector3::zeros(),
+            direct_wrench: None,
+            time_s: 0.0,
+            truth: Measurement::default(),
+        };
+        twin.sample_observation_bias();
+        twin.truth = twin.measure(&[], DisturbanceReport::default());
+        Ok(twin)
+    }
+
+    fn build_world(
+        vehicle: &Vehicle,
+        config: &TwinConfig,
+    ) -> Result<(PhysicsWorld, VehicleBody), TwinError> {
+        let mut world = PhysicsWorld::new();
+        world.gravity = Vector::new(0.0, 0.0, -GRAVITY_MPS2);
+        world.integration_parameters.dt =
+            config.control_dt_s() / f64::from(config.physics_substeps);
+        world.integration_parameters.num_solver_iterations = config.solver_iterations as usize;
+        // The ground: a half-space at z = 0.
+        let ground = world.insert_body(RigidBodyBuilder::fixed());
+        let groups = InteractionGroups::new(WORLD_GROUP, Group::ALL, InteractionTestMode::And);
+        world.insert_collider(
+            material(ColliderBuilder::halfspace(
+                rapier3d_f64::na::Unit::new_unchecked(Vector::Z),
+            ))
+            .collision_groups(groups),
+            Some(ground),
+        );
+        let body = vehicle_body::build(vehicle, &mut world, &config.initial_base_pose)?;
+        // Ray casts read the broad phase, which only a step or a collision pass fills.
+        world.detect_collisions(&(), &());
+        Ok((world, body))
+    }
+
+    fn rotor_mounts(vehicle: &Vehicle, body: &VehicleBody) -> Result<Vec<RotorForce>, TwinError> {
+        vehicle
+            .rotors
+            .rotors
+            .iter()
+            .map(|r| {
+                let link = vehicle.model.link_id(&r.link).ok_or_else(|| {
+                    TwinError::Vehicle(format!("rotor link '{}' is not in the model", r.link))
+                })?;
+                let (body, body_from_rotor) = body.of_link(link);
+                Ok(RotorForce {
+                    body,
+                    body_from_rotor,
+                    force_in_rotor: Vector3::zeros(),
+                    reaction_sign: r.spin.sign(),
+                })
+            })
+            .collect()
+    }
+
+    /// Back to the reset pose and joints, time zero, motor state and noise bias re-drawn
+    /// from `seed`. Bit-identical to a new twin with that seed.
+    pub fn reset(&mut self, seed: u64) -> Result<(), TwinError> {
+        self.config.seed = seed;
+        let fresh = Self::new(self.vehicle.clone(), self.config.clone())?;
+        *self = fresh;
+        Ok(())
+    }
+
+    /// The vehicle simulated.
+    pub fn vehicle(&self) -> &Vehicle {
+        &self.vehicle
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &TwinConfig {
+        &self.config
+    }
+
+    /// Simulated time, s.
+    pub fn time_s(&self) -> f64 {
+        self.time_s
+    }
+
+    /// The exact measurement at the current time (no observation noise).
+    pub fn truth(&self) -> &Measurement {
+        &self.truth
+    }
+
+    /// The physics world, for scenes that add bodies (they belong to [`WORLD_GROUP`]).
+    pub fn world_mut(&mut self) -> &mut PhysicsWorld {
+        &mut self.world
+    }
+
+    /// Adds a fixed box (a wall, a table) to the world: `pose` of its centre, half extents m.
+    pub fn add_fixed_box(
+        &mut self,
+        pose: &Isometry3<f64>,
+        half_extents_m: &Vector3<f64>,
+    ) -> ColliderHandle {
+        let body = self
+            .world
+            .insert_body(RigidBodyBuilder::fixed().pose(pose_to_rapier(pose)));
+        let groups = InteractionGroups::new(WORLD_GROUP, Group::ALL, InteractionTestMode::And);
+        let collider = material(ColliderBuilder::cuboid(
+            half_extents_m.x,
+            half_extents_m.y,
+            half_extents_m.z,
+        ))
+        .collision_groups(groups);
+        let handle = self.world.insert_collider(collider, Some(body));
+        // Ray casts read the broad phase, which a step updates; keep queries right at once.
+        self.world.detect_collisions(&(), &());
+        handle
+    }
+
+    /// Sets the base's world velocity (initial conditions, tests).
+    pub fn set_base_velocity(&mut self, velocity_in_world_mps: &Vector3<f64>) {
+        for h in &self.body.bodies {
+            if let Some(rb) = self.world.bodies.get_mut(*h) {
+                rb.set_linvel(vector_to_rapier(velocity_in_world_mps), true);
+            }
+        }
+        self.truth = self.measure(&[], DisturbanceReport::default());
+    }
+
+    fn check(&self, command: &ActuatorCommand) -> Result<(), TwinError> {
+        let rotors = self.vehicle.rotors.len();
+        if command.rotor_thrusts_n.len() != rotors {
+            return Err(TwinError::Command(format!(
+                "{} rotor thrusts for {rotors} rotors",
+                command.rotor_thrusts_n.len()
+            )));
+        }
+        let dof = self.vehicle.model.dof();
+        if command.joint_targets.len() != dof {
+            return Err(TwinError::Command(format!(
+                "{} joint targets for {dof} joints",
+                command.joint_targets.len()
+            )));
+        }
+        let finite_wrench = command.direct_wrench_in_body.is_none_or(|w| w.is_finite());
+        if !finite_wrench
+            || !command
+                .rotor_thrusts_n
+                .iter()
+                .chain(&command.joint_targets)
+                .all(|x| x.is_finite())
+        {
+            return Err(TwinError::Command("a value is not finite".to_owned()));
+        }
+        Ok(())
+    }
+
+    /// Applies `command` for one control period and returns the measurement at its end
+    /// (with observation noise if that is on).
+    pub fn step(&mut self, command: &ActuatorCommand) -> Result<Measurement, TwinError> {
+        self.check(command)?;
+        let dt = self.config.control_dt_s();
+        let realised = self.realise_thrusts(&command.rotor_thrusts_n, dt)?;
+        let (reports, mut disturbances) = self.rotor_forces(&command.rotor_thrusts_n, &realised);
+        self.base_forces(&mut disturbances);
+        self.direct_wrench = command.direct_wrench_in_body;
+        for (target, (q, dof)) in self
+            .joint_targets
+            .iter_mut()
+            .zip(command.joint_targets.iter().zip(&self.body.dofs))
+        {
+            *target = dof.limits.map_or(*q, |(lo, hi)| q.clamp(lo, hi));
+        }
+        let substep = dt / f64::from(self.config.physics_substeps);
+        for _ in 0..self.config.physics_substeps {
+            self.apply_forces();
+            self.advance_drives(substep);
+            self.world.step();
+        }
+        self.time_s += dt;
+        self.truth = self.measure(&reports, disturbances);
+        Ok(self.observe())
+    }
+
+    /// Motor model: the rotor actuator with limits on, the raw command otherwise.
+    fn realise_thrusts(&mut self, commanded: &[f64], dt: f64) -> Result<Vec<f64>, TwinError> {
+        match &mut self.actuator {
+            Some(a) => Ok(a
+                .step(commanded, dt)
+                .map_err(|e| TwinError::Command(e.to_string()))?
+                .iter()
+                .map(|t| t.thrust_n)
+                .collect()),
+            None => Ok(commanded.to_vec()),
+        }
+    }
+
+    fn world_from(&self, body: RigidBodyHandle) -> Isometry3<f64> {
+        self.world
+            .bodies
+            .get(body)
+            .map_or_else(Isometry3::identity, |rb| pose_from_rapier(rb.position()))
+    }
+
+    /// Casts a ray that ignores the robot; the distance to the first hit or the maximum.
+    fn cast(&self, origin: &Vector3<f64>, direction: &Vector3<f64>) -> Option<f64> {
+        let filter = QueryFilter::default().groups(InteractionGroups::new(
+            Group::ALL,
+            Group::ALL.difference(ROBOT_GROUP),
+            InteractionTestMode::And,
+        ));
+        let ray = Ray::new(vector_to_rapier(origin), vector_to_rapier(direction));
+        self.world
+            .cast_ray(&ray, self.config.aero.max_raycast_distance_m, true, filter)
+            .map(|(_, toi)| toi)
+    }
+
+    /// Per-rotor thrust vectors after the proximity effects, fixed in each rotor's frame for
+    /// this tick, and what each effect added.
+    fn rotor_forces(
+        &mut self,
+        commanded: &[f64],
+        realised: &[f64],
+    ) -> (Vec<RotorReport>, DisturbanceReport) {
+        let d = self.config.disturbances;
+        let aero = self.config.aero;
+        let radius = self.vehicle.rotors.propeller_radius_m;
+        let max = aero.max_raycast_distance_m;
+        let world_from_base = self.world_from(self.body.base);
+        let base_rotation = world_from_base.rotation;
+        let mut disturbances = DisturbanceReport::default();
+        let telemetry = self.actuator.as_ref().map(|a| a.telemetry().to_vec());
+        let mut reports = Vec::with_capacity(self.rotors.len());
+        for i in 0..self.rotors.len() {
+            let mount = self.rotors[i];
+            let world_from_rotor = self.world_from(mount.body) * mount.body_from_rotor;
+            let position = world_from_rotor.translation.vector;
+            let axis = world_from_rotor.rotation * Vector3::z();
+            let thrust = axis * realised[i];
+            let mut report = RotorReport {
+                commanded_n: commanded[i],
+                realised_n: realised[i],
+                saturated: telemetry.as_ref().is_some_and(|t| t[i].saturated),
+                ground_effect_gain: 1.0,
+                ground_distance_m: max,
+                wall_distance_m: max,
+                ..RotorReport::default()
+            };
+            let mut after_ground = thrust;
+            if d.ground_effect {
+                let distance = self.cast(&position, &(-axis)).unwrap_or(max);
+                let ratio = aero.ground_effect_ratio(distance, radius);
+                report.ground_distance_m = distance;
+                report.ground_effect_gain = 1.0 / ratio;
+                after_ground = thrust / ratio;
+            }
+            let mut after_wall = after_ground;
+            if d.near_wall {
+                let radial = position - world_from_base.translation.vector;
+                let base_angle = if radial.xy().norm() > 1e-6 {
+                    radial.y.atan2(radial.x)
+                } else {
+                    0.0
+                };
+                let nearest = wall_fan_directions(base_angle)
+                    .into_iter()
+                    .filter_map(|dir| self.cast(&position, &dir).map(|h| (h, dir)))
+                    .min_by(|a, b| a.0.total_cmp(&b.0));
+                let (h, toward) = nearest.unwrap_or((max, Vector3::zeros()));
+                report.wall_distance_m = h;
+                let normalised = (h - radius).max(0.0) / radius;
+                after_wall = near_wall_thrust(&aero, &after_ground, normalised, &toward);
+            }
+            disturbances.ground_effect_n += base_rotation.inverse() * (after_ground - thrust);
+            disturbances.near_wall_n += base_rotation.inverse() * (after_wall - after_ground);
+            report.applied_n = after_wall.norm();
+            self.rotors[i].force_in_rotor = world_from_rotor.rotation.inverse() * after_wall;
+            reports.push(report);
+        }
+        (reports, disturbances)
+    }
+
+    /// Drag and wind on the base, body frame, held over the tick.
+    fn base_forces(&mut self, disturbances: &mut DisturbanceReport) {
+        let d = self.config.disturbances;
+        let base = &self.truth.base;
+        let to_body = base.world_from_body.inverse();
+        if d.drag {
+            disturbances.drag_n =
+                drag_force_in_body(&self.config.aero, &(to_body * base.velocity_in_world_mps));
+        }
+        if d.wind {
+            disturbances.wind_n = to_body * Vector3::from(self.config.aero.wind_force_in_world_n);
+        }
+        self.base_force_in_body = disturbances.drag_n + disturbances.wind_n;
+    }
+
+    /// Re-applies every force of the tick at the bodies' current poses.
+    fn apply_forces(&mut self) {
+        for h in &self.body.bodies {
+            if let Some(rb) = self.world.bodies.get_mut(*h) {
+                rb.reset_forces(false);
+                rb.reset_torques(false);
+            }
+        }
+        let k_f = self.vehicle.rotors.reaction_torque_ratio_m;
+        for r in &self.rotors {
+            let Some(rb) = self.world.bodies.get_mut(r.body) else {
+                continue;
+            };
+            let world_from_rotor = pose_from_rapier(rb.position()) * r.body_from_rotor;
+            let force = world_from_rotor.rotation * r.force_in_rotor;
+            rb.add_force_at_point(
+                vector_to_rapier(&force),
+                vector_to_rapier(&world_from_rotor.translation.vector),
+                true,
+            );
+            rb.add_torque(vector_to_rapier(&(force * (r.reaction_sign * k_f))), true);
+        }
+        if let Some(rb) = self.world.bodies.get_mut(self.body.base) {
+            let world_from_base = pose_from_rapier(rb.position());
+            let r = world_from_base.rotation;
+            rb.add_force(vector_to_rapier(&(r * self.base_force_in_body)), true);
+            if let Some(w) = self.direct_wrench {
+                rb.add_force_at_point(
+                    vector_to_rapier(&(r * w.force)),
+                    vector_to_rapier(&world_from_base.translation.vector),
+                    true,
+                );
+                rb.add_torque(vector_to_rapier(&(r * w.torque)), true);
+            }
+        }
+    }
+
+    /// Moves each drive's setpoint toward its target at no more than its velocity limit.
+    fn advance_drives(&mut self, dt: f64) {
+        for (dof, target) in self.body.dofs.iter_mut().zip(&self.joint_targets) {
+            let Some(drive) = dof.drive else { continue };
+            let step = drive.velocity_limit * dt;
+            dof.setpoint += (target - dof.setpoint).clamp(-step, step);
+            if let Some((mb, link)) = self.world.multibody_joints.get_mut(dof.handle)
+                && let Some(l) = mb.link_mut(link)
+            {
+                l.joint.data.set_motor_position(
+                    dof.axis,
+                    dof.setpoint,
+                    drive.stiffness,
+                    drive.damping,
+                );
+            }
+        }
+    }
+
+    /// The exact state now.
+    fn measure(&self, rotors: &[RotorReport], disturbances: DisturbanceReport) -> Measurement {
+        let base = self
+            .world
+            .bodies
+            .get(self.body.base)
+            .map(|rb| {
+                let pose = pose_from_rapier(rb.position());
+                let omega_world = vector_from_rapier(rb.angvel());
+                let com = vector_from_rapier(rb.center_of_mass());
+                let origin = pose.translation.vector;
+                RigidBodyState {
+                    position_in_world_m: origin,
+                    world_from_body: rotation_from_rapier(rb.position().rotation),
+                    velocity_in_world_mps: vector_from_rapier(rb.linvel())
+                        + omega_world.cross(&(origin - com)),
+                    angular_velocity_in_body_radps: pose.rotation.inverse() * omega_world,
+                }
+            })
+            .unwrap_or_default();
+        let mut joint_positions = Vec::new();
+        let mut joint_velocities = Vec::new();
+        vehicle_body::joint_states(
+            &self.world,
+            &self.body.dofs,
+            &mut joint_positions,
+            &mut joint_velocities,
+        );
+        let (ee_body, body_from_ee) = self.body.of_link(self.vehicle.ee_link);
+        Measurement {
+            time_s: self.time_s,
+            base,
+            joint_positions,
+            joint_velocities,
+            world_from_ee: self.world_from(ee_body) * body_from_ee,
+            rotors: rotors.to_vec(),
+            disturbances,
+        }
+    }
+
+    fn sample_observation_bias(&mut self) {
+        let n = 13 + 2 * self.vehicle.model.dof();
+        self.observation_bias = if self.config.disturbances.observation_noise {
+            gaussian(&mut self.rng, self.config.noise.observation_bias_std, n)
+        } else {
+            vec![0.0; n]
+        };
+    }
+
+    /// The measurement handed to the flight stack: the truth, plus bias and noise if on.
+    fn observe(&mut self) -> Measurement {
+        let mut m = self.truth.clone();
+        if !self.config.disturbances.observation_noise {
+            return m;
+        }
+        let noise = gaussian(
+            &mut self.rng,
+            self.config.noise.observation_std,
+            self.observation_bias.len(),
+        );
+        let mut e = noise.iter().zip(&self.observation_bias).map(|(a, b)| a + b);
+        let mut next = || e.next().unwrap_or(0.0);
+        let b = &mut m.base;
+        for x in b.position_in_world_m.iter_mut() {
+            *x += next();
+        }
+        let q = b.world_from_body.into_inner().coords.map(|c| c + next());
+        b.world_from_body = UnitQuaternion::new_normalize(nalgebra::Quaternion::from(q));
+        for x in b
+            .velocity_in_world_mps
+            .iter_mut()
+            .chain(b.angular_velocity_in_body_radps.iter_mut())
+        {
+            *x += next();
+        }
+        for x in m
+            .joint_positions
+            .iter_mut()
+            .chain(m.joint_velocities.iter_mut())
+        {
+            *x += next();
+        }
+        m
+    }
+
+    /// World position of a point fixed in a link (e.g. the tool tip in the EE link).
+    pub fn point_in_world(
+        &self,
+        link: platform::LinkId,
+        point_in_link: &Vector3<f64>,
+    ) -> Vector3<f64> {
+        let (body, body_from_link) = self.body.of_link(link);
+        (self.world_from(body) * body_from_link * Point3::from(*point_in_link)).coords
+    }
+}
+
+fn gaussian(rng: &mut ChaCha8Rng, std: f64, n: usize) -> Vec<f64> {
+    match Normal::new(0.0, std) {
+        Ok(dist) => (0..n).map(|_| dist.sample(rng)).collect(),
+        Err(_) => vec![0.0; n],
+    }
+}
