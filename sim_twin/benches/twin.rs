@@ -1,0 +1,57 @@
+//! Twin throughput: control ticks per second of `Twin::step`, single thread, FA-Hexa
+//! hovering at 1 m with every disturbance on (ground and near-wall ray casts against a wall
+//! 0.8 m away), 4 physics substeps per 120 Hz tick. A PID6 and the allocator close the loop
+//! outside the timed part. Run: `cargo bench -p sim_twin --bench twin`.
+
+use std::time::{Duration, Instant};
+
+use allocation::{AllocationMethod, Allocator};
+use controllers::{BaseController, BodyParams, Pid6, Pid6Gains};
+use criterion::{Criterion, criterion_group, criterion_main};
+use nalgebra::{Isometry3, Vector3};
+use platform::Vehicle;
+use sim_twin::{ActuatorCommand, Disturbances, Twin, TwinConfig};
+
+fn twin_step(c: &mut Criterion) {
+    let Ok(vehicle) = Vehicle::builtin("fa-hexa") else { return };
+    let config = TwinConfig { disturbances: Disturbances::all(), ..TwinConfig::default() };
+    let make = || -> Option<Twin> {
+        let mut t = Twin::new(vehicle.clone(), config.clone()).ok()?;
+        t.add_fixed_box(&Isometry3::translation(0.8 + 0.05, 0.0, 1.0), &Vector3::new(0.05, 3.0, 3.0));
+        Some(t)
+    };
+    let Some(mut twin) = make() else { return };
+    let Ok(mut allocator) = Allocator::new(&vehicle.rotors, vehicle.actuation, AllocationMethod::PseudoInverse) else { return };
+    let mut pid = Pid6::new(Pid6Gains::am_bench(), BodyParams::from_vehicle(&vehicle));
+    let target = Isometry3::translation(0.0, 0.0, 1.0);
+    let dt = config.control_dt_s();
+    let joints = vehicle.initial_configuration();
+    c.bench_function("twin_step/fa-hexa_hover_all_disturbances", |b| {
+        b.iter_custom(|ticks| {
+            let mut stepping = Duration::ZERO;
+            for k in 0..ticks {
+                // Start over every 10 s of flight so the run stays a hover.
+                if k % 1200 == 1199
+                    && let Some(fresh) = make()
+                {
+                    twin = fresh;
+                    pid.reset(&twin.truth().base);
+                }
+                let wrench = pid.update(&twin.truth().base, &target, dt);
+                let thrusts = allocator.allocate(&wrench, &[]).map(|a| a.thrusts_n).unwrap_or_default();
+                let command = ActuatorCommand { rotor_thrusts_n: thrusts, joint_targets: joints.clone(), direct_wrench_in_body: None };
+                let start = Instant::now();
+                let _ = twin.step(&command);
+                stepping += start.elapsed();
+            }
+            stepping
+        })
+    });
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(4)).sample_size(20);
+    targets = twin_step
+}
+criterion_main!(benches);
