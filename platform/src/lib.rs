@@ -22,6 +22,7 @@ mod actuation;
 mod builtin;
 mod error;
 mod kinematics;
+mod link;
 mod mass;
 mod model;
 mod parts;
@@ -37,6 +38,7 @@ mod tests;
 pub use actuation::Actuation;
 pub use builtin::BUILTIN_IDS;
 pub use error::{DescriptionError, Problem};
+pub use link::{ActuatorCommand, DisturbanceReport, Measurement, RotorReport};
 pub use mass::MassProperties;
 pub use model::{
     Geometry, Inertial, Joint, JointId, JointKind, JointLimits, KinematicModel, Link, LinkId,

@@ -9,19 +9,33 @@ use allocation::{AllocationMethod, Allocator};
 use controllers::{BaseController, BodyParams, Pid6, Pid6Gains};
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Vector3};
-use platform::Vehicle;
-use sim_twin::{ActuatorCommand, Disturbances, Twin, TwinConfig};
+use platform::{ActuatorCommand, Vehicle};
+use sim_twin::{Disturbances, Twin, TwinConfig};
 
 fn twin_step(c: &mut Criterion) {
-    let Ok(vehicle) = Vehicle::builtin("fa-hexa") else { return };
-    let config = TwinConfig { disturbances: Disturbances::all(), ..TwinConfig::default() };
+    let Ok(vehicle) = Vehicle::builtin("fa-hexa") else {
+        return;
+    };
+    let config = TwinConfig {
+        disturbances: Disturbances::all(),
+        ..TwinConfig::default()
+    };
     let make = || -> Option<Twin> {
         let mut t = Twin::new(vehicle.clone(), config.clone()).ok()?;
-        t.add_fixed_box(&Isometry3::translation(0.8 + 0.05, 0.0, 1.0), &Vector3::new(0.05, 3.0, 3.0));
+        t.add_fixed_box(
+            &Isometry3::translation(0.8 + 0.05, 0.0, 1.0),
+            &Vector3::new(0.05, 3.0, 3.0),
+        );
         Some(t)
     };
     let Some(mut twin) = make() else { return };
-    let Ok(mut allocator) = Allocator::new(&vehicle.rotors, vehicle.actuation, AllocationMethod::PseudoInverse) else { return };
+    let Ok(mut allocator) = Allocator::new(
+        &vehicle.rotors,
+        vehicle.actuation,
+        AllocationMethod::PseudoInverse,
+    ) else {
+        return;
+    };
     let mut pid = Pid6::new(Pid6Gains::am_bench(), BodyParams::from_vehicle(&vehicle));
     let target = Isometry3::translation(0.0, 0.0, 1.0);
     let dt = config.control_dt_s();
@@ -38,8 +52,15 @@ fn twin_step(c: &mut Criterion) {
                     pid.reset(&twin.truth().base);
                 }
                 let wrench = pid.update(&twin.truth().base, &target, dt);
-                let thrusts = allocator.allocate(&wrench, &[]).map(|a| a.thrusts_n).unwrap_or_default();
-                let command = ActuatorCommand { rotor_thrusts_n: thrusts, joint_targets: joints.clone(), direct_wrench_in_body: None };
+                let thrusts = allocator
+                    .allocate(&wrench, &[])
+                    .map(|a| a.thrusts_n)
+                    .unwrap_or_default();
+                let command = ActuatorCommand {
+                    rotor_thrusts_n: thrusts,
+                    joint_targets: joints.clone(),
+                    direct_wrench_in_body: None,
+                };
                 let start = Instant::now();
                 let _ = twin.step(&command);
                 stepping += start.elapsed();

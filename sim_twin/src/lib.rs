@@ -14,7 +14,6 @@
 //! inside this crate ([`convert`] is the one boundary).
 
 pub mod aero;
-mod command;
 mod config;
 mod convert;
 mod error;
@@ -24,7 +23,6 @@ mod vehicle_body;
 #[cfg(test)]
 mod tests;
 
-pub use command::{ActuatorCommand, DisturbanceReport, Measurement, RotorReport};
 pub use config::{Disturbances, MotorConfig, NoiseConfig, TwinConfig};
 pub use error::TwinError;
 pub use twin::Twin;

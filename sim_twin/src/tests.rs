@@ -3,9 +3,9 @@
 
 use allocation::{AllocationMethod, Allocator};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
-use platform::{GRAVITY_MPS2, Vehicle, Wrench};
+use platform::{ActuatorCommand, GRAVITY_MPS2, Vehicle, Wrench};
 
-use crate::{ActuatorCommand, Disturbances, Twin, TwinConfig, TwinError};
+use crate::{Disturbances, Twin, TwinConfig, TwinError};
 
 fn vehicle(id: &str) -> Vehicle {
     Vehicle::builtin(id).unwrap_or_else(|e| panic!("{e}"))

@@ -18,14 +18,15 @@
 
 use allocation::{RotorActuator, RotorActuatorConfig};
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
-use platform::{RigidBodyState, Vehicle, Wrench};
+use platform::{
+    ActuatorCommand, DisturbanceReport, Measurement, RigidBodyState, RotorReport, Vehicle, Wrench,
+};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use rapier3d_f64::prelude::*;
 
 use crate::aero::{drag_force_in_body, near_wall_thrust, wall_fan_directions};
-use crate::command::{ActuatorCommand, DisturbanceReport, Measurement, RotorReport};
 use crate::config::TwinConfig;
 use crate::convert::{
     pose_from_rapier, pose_to_rapier, rotation_from_rapier, vector_from_rapier, vector_to_rapier,

@@ -1,8 +1,11 @@
-//! What the flight stack sends the twin each tick, and what the twin measures.
+//! What crosses the `Link` seam each control tick: actuator commands out, measurements in.
+//! The same types serve the in-process twin, the twin in another process and a real
+//! autopilot; fields a source cannot fill stay at their defaults.
 
 use nalgebra::{Isometry3, Vector3};
-use platform::{RigidBodyState, Wrench};
 use serde::Serialize;
+
+use crate::{RigidBodyState, Wrench};
 
 /// Actuator commands for one control period.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
@@ -49,7 +52,7 @@ pub struct DisturbanceReport {
     pub near_wall_n: Vector3<f64>,
 }
 
-/// What the twin measures at the end of a control period.
+/// What is measured at the end of a control period.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct Measurement {
     /// Simulated time, s.
