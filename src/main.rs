@@ -6,6 +6,7 @@
 mod cli_error;
 mod output;
 mod platforms;
+mod track;
 mod vehicles;
 
 use std::process::ExitCode;
@@ -34,6 +35,9 @@ struct Cli {
 enum Command {
     /// The vehicles and their figures: mass, inertia, rotors, reach, thrust margins.
     Platforms(platforms::Args),
+    /// Fly a reference trajectory in the twin and report tracking errors, tilt and
+    /// saturation: the validation experiments of the paper.
+    Track(track::Args),
 }
 
 fn main() -> ExitCode {
@@ -55,6 +59,7 @@ fn main() -> ExitCode {
     };
     let result = match cli.command {
         Command::Platforms(args) => platforms::run(&args),
+        Command::Track(args) => track::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

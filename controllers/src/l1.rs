@@ -21,7 +21,9 @@
 //! - the wrench fed to the predictor is the one the allocator achieved (requested minus
 //!   unallocated), so saturation does not look like a disturbance and the estimate does not
 //!   wind up; the filter state also stops, per axis, growing a request already saturated;
-//! - the desired rate term uses RᵀR_dΩ_d as the PID does (the reference's L1 uses R_dᵀR).
+//! - the desired rate term uses RᵀR_dΩ_d as the PID does (the reference's L1 uses R_dᵀR);
+//! - the angular predictor turns the body under the torque about its centre of mass,
+//!   τ − c × F (the reference's bodies are controlled at their centre of mass).
 
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
 use platform::{GRAVITY_MPS2, RigidBodyState, Wrench};
@@ -131,8 +133,13 @@ impl BaseController for L1Adaptive {
                     + p.attitude * applied.force / m
                     + p.h_v
                     + c.a_lin.component_mul(&p.velocity_error);
+                // The force acts at the control frame's origin, not at the centre of mass c:
+                // the body turns under τ − c × F (at hover this cancels the gravity-moment
+                // term of τ; leaving it out makes the predictor invent a disturbance).
+                let torque_about_com =
+                    applied.torque - self.core.body.com_in_body_m.cross(&applied.force);
                 let w_dot = -self.inertia_inverse * p.omega.cross(&(j * p.omega))
-                    + self.inertia_inverse * applied.torque
+                    + self.inertia_inverse * torque_about_com
                     + p.h_w
                     + c.a_ang.component_mul(&p.angular_velocity_error);
                 (p.velocity + v_dot * dt, p.angular_velocity + w_dot * dt)

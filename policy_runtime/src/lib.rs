@@ -8,6 +8,12 @@
 //!
 //! # What exists
 //!
+//! - [`link`]: the [`Link`] seam and its first implementation, the in-process twin.
+//! - [`stack`]: one tick of the flight stack — target → base controller → allocation →
+//!   actuator command, with the allocator's unallocated wrench fed back to the controller.
+//! - [`trajectory`] and [`track`]: the reference trajectories of `amstack track` and the
+//!   flight that scores them.
+//! - [`flight_log`]: the channels of a flight's MCAP log.
 //! - [`record`]: the MCAP flight-log recorder. [`record::McapRecorder`] writes one file per
 //!   run: an `amstack.run` metadata record ([`record::RunMetadata`]), JSON-encoded channels
 //!   with JSON-Schema schemas derived from the Rust types, Foxglove's well-known pose and
@@ -15,4 +21,14 @@
 //!   chunks flushed as they fill so a killed run leaves a readable file.
 //!   [`record::Recording`] reads a file back by streaming, complete or cut short.
 
+pub mod flight_log;
+pub mod link;
 pub mod record;
+pub mod stack;
+pub mod track;
+pub mod trajectory;
+
+pub use link::{Link, LinkError, TwinLink};
+pub use stack::{BaseJointTarget, FlightStack, StackError, ThrustLimits, TickRecord};
+pub use track::{TrackConfig, TrackError, TrackResult, run_track};
+pub use trajectory::Trajectory;

@@ -42,14 +42,39 @@ impl Disturbances {
         }
     }
 
+    /// The reference's evaluation setting (`--disturbance`): rotor limits, aerodynamics
+    /// (drag, ground, near-wall) and wind, no noise.
+    pub fn reference() -> Self {
+        Self {
+            drag: true,
+            wind: true,
+            ground_effect: true,
+            near_wall: true,
+            saturation: true,
+            ..Self::default()
+        }
+    }
+
     /// Parses a comma-separated list of `drag, wind, ground, wall, noise, saturation`
-    /// (`noise` = observation and action noise), or `none` / `all`.
+    /// (`noise` = observation and action noise), or `none`, `all`, `reference` (the
+    /// reference's evaluation set: everything but noise).
     pub fn parse_list(list: &str) -> Result<Self, String> {
         let mut d = Self::default();
         for word in list.split(',').map(str::trim).filter(|w| !w.is_empty()) {
             match word {
                 "none" => {}
                 "all" => d = Self::all(),
+                "reference" => {
+                    let r = Self::reference();
+                    d = Self {
+                        drag: r.drag,
+                        wind: r.wind,
+                        ground_effect: r.ground_effect,
+                        near_wall: r.near_wall,
+                        saturation: r.saturation,
+                        ..d
+                    };
+                }
                 "drag" => d.drag = true,
                 "wind" => d.wind = true,
                 "ground" => d.ground_effect = true,
@@ -61,7 +86,7 @@ impl Disturbances {
                 "saturation" => d.saturation = true,
                 other => {
                     return Err(format!(
-                        "unknown disturbance '{other}' (known: drag, wind, ground, wall, noise, saturation, all, none)"
+                        "unknown disturbance '{other}' (known: drag, wind, ground, wall, noise, saturation, reference, all, none)"
                     ));
                 }
             }
@@ -84,6 +109,24 @@ impl Disturbances {
         .filter_map(|(on, name)| on.then_some(name))
         .collect()
     }
+}
+
+/// Along which direction a tilting rotor (Omni-Hexa) pushes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TiltThrust {
+    /// Along the commanded tilt angle, from the rotor's α = 0 position, as if the hinge
+    /// reached its target at once: the reference's model (AMBENCH_SPEC §1.6, §9 item 5),
+    /// for which its Omni-Hexa gains are tuned. The hinge bodies still move physically.
+    #[default]
+    Commanded,
+    /// Along the hinge's measured angle, from the rotor's current position: what hardware
+    /// does. The hinges are slew-limited (5 rad/s) with a ~10 ms drive: with the reference's
+    /// Omni-Hexa gains (position D 120 1/s) the lateral loop then limit-cycles at ~6 Hz once
+    /// disturbed (e.g. by the arm moving) — a flight stack for the real vehicle needs a lower
+    /// lateral bandwidth. The flight stack projects each rotor's thrust on its measured
+    /// direction in this mode.
+    Measured,
 }
 
 /// Rotor dynamics (AMBENCH_SPEC §2.8; identified on the real FA-Hexa: τ = 47.5 ms,
@@ -138,6 +181,8 @@ pub struct TwinConfig {
     pub aero: AeroConfig,
     /// Rotor dynamics.
     pub motor: MotorConfig,
+    /// How tilting rotors push (Omni-Hexa only). Default: as commanded, like the reference.
+    pub tilt_thrust: TiltThrust,
     /// Noise levels.
     pub noise: NoiseConfig,
     /// Seed of every random draw of the twin.
@@ -160,6 +205,7 @@ impl Default for TwinConfig {
             disturbances: Disturbances::default(),
             aero: AeroConfig::default(),
             motor: MotorConfig::default(),
+            tilt_thrust: TiltThrust::default(),
             noise: NoiseConfig::default(),
             seed: 0,
             initial_base_pose: default_initial_pose(),

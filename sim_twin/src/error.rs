@@ -12,4 +12,7 @@ pub enum TwinError {
     /// A command of the wrong size or with a non-finite value: a flight-loop bug.
     #[error("command: {0}")]
     Command(String),
+    /// The physics state stopped being finite; the twin refuses to step until reset.
+    #[error("{0}")]
+    Diverged(String),
 }

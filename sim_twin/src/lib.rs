@@ -23,7 +23,7 @@ mod vehicle_body;
 #[cfg(test)]
 mod tests;
 
-pub use config::{Disturbances, MotorConfig, NoiseConfig, TwinConfig};
+pub use config::{Disturbances, MotorConfig, NoiseConfig, TiltThrust, TwinConfig};
 pub use error::TwinError;
 pub use twin::Twin;
 pub use vehicle_body::{ROBOT_GROUP, WORLD_GROUP};

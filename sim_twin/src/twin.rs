@@ -12,8 +12,8 @@
 //!    and the joint drives' setpoints move toward their targets at no more than the drive's
 //!    velocity limit.
 //!
-//! The Omni-Hexa's thrust follows the measured tilt of each hinge (the reference applies the
-//! commanded angle, AMBENCH_SPEC §9 item 5). Observation noise, when on, is added to the
+//! The Omni-Hexa's thrust follows the commanded tilt by default, as in the reference, or the
+//! measured hinge angle ([`TiltThrust`]). Observation noise, when on, is added to the
 //! measurement handed out; [`Twin::truth`] keeps the exact one.
 
 use allocation::{RotorActuator, RotorActuatorConfig};
@@ -27,7 +27,7 @@ use rand_distr::{Distribution, Normal};
 use rapier3d_f64::prelude::*;
 
 use crate::aero::{drag_force_in_body, near_wall_thrust, wall_fan_directions};
-use crate::config::TwinConfig;
+use crate::config::{TiltThrust, TwinConfig};
 use crate::convert::{
     pose_from_rapier, pose_to_rapier, rotation_from_rapier, vector_from_rapier, vector_to_rapier,
 };
@@ -41,8 +41,13 @@ const GRAVITY_MPS2: f64 = platform::GRAVITY_MPS2;
 /// during substeps), and where it is mounted.
 #[derive(Debug, Clone, Copy)]
 struct RotorForce {
+    /// The body the force acts on and the rotor frame in it: the rotor's own link, or, for a
+    /// tilting rotor pushing as commanded, the base with the rotor at its α = 0 position
+    /// turned to the commanded angle.
     body: RigidBodyHandle,
     body_from_rotor: Isometry3<f64>,
+    /// The physical mount (its own link), for the measured-tilt model.
+    mount: (RigidBodyHandle, Isometry3<f64>),
     force_in_rotor: Vector3<f64>,
     reaction_sign: f64,
 }
@@ -62,6 +67,7 @@ pub struct Twin {
     direct_wrench: Option<Wrench>,
     time_s: f64,
     truth: Measurement,
+    diverged_at: Option<f64>,
 }
 
 impl std::fmt::Debug for Twin {
@@ -107,6 +113,7 @@ impl Twin {
             direct_wrench: None,
             time_s: 0.0,
             truth: Measurement::default(),
+            diverged_at: None,
         };
         twin.sample_observation_bias();
         twin.truth = twin.measure(&[], DisturbanceReport::default());
@@ -151,6 +158,7 @@ impl Twin {
                 Ok(RotorForce {
                     body,
                     body_from_rotor,
+                    mount: (body, body_from_rotor),
                     force_in_rotor: Vector3::zeros(),
                     reaction_sign: r.spin.sign(),
                 })
@@ -258,6 +266,7 @@ impl Twin {
         self.check(command)?;
         let dt = self.config.control_dt_s();
         let realised = self.realise_thrusts(&command.rotor_thrusts_n, dt)?;
+        self.place_tilting_rotors(&command.joint_targets);
         let (reports, mut disturbances) = self.rotor_forces(&command.rotor_thrusts_n, &realised);
         self.base_forces(&mut disturbances);
         self.direct_wrench = command.direct_wrench_in_body;
@@ -268,15 +277,42 @@ impl Twin {
         {
             *target = dof.limits.map_or(*q, |(lo, hi)| q.clamp(lo, hi));
         }
+        if let Some(when) = self.diverged_at {
+            return Err(TwinError::Diverged(format!(
+                "the simulation diverged at t = {when:.3} s; reset the twin"
+            )));
+        }
         let substep = dt / f64::from(self.config.physics_substeps);
         for _ in 0..self.config.physics_substeps {
             self.apply_forces();
             self.advance_drives(substep);
             self.world.step();
+            // A non-finite body state would make rapier panic on the next step: stop here.
+            if !self.vehicle_is_finite() {
+                self.diverged_at = Some(self.time_s);
+                return Err(TwinError::Diverged(format!(
+                    "the simulation diverged at t = {:.3} s (a body state is not finite); reset the twin",
+                    self.time_s
+                )));
+            }
         }
         self.time_s += dt;
         self.truth = self.measure(&reports, disturbances);
         Ok(self.observe())
+    }
+
+    /// True when every vehicle body's pose and velocities are finite.
+    fn vehicle_is_finite(&self) -> bool {
+        self.body.bodies.iter().all(|h| {
+            self.world.bodies.get(*h).is_some_and(|rb| {
+                let p = rb.position();
+                let finite = |v: Vector| v.x.is_finite() && v.y.is_finite() && v.z.is_finite();
+                finite(p.translation)
+                    && p.rotation.is_finite()
+                    && finite(rb.linvel())
+                    && finite(rb.angvel())
+            })
+        })
     }
 
     /// Motor model: the rotor actuator with limits on, the raw command otherwise.
@@ -297,6 +333,38 @@ impl Twin {
             .bodies
             .get(body)
             .map_or_else(Isometry3::identity, |rb| pose_from_rapier(rb.position()))
+    }
+
+    /// Where each tilting rotor pushes from this tick: its own link (measured tilt), or the
+    /// base with the rotor at its α = 0 position turned to the commanded angle.
+    fn place_tilting_rotors(&mut self, joint_targets: &[f64]) {
+        let base = self.body.base;
+        for (force, rotor) in self.rotors.iter_mut().zip(&self.vehicle.rotors.rotors) {
+            let Some(tilt) = &rotor.tilt else { continue };
+            (force.body, force.body_from_rotor) = match self.config.tilt_thrust {
+                TiltThrust::Measured => force.mount,
+                TiltThrust::Commanded => {
+                    let commanded = self
+                        .vehicle
+                        .model
+                        .joint_id(&tilt.joint)
+                        .and_then(|j| self.vehicle.model.joints[j].dof)
+                        .and_then(|d| joint_targets.get(d).copied())
+                        .unwrap_or(0.0)
+                        .clamp(tilt.limits_rad.0, tilt.limits_rad.1);
+                    let axis = nalgebra::Unit::new_normalize(rotor.axis_at_tilt(commanded));
+                    let rotation = UnitQuaternion::rotation_between_axis(&Vector3::z_axis(), &axis)
+                        .unwrap_or_else(UnitQuaternion::identity);
+                    (
+                        base,
+                        Isometry3::from_parts(
+                            nalgebra::Translation3::from(rotor.position_in_base),
+                            rotation,
+                        ),
+                    )
+                }
+            };
+        }
     }
 
     /// Casts a ray that ignores the robot; the distance to the first hit or the maximum.

@@ -1,0 +1,305 @@
+//! The channels of a flight's MCAP log and their messages (log format version
+//! [`LOG_FORMAT_VERSION`](crate::record::LOG_FORMAT_VERSION)). Times are the simulated (or
+//! link) time of the measurement a message belongs to. Frames: `world` (Z-up), `base`
+//! (base link, FLU), `ee` (end-effector link); quaternions in arrays are w, x, y, z.
+//!
+//! | topic | schema | content |
+//! |---|---|---|
+//! | `/tf` | foxglove.FrameTransforms | world→base, world→ee |
+//! | `/base/pose`, `/ee/pose` | foxglove.PoseInFrame | measured poses in `world` |
+//! | `/base/reference`, `/ee/reference` | foxglove.PoseInFrame | the targets of the tick |
+//! | `/base/state` | amstack.BaseState | pose, world velocity, body rates |
+//! | `/control/wrench` | amstack.BodyWrench | requested and unallocated wrench, `base` frame |
+//! | `/rotors` | amstack.Rotors | commanded, realised, applied thrust per rotor; saturation |
+//! | `/joints` | amstack.Joints | every movable joint: target and measured |
+//! | `/disturbances` | amstack.Disturbances | drag, wind, ground and near-wall forces, `base` frame |
+//! | `/controller/status` | amstack.ControllerStatus | errors, integrators, adaptive terms |
+
+use nalgebra::Isometry3;
+use platform::{Measurement, Vehicle};
+use schemars::JsonSchema;
+use serde::Serialize;
+
+use crate::record::foxglove::{FrameTransform, FrameTransforms, PoseInFrame};
+use crate::record::{Channel, McapRecorder, RecordError, SchemaName};
+use crate::stack::TickRecord;
+
+fn v3(v: &nalgebra::Vector3<f64>) -> [f64; 3] {
+    [v.x, v.y, v.z]
+}
+
+/// Measured state of the base link.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct BaseState {
+    /// Position in `world`, m.
+    pub position_m: [f64; 3],
+    /// Orientation `world_from_base`, w x y z.
+    pub orientation_wxyz: [f64; 4],
+    /// Velocity of the base origin in `world`, m/s.
+    pub velocity_world_mps: [f64; 3],
+    /// Angular velocity in `base`, rad/s.
+    pub angular_velocity_body_radps: [f64; 3],
+}
+
+/// The controller's wrench, `base` frame, about the base origin.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct BodyWrench {
+    /// Requested force, N.
+    pub force_n: [f64; 3],
+    /// Requested torque, N·m.
+    pub torque_nm: [f64; 3],
+    /// Force the allocator could not produce, N.
+    pub unallocated_force_n: [f64; 3],
+    /// Torque the allocator could not produce, N·m.
+    pub unallocated_torque_nm: [f64; 3],
+}
+
+/// Rotor thrusts over the last control period, in rotor order.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct Rotors {
+    /// Commanded (allocated) thrust, N.
+    pub commanded_n: Vec<f64>,
+    /// Thrust the motors produced (limits and dynamics), N.
+    pub realised_n: Vec<f64>,
+    /// Thrust after ground and near-wall effects, N.
+    pub applied_n: Vec<f64>,
+    /// The saturation indicator: any realised thrust at a limit, or a command outside them.
+    pub saturated: bool,
+}
+
+/// Every movable joint, configuration order.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct Joints {
+    /// Joint names.
+    pub names: Vec<String>,
+    /// Targets sent, rad or m.
+    pub target: Vec<f64>,
+    /// Measured positions, rad or m.
+    pub position: Vec<f64>,
+}
+
+/// Forces of each disturbance model, `base` frame, N.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct Disturbances {
+    /// Linear drag.
+    pub drag_n: [f64; 3],
+    /// Wind.
+    pub wind_n: [f64; 3],
+    /// Extra rotor force from the ground effect.
+    pub ground_effect_n: [f64; 3],
+    /// Extra rotor force from the near-wall effect.
+    pub near_wall_n: [f64; 3],
+}
+
+/// The base controller's status after its update.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct ControllerStatus {
+    /// `pid6`, `pid4` or `l1`.
+    pub controller: String,
+    /// p_d − p, world, m.
+    pub position_error_m: [f64; 3],
+    /// v_d − v, world, m/s.
+    pub velocity_error_mps: [f64; 3],
+    /// e_R, body.
+    pub attitude_error: [f64; 3],
+    /// ∫e_p dt, world.
+    pub position_integral: [f64; 3],
+    /// ∫e_R dt, body.
+    pub attitude_integral: [f64; 3],
+    /// L1 adaptive force, body, N (null for PID).
+    pub adaptive_force_n: Option<[f64; 3]>,
+    /// L1 adaptive torque, body, N·m (null for PID).
+    pub adaptive_torque_nm: Option<[f64; 3]>,
+    /// Integration stopped by saturation feedback: force x y z, torque x y z.
+    pub windup_blocked: [bool; 6],
+    /// `ok`, `non_finite_state`, `non_finite_target`, `invalid_dt`.
+    pub input: String,
+}
+
+macro_rules! schema_names {
+    ($($t:ident),*) => {$(impl SchemaName for $t { const SCHEMA_NAME: &'static str = concat!("amstack.", stringify!($t)); })*};
+}
+schema_names!(
+    BaseState,
+    BodyWrench,
+    Rotors,
+    Joints,
+    Disturbances,
+    ControllerStatus
+);
+
+/// The open channels of one flight log.
+#[derive(Debug)]
+pub struct FlightLog {
+    recorder: McapRecorder,
+    tf: Channel<FrameTransforms>,
+    base_pose: Channel<PoseInFrame>,
+    ee_pose: Channel<PoseInFrame>,
+    base_reference: Channel<PoseInFrame>,
+    ee_reference: Channel<PoseInFrame>,
+    base_state: Channel<BaseState>,
+    wrench: Channel<BodyWrench>,
+    rotors: Channel<Rotors>,
+    joints: Channel<Joints>,
+    disturbances: Channel<Disturbances>,
+    status: Channel<ControllerStatus>,
+    joint_names: Vec<String>,
+    limits: (f64, f64),
+}
+
+fn nanos(time_s: f64) -> u64 {
+    (time_s * 1e9).round().max(0.0) as u64
+}
+
+impl FlightLog {
+    /// Opens every channel on `recorder`.
+    pub fn new(mut recorder: McapRecorder, vehicle: &Vehicle) -> Result<Self, RecordError> {
+        Ok(Self {
+            tf: recorder.channel("/tf")?,
+            base_pose: recorder.channel("/base/pose")?,
+            ee_pose: recorder.channel("/ee/pose")?,
+            base_reference: recorder.channel("/base/reference")?,
+            ee_reference: recorder.channel("/ee/reference")?,
+            base_state: recorder.channel("/base/state")?,
+            wrench: recorder.channel("/control/wrench")?,
+            rotors: recorder.channel("/rotors")?,
+            joints: recorder.channel("/joints")?,
+            disturbances: recorder.channel("/disturbances")?,
+            status: recorder.channel("/controller/status")?,
+            joint_names: (0..vehicle.model.dof())
+                .map(|d| vehicle.model.dof_joint(d).name.clone())
+                .collect(),
+            limits: (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n),
+            recorder,
+        })
+    }
+
+    /// Logs one tick: the measurement it acted on, what it decided, the EE reference.
+    pub fn tick(
+        &mut self,
+        m: &Measurement,
+        record: &TickRecord,
+        ee_reference: &Isometry3<f64>,
+    ) -> Result<(), RecordError> {
+        let t = nanos(m.time_s);
+        let r = &mut self.recorder;
+        let base = m.base.pose();
+        r.log(
+            &self.tf,
+            t,
+            &FrameTransforms {
+                transforms: vec![
+                    FrameTransform::new(t, "world", "base", &base),
+                    FrameTransform::new(t, "world", "ee", &m.world_from_ee),
+                ],
+            },
+        )?;
+        r.log(&self.base_pose, t, &PoseInFrame::new(t, "world", &base))?;
+        r.log(
+            &self.ee_pose,
+            t,
+            &PoseInFrame::new(t, "world", &m.world_from_ee),
+        )?;
+        r.log(
+            &self.base_reference,
+            t,
+            &PoseInFrame::new(t, "world", &record.base_target),
+        )?;
+        r.log(
+            &self.ee_reference,
+            t,
+            &PoseInFrame::new(t, "world", ee_reference),
+        )?;
+        let q = m.base.world_from_body;
+        r.log(
+            &self.base_state,
+            t,
+            &BaseState {
+                position_m: v3(&m.base.position_in_world_m),
+                orientation_wxyz: [q.w, q.i, q.j, q.k],
+                velocity_world_mps: v3(&m.base.velocity_in_world_mps),
+                angular_velocity_body_radps: v3(&m.base.angular_velocity_in_body_radps),
+            },
+        )?;
+        r.log(
+            &self.wrench,
+            t,
+            &BodyWrench {
+                force_n: v3(&record.wrench.force),
+                torque_nm: v3(&record.wrench.torque),
+                unallocated_force_n: v3(&record.unallocated.force),
+                unallocated_torque_nm: v3(&record.unallocated.torque),
+            },
+        )?;
+        r.log(
+            &self.joints,
+            t,
+            &Joints {
+                names: self.joint_names.clone(),
+                target: record.command.joint_targets.clone(),
+                position: m.joint_positions.clone(),
+            },
+        )?;
+        let s = &record.controller;
+        r.log(
+            &self.status,
+            t,
+            &ControllerStatus {
+                controller: s.controller.to_owned(),
+                position_error_m: v3(&s.position_error_m),
+                velocity_error_mps: v3(&s.velocity_error_mps),
+                attitude_error: v3(&s.attitude_error),
+                position_integral: v3(&s.position_integral),
+                attitude_integral: v3(&s.attitude_integral),
+                adaptive_force_n: s.adaptive_force_n.as_ref().map(v3),
+                adaptive_torque_nm: s.adaptive_torque_nm.as_ref().map(v3),
+                windup_blocked: s.windup_blocked,
+                input: serde_json::to_value(s.input)
+                    .ok()
+                    .and_then(|v| v.as_str().map(str::to_owned))
+                    .unwrap_or_default(),
+            },
+        )?;
+        Ok(())
+    }
+
+    /// Logs what the rotors and disturbances did over the period that ended at `m.time_s`.
+    pub fn outcome(&mut self, m: &Measurement) -> Result<(), RecordError> {
+        let t = nanos(m.time_s);
+        if !m.rotors.is_empty() {
+            self.recorder.log(
+                &self.rotors,
+                t,
+                &Rotors {
+                    commanded_n: m.rotors.iter().map(|r| r.commanded_n).collect(),
+                    realised_n: m.rotors.iter().map(|r| r.realised_n).collect(),
+                    applied_n: m.rotors.iter().map(|r| r.applied_n).collect(),
+                    saturated: rotors_saturated(m, self.limits),
+                },
+            )?;
+        }
+        let d = &m.disturbances;
+        self.recorder.log(
+            &self.disturbances,
+            t,
+            &Disturbances {
+                drag_n: v3(&d.drag_n),
+                wind_n: v3(&d.wind_n),
+                ground_effect_n: v3(&d.ground_effect_n),
+                near_wall_n: v3(&d.near_wall_n),
+            },
+        )
+    }
+
+    /// Finishes the file (summary, index).
+    pub fn finish(self) -> Result<crate::record::RecordSummary, RecordError> {
+        self.recorder.finish()
+    }
+}
+
+/// The paper's saturation indicator on what the rotors did: any realised thrust at a limit
+/// (within 1e-5 N) or any command the motor model had to clamp.
+pub fn rotors_saturated(m: &Measurement, (t_min, t_max): (f64, f64)) -> bool {
+    let realised: Vec<f64> = m.rotors.iter().map(|r| r.realised_n).collect();
+    allocation::any_rotor_saturated(&realised, t_min, t_max) || m.rotors.iter().any(|r| r.saturated)
+}

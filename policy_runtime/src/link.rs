@@ -1,0 +1,69 @@
+//! The seam between the flight stack and the world.
+//!
+//! A [`Link`] takes one actuator command per control tick and gives back the measurement
+//! at the end of that tick. Its implementations: the in-process twin ([`TwinLink`], the
+//! default for benchmarks: deterministic and fastest), the twin in another process over
+//! iceoryx2, a MAVLink autopilot. Controllers never know which one they talk to.
+
+use platform::{ActuatorCommand, Measurement};
+use sim_twin::{Twin, TwinError};
+
+/// What can go wrong on a link.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LinkError {
+    /// The in-process twin refused a command or could not be built.
+    #[error(transparent)]
+    Twin(#[from] TwinError),
+}
+
+/// One side of the flight stack's contact with the vehicle (simulated or real).
+pub trait Link {
+    /// The latest measurement (before the first command: the state at start).
+    fn receive(&mut self) -> Result<Measurement, LinkError>;
+
+    /// Applies `command` for one control period.
+    fn send(&mut self, command: &ActuatorCommand) -> Result<(), LinkError>;
+
+    /// Short name for logs (`twin`, `ipc:<service>`, `mavlink:<address>`).
+    fn name(&self) -> String;
+}
+
+/// The twin in this process: `send` advances it one control period (lockstep).
+#[derive(Debug)]
+pub struct TwinLink {
+    twin: Twin,
+    latest: Measurement,
+}
+
+impl TwinLink {
+    /// A link to `twin`, starting from its current state.
+    pub fn new(twin: Twin) -> Self {
+        let latest = twin.truth().clone();
+        Self { twin, latest }
+    }
+
+    /// The twin behind the link (scenes, truth, configuration).
+    pub fn twin(&self) -> &Twin {
+        &self.twin
+    }
+
+    /// The twin behind the link, mutable (adding scene objects).
+    pub fn twin_mut(&mut self) -> &mut Twin {
+        &mut self.twin
+    }
+}
+
+impl Link for TwinLink {
+    fn receive(&mut self) -> Result<Measurement, LinkError> {
+        Ok(self.latest.clone())
+    }
+
+    fn send(&mut self, command: &ActuatorCommand) -> Result<(), LinkError> {
+        self.latest = self.twin.step(command)?;
+        Ok(())
+    }
+
+    fn name(&self) -> String {
+        "twin".to_owned()
+    }
+}

@@ -1,0 +1,259 @@
+//! The flight stack of one tick: action → interface → base controller → allocation →
+//! actuator command, with saturation fed back to the controller.
+
+use allocation::{Allocation, AllocationMethod, Allocator, any_rotor_saturated};
+use controllers::{BaseController, BodyParams, ControllerConfig, ControllerStatus, build};
+use nalgebra::Isometry3;
+use platform::{ActuatorCommand, Measurement, RigidBodyState, Vehicle, Wrench};
+use serde::Serialize;
+
+/// What the flight stack is asked to do at one tick: the base + arm-joint interface.
+/// (The end-effector interface maps onto this through whole-body IK.)
+#[derive(Debug, Clone, PartialEq)]
+pub struct BaseJointTarget {
+    /// Target base pose `world_from_base` (for the EE-only oracle: the EE body).
+    pub world_from_base: Isometry3<f64>,
+    /// Arm joint targets in the vehicle's command order, rad.
+    pub arm_joints: Vec<f64>,
+    /// Gripper action in [−1, 1]: −1 closed, +1 open.
+    pub gripper: f64,
+}
+
+/// How thrusts are chosen from the allocation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ThrustLimits {
+    /// Rotors limited to [T_min, T_max]: the allocation's bounded thrusts are sent and what
+    /// it could not achieve is fed back to the controller.
+    Enforced,
+    /// Ideal unbounded rotors (the reference without `enable_saturation`): the
+    /// pseudo-inverse thrusts are sent as they are, negative ones included.
+    Ideal,
+}
+
+/// Everything one tick decided, for logs and metrics.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TickRecord {
+    /// Measurement time the tick acted on, s.
+    pub time_s: f64,
+    /// The base target handed to the controller.
+    pub base_target: Isometry3<f64>,
+    /// Requested body wrench.
+    pub wrench: Wrench,
+    /// What the allocator could not achieve (zero with ideal rotors).
+    pub unallocated: Wrench,
+    /// The paper's saturation indicator on the sent thrusts (any rotor at a limit).
+    pub allocation_saturated: bool,
+    /// Controller status after the update.
+    pub controller: ControllerStatus,
+    /// The command sent.
+    pub command: ActuatorCommand,
+}
+
+/// Controller, allocator and the vehicle's command layout, built once.
+#[derive(Debug)]
+pub struct FlightStack {
+    vehicle: Vehicle,
+    controller: Box<dyn BaseController>,
+    allocator: Option<Allocator>,
+    allocation: Allocation,
+    limits: ThrustLimits,
+    arm_dofs: Vec<usize>,
+    gripper_dofs: Vec<usize>,
+    tilt_dofs: Vec<usize>,
+    measured_tilt: Vec<f64>,
+    project_on_measured_tilt: bool,
+    /// Low-passed joint configuration the mass properties follow.
+    posture: Vec<f64>,
+    dt_s: f64,
+}
+
+/// Time constant of the posture the controller's mass properties follow, s.
+pub const POSTURE_FILTER_TIME_CONSTANT_S: f64 = 0.25;
+
+/// The stack cannot be built for this vehicle and controller.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct StackError(pub String);
+
+impl FlightStack {
+    /// A stack for `vehicle` with the controller `config`, running every `dt_s` seconds.
+    pub fn new(
+        vehicle: Vehicle,
+        config: &ControllerConfig,
+        method: AllocationMethod,
+        limits: ThrustLimits,
+        dt_s: f64,
+    ) -> Result<Self, StackError> {
+        let controller = build(config, BodyParams::from_vehicle(&vehicle))
+            .map_err(|e| StackError(e.to_string()))?;
+        let allocator = if vehicle.rotors.is_empty() {
+            None
+        } else {
+            Some(
+                Allocator::new(&vehicle.rotors, vehicle.actuation, method)
+                    .map_err(|e| StackError(e.to_string()))?,
+            )
+        };
+        let allocation = allocator
+            .as_ref()
+            .map(Allocator::new_allocation)
+            .unwrap_or_default();
+        let dof_of = |joint: usize| vehicle.model.joints[joint].dof;
+        let arm_dofs = vehicle.arm_dofs();
+        let gripper_dofs = vehicle.gripper.as_ref().map_or_else(Vec::new, |g| {
+            g.joints.iter().filter_map(|&j| dof_of(j)).collect()
+        });
+        let tilt_dofs: Vec<usize> = vehicle
+            .rotors
+            .rotors
+            .iter()
+            .filter_map(|r| {
+                r.tilt
+                    .as_ref()
+                    .and_then(|t| vehicle.model.joint_id(&t.joint))
+                    .and_then(dof_of)
+            })
+            .collect();
+        let vehicle_initial = vehicle.initial_configuration();
+        Ok(Self {
+            measured_tilt: vec![0.0; tilt_dofs.len()],
+            vehicle,
+            controller,
+            allocator,
+            allocation,
+            limits,
+            arm_dofs,
+            gripper_dofs,
+            tilt_dofs,
+            project_on_measured_tilt: false,
+            posture: vehicle_initial,
+            dt_s,
+        })
+    }
+
+    /// Whether each tilting rotor's thrust is projected on its measured direction (for links
+    /// whose rotors push along the hinge's actual angle: hardware, or the twin's
+    /// `TiltThrust::Measured`). Off by default.
+    pub fn with_tilt_projection(mut self, on: bool) -> Self {
+        self.project_on_measured_tilt = on;
+        self
+    }
+
+    /// The vehicle flown.
+    pub fn vehicle(&self) -> &Vehicle {
+        &self.vehicle
+    }
+
+    /// Control period, s.
+    pub fn dt_s(&self) -> f64 {
+        self.dt_s
+    }
+
+    /// Clears the controller for a new flight from `state`.
+    pub fn reset(&mut self, state: &RigidBodyState) {
+        self.controller.reset(state);
+        self.posture = self.vehicle.initial_configuration();
+    }
+
+    /// One tick: from the latest measurement and the target, the command to send.
+    pub fn tick(&mut self, measurement: &Measurement, target: &BaseJointTarget) -> TickRecord {
+        // The arm moves the centre of mass: the model-based terms follow the arm's posture,
+        // low-passed so the quasi-static feed-forward does not couple the arm's fast dynamics
+        // (a drive at its effort limit swinging) into the attitude loop.
+        if measurement.joint_positions.len() == self.posture.len()
+            && measurement.joint_positions.iter().all(|q| q.is_finite())
+        {
+            let a = (self.dt_s / POSTURE_FILTER_TIME_CONSTANT_S).min(1.0);
+            for (p, q) in self.posture.iter_mut().zip(&measurement.joint_positions) {
+                *p += a * (q - *p);
+            }
+            self.controller
+                .set_body(BodyParams::at_configuration(&self.vehicle, &self.posture));
+        }
+        let wrench = self
+            .controller
+            .update(&measurement.base, &target.world_from_base, self.dt_s);
+        let mut joint_targets = self.vehicle.initial_configuration();
+        for (&dof, &q) in self.arm_dofs.iter().zip(&target.arm_joints) {
+            joint_targets[dof] = q;
+        }
+        if let Some(g) = &self.vehicle.gripper {
+            for (&dof, q) in self.gripper_dofs.iter().zip(g.targets(target.gripper)) {
+                joint_targets[dof] = q;
+            }
+        }
+        let mut command = ActuatorCommand {
+            rotor_thrusts_n: Vec::new(),
+            joint_targets,
+            direct_wrench_in_body: None,
+        };
+        let mut unallocated = Wrench::ZERO;
+        let mut allocation_saturated = false;
+        match &mut self.allocator {
+            None => command.direct_wrench_in_body = Some(wrench),
+            Some(allocator) => {
+                for (m, &dof) in self.measured_tilt.iter_mut().zip(&self.tilt_dofs) {
+                    *m = measurement.joint_positions.get(dof).copied().unwrap_or(0.0);
+                }
+                let result =
+                    allocator.allocate_into(&wrench, &self.measured_tilt, &mut self.allocation);
+                let a = &self.allocation;
+                if result.is_ok() {
+                    command.rotor_thrusts_n = match self.limits {
+                        ThrustLimits::Enforced => a.thrusts_n.clone(),
+                        ThrustLimits::Ideal => a.unconstrained_thrusts_n.clone(),
+                    };
+                    for (&dof, &angle) in self.tilt_dofs.iter().zip(&a.tilt_rad) {
+                        command.joint_targets[dof] = angle;
+                    }
+                    // Tilt hinges lag their targets: give each rotor the projection of its
+                    // desired thrust vector on its measured direction, T·cos(α − α_measured),
+                    // so a rotor whose hinge has not arrived never pushes the wrong way (the
+                    // reference applies the commanded angle as if reached, AMBENCH_SPEC §9).
+                    let (t_min, t_max) = (
+                        self.vehicle.rotors.thrust_min_n,
+                        self.vehicle.rotors.thrust_max_n,
+                    );
+                    let projecting =
+                        self.project_on_measured_tilt && !self.measured_tilt.is_empty();
+                    for ((thrust, &angle), &measured) in command
+                        .rotor_thrusts_n
+                        .iter_mut()
+                        .zip(&a.tilt_rad)
+                        .zip(&self.measured_tilt)
+                        .filter(|_| projecting)
+                    {
+                        let projected = *thrust * (angle - measured).cos();
+                        *thrust = match self.limits {
+                            ThrustLimits::Enforced => projected.clamp(t_min, t_max),
+                            ThrustLimits::Ideal => projected,
+                        };
+                    }
+                    if self.limits == ThrustLimits::Enforced {
+                        unallocated = a.unallocated;
+                        self.controller.saturation_feedback(&unallocated);
+                    }
+                } else {
+                    // A measured-tilt length mismatch is a construction bug: idle safely.
+                    command.rotor_thrusts_n =
+                        vec![self.vehicle.rotors.thrust_min_n; self.vehicle.rotors.len()];
+                }
+                let (t_min, t_max) = (
+                    self.vehicle.rotors.thrust_min_n,
+                    self.vehicle.rotors.thrust_max_n,
+                );
+                allocation_saturated = any_rotor_saturated(&command.rotor_thrusts_n, t_min, t_max);
+            }
+        }
+        TickRecord {
+            time_s: measurement.time_s,
+            base_target: target.world_from_base,
+            wrench,
+            unallocated,
+            allocation_saturated,
+            controller: self.controller.status(),
+            command,
+        }
+    }
+}

@@ -1,0 +1,305 @@
+//! `amstack track`: fly a reference trajectory in the twin and measure how well it is
+//! tracked — the validation experiments of the paper.
+//!
+//! Metrics, over the ticks after `settle_s` (the start transient is not scored):
+//! - `ee_pos_rmse_m`: RMS of ‖p_ee − p_ee,ref‖, with p_ee,ref the end-effector link where
+//!   the base and joint targets put it (forward kinematics of the vehicle description);
+//! - `base_pos_rmse_m`, `base_z_rmse_m`: RMS of the base position error, and of its z part;
+//! - `tilt_use_rad`: the largest √(roll² + pitch²) of the base;
+//! - `saturation_rate`: share of ticks with the saturation indicator set (any realised
+//!   rotor thrust at a limit, or a command the motors clamped); null without rotors;
+//! - `max_rotor_thrust_n`: the largest realised rotor thrust over the whole flight.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use allocation::AllocationMethod;
+use controllers::ControllerConfig;
+use nalgebra::{Isometry3, Quaternion, UnitQuaternion};
+use platform::Vehicle;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::Serialize;
+use sim_twin::{Twin, TwinConfig};
+
+use crate::flight_log::{FlightLog, rotors_saturated};
+use crate::link::{Link, LinkError, TwinLink};
+use crate::record::{McapRecorder, RecordError, RunMetadata};
+use crate::stack::{BaseJointTarget, FlightStack, StackError, ThrustLimits};
+use crate::trajectory::Trajectory;
+
+/// What to fly.
+#[derive(Debug, Clone)]
+pub struct TrackConfig {
+    /// The vehicle.
+    pub vehicle: Vehicle,
+    /// Its base controller and gains.
+    pub controller: ControllerConfig,
+    /// The reference.
+    pub trajectory: Trajectory,
+    /// Flight length, s.
+    pub duration_s: f64,
+    /// Start transient excluded from the error metrics, s.
+    pub settle_s: f64,
+    /// The twin: rates, disturbances, motor model, noise, seed.
+    pub twin: TwinConfig,
+    /// Where to write the MCAP log, if anywhere.
+    pub mcap: Option<PathBuf>,
+}
+
+/// The scores of one flight.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrackResult {
+    /// Vehicle id.
+    pub vehicle: String,
+    /// Controller (`pid6`, `pid4`, `l1`).
+    pub controller: String,
+    /// Trajectory name.
+    pub trajectory: String,
+    /// Disturbances on.
+    pub disturbances: Vec<String>,
+    /// Motor time constant, s (null: instantaneous).
+    pub motor_tau_s: Option<f64>,
+    /// Motor rate limit, 1/s (null: none).
+    pub motor_rate_limit_per_s: Option<f64>,
+    /// Seed.
+    pub seed: u64,
+    /// Flight length, s.
+    pub duration_s: f64,
+    /// Start transient excluded from the error metrics, s.
+    pub settle_s: f64,
+    /// Control ticks flown.
+    pub ticks: u64,
+    /// RMS end-effector position error, m.
+    pub ee_pos_rmse_m: f64,
+    /// RMS base position error, m.
+    pub base_pos_rmse_m: f64,
+    /// RMS base z error, m.
+    pub base_z_rmse_m: f64,
+    /// Largest base tilt √(roll² + pitch²), rad.
+    pub tilt_use_rad: f64,
+    /// Share of ticks with saturated rotors (None without rotors).
+    pub saturation_rate: Option<f64>,
+    /// Largest realised rotor thrust, N (None without rotors).
+    pub max_rotor_thrust_n: Option<f64>,
+    /// Wall-clock time of the flight, s.
+    pub wall_time_s: f64,
+    /// Control ticks per wall-clock second.
+    pub ticks_per_second: f64,
+    /// The MCAP log written, if any.
+    pub mcap: Option<PathBuf>,
+}
+
+/// A flight that could not be flown.
+#[derive(Debug, thiserror::Error)]
+pub enum TrackError {
+    /// The stack cannot be built (controller/vehicle mismatch).
+    #[error(transparent)]
+    Stack(#[from] StackError),
+    /// The twin refused its configuration or a command.
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    /// The log could not be written.
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    /// A setting out of range.
+    #[error("{0}")]
+    Config(String),
+}
+
+#[derive(Debug, Default)]
+struct Sums {
+    n: u64,
+    ee: f64,
+    base: f64,
+    base_z: f64,
+    tilt: f64,
+    saturated: u64,
+    rotor_ticks: u64,
+    max_thrust: Option<f64>,
+}
+
+/// Adds action noise (AMBENCH_SPEC §3.1: N(0, σ) on every action value) to a target.
+fn noisy(target: &mut BaseJointTarget, rng: &mut ChaCha8Rng, noise: &Normal<f64>) {
+    let t = &mut target.world_from_base.translation.vector;
+    for x in t.iter_mut() {
+        *x += noise.sample(rng);
+    }
+    let q = target
+        .world_from_base
+        .rotation
+        .into_inner()
+        .coords
+        .map(|c| c + noise.sample(rng));
+    target.world_from_base.rotation = UnitQuaternion::new_normalize(Quaternion::from(q));
+    for q in &mut target.arm_joints {
+        *q += noise.sample(rng);
+    }
+    target.gripper += noise.sample(rng);
+}
+
+/// Flies `config` and scores it. `progress` is called with the simulated time about once a
+/// simulated second.
+pub fn run_track(
+    config: &TrackConfig,
+    mut progress: impl FnMut(f64),
+) -> Result<TrackResult, TrackError> {
+    if !(config.duration_s.is_finite() && config.duration_s > 0.0) {
+        return Err(TrackError::Config(format!(
+            "duration {} s must be finite and positive",
+            config.duration_s
+        )));
+    }
+    if !(config.settle_s.is_finite()
+        && config.settle_s >= 0.0
+        && config.settle_s < config.duration_s)
+    {
+        return Err(TrackError::Config(format!(
+            "settle time {} s must be within [0, {}) s",
+            config.settle_s, config.duration_s
+        )));
+    }
+    let vehicle = &config.vehicle;
+    let dt = config.twin.control_dt_s();
+    let limits = if config.twin.disturbances.saturation {
+        ThrustLimits::Enforced
+    } else {
+        ThrustLimits::Ideal
+    };
+    let mut stack = FlightStack::new(
+        vehicle.clone(),
+        &config.controller,
+        AllocationMethod::PseudoInverse,
+        limits,
+        dt,
+    )?
+    .with_tilt_projection(config.twin.tilt_thrust == sim_twin::TiltThrust::Measured);
+    let mut link =
+        TwinLink::new(Twin::new(vehicle.clone(), config.twin.clone()).map_err(LinkError::from)?);
+    let mut log = match &config.mcap {
+        None => None,
+        Some(path) => {
+            let run = RunMetadata::new(&vehicle.id, config.controller.name(), config.twin.seed)
+                .with_interface("base-joint")
+                .with_trajectory(config.trajectory.name())
+                .with_config(&config.twin)?;
+            Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
+        }
+    };
+    let action_noise = config
+        .twin
+        .disturbances
+        .action_noise
+        .then(|| Normal::new(0.0, config.twin.noise.action_std).ok())
+        .flatten();
+    let mut rng = ChaCha8Rng::seed_from_u64(config.twin.seed ^ 0x6163_7469_6f6e);
+    let limits_n = (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n);
+
+    let ticks = (config.duration_s / dt).round() as u64;
+    let mut sums = Sums::default();
+    let started = Instant::now();
+    let mut measurement = link.receive()?;
+    stack.reset(&measurement.base);
+    let mut next_progress = 1.0;
+    for k in 0..ticks {
+        let t = k as f64 * dt;
+        let mut target = config.trajectory.target(vehicle, t);
+        if let Some(n) = &action_noise {
+            noisy(&mut target, &mut rng, n);
+        }
+        let record = stack.tick(&measurement, &target);
+        let ee_reference = target.world_from_base
+            * vehicle
+                .model
+                .root_from_link(&record.command.joint_targets, vehicle.ee_link);
+        if let Some(log) = &mut log {
+            log.tick(&measurement, &record, &ee_reference)?;
+        }
+        if t >= config.settle_s {
+            score(
+                &mut sums,
+                &measurement,
+                &target.world_from_base,
+                &ee_reference,
+            );
+        }
+        link.send(&record.command)?;
+        measurement = link.receive()?;
+        if let Some(log) = &mut log {
+            log.outcome(&measurement)?;
+        }
+        if !measurement.rotors.is_empty() {
+            let peak = measurement
+                .rotors
+                .iter()
+                .map(|r| r.realised_n)
+                .fold(f64::NEG_INFINITY, f64::max);
+            sums.max_thrust = Some(sums.max_thrust.map_or(peak, |m: f64| m.max(peak)));
+            if t >= config.settle_s {
+                sums.rotor_ticks += 1;
+                sums.saturated += u64::from(rotors_saturated(&measurement, limits_n));
+            }
+        }
+        if measurement.time_s >= next_progress {
+            progress(measurement.time_s);
+            next_progress += 1.0;
+        }
+    }
+    let mcap = match log {
+        Some(log) => Some(log.finish()?.path),
+        None => None,
+    };
+    let wall_time_s = started.elapsed().as_secs_f64();
+    let rms = |sum: f64| {
+        if sums.n > 0 {
+            (sum / sums.n as f64).sqrt()
+        } else {
+            f64::NAN
+        }
+    };
+    Ok(TrackResult {
+        vehicle: vehicle.id.clone(),
+        controller: config.controller.name().to_owned(),
+        trajectory: config.trajectory.name().to_owned(),
+        disturbances: config
+            .twin
+            .disturbances
+            .names()
+            .into_iter()
+            .map(str::to_owned)
+            .collect(),
+        motor_tau_s: config.twin.motor.time_constant_s,
+        motor_rate_limit_per_s: config.twin.motor.rate_limit_per_s,
+        seed: config.twin.seed,
+        duration_s: config.duration_s,
+        settle_s: config.settle_s,
+        ticks,
+        ee_pos_rmse_m: rms(sums.ee),
+        base_pos_rmse_m: rms(sums.base),
+        base_z_rmse_m: rms(sums.base_z),
+        tilt_use_rad: sums.tilt,
+        saturation_rate: (sums.rotor_ticks > 0)
+            .then(|| sums.saturated as f64 / sums.rotor_ticks as f64),
+        max_rotor_thrust_n: sums.max_thrust,
+        wall_time_s,
+        ticks_per_second: ticks as f64 / wall_time_s.max(1e-9),
+        mcap,
+    })
+}
+
+fn score(
+    sums: &mut Sums,
+    m: &platform::Measurement,
+    base_reference: &Isometry3<f64>,
+    ee_reference: &Isometry3<f64>,
+) {
+    let base_error = base_reference.translation.vector - m.base.position_in_world_m;
+    let ee_error = ee_reference.translation.vector - m.world_from_ee.translation.vector;
+    let (roll, pitch, _) = m.base.world_from_body.euler_angles();
+    sums.n += 1;
+    sums.ee += ee_error.norm_squared();
+    sums.base += base_error.norm_squared();
+    sums.base_z += base_error.z * base_error.z;
+    sums.tilt = sums.tilt.max(roll.hypot(pitch));
+}

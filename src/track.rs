@@ -1,0 +1,196 @@
+//! `amstack track`: fly a reference in the twin, print and save its scores.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use comfy_table::{Table, presets};
+use controllers::{ControllerKind, profile};
+use policy_runtime::{TrackConfig, Trajectory, run_track};
+use sim_twin::{Disturbances, MotorConfig, TwinConfig};
+
+use crate::cli_error::bad_input;
+use crate::output::{check_writable, write_json};
+use crate::vehicles::all_vehicles;
+
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Trajectories (all start hovering at (0, 0, 1) m):
+  hover         hold 1 m
+  step          a 1 m step along world x at t = 1 s
+  sines-low     base z = 1 m + four 5 cm sines over 0.18-0.71 Hz
+  sines-high    the same over 0.25-1.50 Hz
+  ground-sweep  end-effector z = 0.8 + 0.2 cos(2 pi t / 30) m (the paper's ground-effect run)
+  arm-sweep     hover while every arm joint sweeps its range
+
+Errors are scored after the settling time; the maximum rotor thrust covers the whole flight.
+The paper's actuator experiment, for example:
+  amstack track --platform fa-hexa --trajectory sines-high --disturbances saturation --motor-tau 0.0475
+  amstack track --platform fa-hexa --trajectory ground-sweep --disturbances ground --mcap sweep.mcap")]
+pub struct Args {
+    /// Vehicle id (ua-quad, ua-hexa, fa-hexa, omni-hexa, ee-only, or one added with --vehicle).
+    #[arg(long, default_value = "fa-hexa")]
+    platform: String,
+    /// Base controller: pid (PID6, or PID4 on under-actuated vehicles) or l1.
+    #[arg(long, default_value = "pid", value_parser = ["pid", "l1"])]
+    controller: String,
+    /// Reference to fly.
+    #[arg(long, default_value = "hover")]
+    trajectory: String,
+    /// Flight length, s [default: hover, step 10; sines 30; ground-sweep 60; arm-sweep 16].
+    #[arg(long, value_name = "S")]
+    duration: Option<f64>,
+    /// Start transient excluded from the error metrics, s.
+    #[arg(long, value_name = "S", default_value_t = 2.0)]
+    settle: f64,
+    /// Comma-separated: drag, wind, ground, wall, noise, saturation; or `reference` (the
+    /// paper's evaluation set: all but noise), `all`, `none`. Without `saturation` the
+    /// rotors are ideal and unbounded, as in the reference's default.
+    #[arg(long, value_name = "LIST", default_value = "none")]
+    disturbances: String,
+    /// Motor time constant, s (needs `saturation`); the paper identified 0.0475.
+    #[arg(long, value_name = "S")]
+    motor_tau: Option<f64>,
+    /// Motor normalised-speed rate limit, 1/s (needs `saturation`); the paper uses 0.75.
+    #[arg(long, value_name = "R")]
+    motor_rate_limit: Option<f64>,
+    /// Ground-effect intensity k (the paper's rho); default 0.171, its real-flight fit 3.4.
+    #[arg(long, value_name = "K")]
+    ground_effect_k: Option<f64>,
+    /// Seed of every random draw (noise).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write the scores as JSON.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Write the flight log as MCAP.
+    #[arg(long, value_name = "FILE")]
+    mcap: Option<PathBuf>,
+    /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
+    #[arg(long = "vehicle", value_name = "FILE.toml")]
+    vehicles: Vec<PathBuf>,
+}
+
+fn config(args: &Args) -> Result<TrackConfig> {
+    let vehicles = all_vehicles(&args.vehicles)?;
+    let Some(vehicle) = vehicles.iter().find(|v| v.id == args.platform).cloned() else {
+        let ids: Vec<&str> = vehicles.iter().map(|v| v.id.as_str()).collect();
+        return Err(bad_input(format!(
+            "--platform {}: unknown vehicle (known: {})",
+            args.platform,
+            ids.join(", ")
+        )));
+    };
+    let trajectory: Trajectory = args
+        .trajectory
+        .parse()
+        .map_err(|e| bad_input(format!("--trajectory: {e}")))?;
+    let kind = if args.controller == "l1" {
+        ControllerKind::L1
+    } else {
+        ControllerKind::Pid
+    };
+    let controller = profile(&vehicle, kind)
+        .map_err(|e| bad_input(format!("--controller {}: {e}", args.controller)))?;
+    let disturbances = Disturbances::parse_list(&args.disturbances)
+        .map_err(|e| bad_input(format!("--disturbances: {e}")))?;
+    let mut twin = TwinConfig {
+        disturbances,
+        motor: MotorConfig {
+            time_constant_s: args.motor_tau,
+            rate_limit_per_s: args.motor_rate_limit,
+        },
+        seed: args.seed,
+        ..TwinConfig::default()
+    };
+    if let Some(k) = args.ground_effect_k {
+        twin.aero.ground_effect_k = k;
+    }
+    twin.validate()
+        .map_err(|e| bad_input(format!("twin: {e}")))?;
+    let duration_s = args
+        .duration
+        .unwrap_or_else(|| trajectory.default_duration_s());
+    if !(duration_s.is_finite() && duration_s > 0.0) {
+        return Err(bad_input(format!(
+            "--duration {duration_s}: must be a positive number of seconds"
+        )));
+    }
+    if !(args.settle.is_finite() && args.settle >= 0.0 && args.settle < duration_s) {
+        return Err(bad_input(format!(
+            "--settle {}: must be within [0, {duration_s}) s",
+            args.settle
+        )));
+    }
+    Ok(TrackConfig {
+        vehicle,
+        controller,
+        trajectory,
+        duration_s,
+        settle_s: args.settle,
+        twin,
+        mcap: args.mcap.clone(),
+    })
+}
+
+fn cell(x: Option<f64>, scale: f64, decimals: usize) -> String {
+    x.filter(|v| v.is_finite())
+        .map_or_else(|| "N/A".to_owned(), |v| format!("{:.decimals$}", v * scale))
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    for (flag, path) in [("--json", &args.json), ("--mcap", &args.mcap)] {
+        if let Some(p) = path {
+            check_writable(flag, p)?;
+        }
+    }
+    let config = config(args)?;
+    eprintln!(
+        "flying {} on {} ({}) for {} s, disturbances: {}",
+        config.trajectory.name(),
+        config.vehicle.id,
+        config.controller.name(),
+        config.duration_s,
+        args.disturbances
+    );
+    let duration = config.duration_s;
+    let result = run_track(&config, |t| {
+        if t >= 5.0 && (t.round() as u64).is_multiple_of(5) {
+            eprintln!("  t = {t:.0} / {duration} s");
+        }
+    })?;
+    let mut table = Table::new();
+    table
+        .load_style(presets::ASCII_MARKDOWN)
+        .set_header(["metric", "value"]);
+    let r = &result;
+    for (name, value) in [
+        (
+            "EE position RMSE (cm)",
+            cell(Some(r.ee_pos_rmse_m), 100.0, 3),
+        ),
+        (
+            "base position RMSE (cm)",
+            cell(Some(r.base_pos_rmse_m), 100.0, 3),
+        ),
+        ("base z RMSE (cm)", cell(Some(r.base_z_rmse_m), 100.0, 3)),
+        (
+            "tilt use (deg)",
+            cell(Some(r.tilt_use_rad), 180.0 / std::f64::consts::PI, 3),
+        ),
+        ("saturation rate (%)", cell(r.saturation_rate, 100.0, 2)),
+        ("max rotor thrust (N)", cell(r.max_rotor_thrust_n, 1.0, 2)),
+        ("scored after (s)", cell(Some(r.settle_s), 1.0, 1)),
+        ("ticks per second", cell(Some(r.ticks_per_second), 1.0, 0)),
+    ] {
+        table.add_row([name.to_owned(), value]);
+    }
+    println!("{table}");
+    if let Some(path) = &args.json {
+        write_json(path, &serde_json::to_value(&result)?)?;
+        eprintln!("wrote {}", path.display());
+    }
+    if let Some(path) = &result.mcap {
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(())
+}
