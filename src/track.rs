@@ -17,7 +17,7 @@ use crate::vehicles::all_vehicles;
 Trajectories (all start hovering at (0, 0, 1) m):
   hover         hold 1 m
   step          a 1 m step along world x at t = 1 s
-  sines-low     base z = 1 m + four 5 cm sines over 0.18-0.71 Hz
+  sines-low     base z = 1 m + four 1 cm sines over 0.18-0.71 Hz
   sines-high    the same over 0.25-1.50 Hz
   ground-sweep  end-effector z = 0.8 + 0.2 cos(2 pi t / 30) m (the paper's ground-effect run)
   arm-sweep     hover while every arm joint sweeps its range
