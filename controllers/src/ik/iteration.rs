@@ -1,11 +1,12 @@
 //! One Levenberg–Marquardt iteration of the two-level problem: the decomposition of the task
 //! Jacobian, the task and regularisation steps, the second-order correction and the step test.
-//! Every buffer is allocated once, in [`Workspace::new`].
+//! The iteration's buffers are allocated once, in [`Workspace::new`]; the decompositions
+//! (nalgebra's SVD and Cholesky, see `linalg`) allocate their own small matrices per call.
 
-use nalgebra::{DMatrix, DVector, Vector6};
+use nalgebra::{Cholesky, DMatrix, DVector, DVectorViewMut, Dyn, Vector6};
 
 use super::chain::ChainPoses;
-use super::linalg::{cholesky, cholesky_solve, one_sided_jacobi, orthogonal_complement};
+use super::linalg::{cholesky, split_range_and_nullspace};
 use super::problem::{Linearization, Problem, State, Target, bounded_value, linearize, retract};
 
 /// Displacements (m or rad) below this count as not crossing a bound.
@@ -46,19 +47,15 @@ pub(crate) struct Workspace {
     /// A probe point of the Hessian's finite differences and its linearization.
     probe_state: State,
     probe: Linearization,
-    /// SVD of J₁ by one-sided Jacobi: W = J₁ᵀU (n × (6 + n)) and the left singular vectors U
-    /// ((6 + n)², kept between decompositions as the warm start), for the active hinge set
-    /// `svd_hinges`.
-    svd_w: DMatrix<f64>,
-    svd_u: DMatrix<f64>,
-    svd_hinges: Vec<usize>,
-    /// Right singular vectors spanning the range of J₁ᵀ (first `range_count` columns), σ² and
-    /// v_iᵀg of each.
+    /// The active hinge set (variables) of the last decomposition of J₁.
+    decomposed_hinges: Vec<usize>,
+    /// Right singular vectors of J₁ spanning the range of J₁ᵀ (first `range_count` columns),
+    /// σ² and v_iᵀg of each.
     range_v: DMatrix<f64>,
     range_count: usize,
     range_sigma2: Vec<f64>,
     range_gradient: Vec<f64>,
-    /// Nullspace basis N in the first `null_count` columns.
+    /// Nullspace basis N (the other right singular vectors) in the first `null_count` columns.
     null: DMatrix<f64>,
     pub(crate) null_count: usize,
     /// B·N.
@@ -78,12 +75,9 @@ pub(crate) struct Workspace {
     gradient_probe: DVector<f64>,
     /// Nᵀc, the regularisation gradient on the nullspace.
     pub(crate) null_gradient: Vec<f64>,
-    /// Regularisation normal matrix (then its Cholesky factor).
-    m: DMatrix<f64>,
-    /// M⁻¹Cᵀ and C·M⁻¹·Cᵀ of the bound constraints of the regularisation step.
+    /// M⁻¹Cᵀ of the bound constraints of the regularisation step (M its normal matrix).
     m_inv_ct: DMatrix<f64>,
-    s: DMatrix<f64>,
-    /// Task correction's normal matrix (then its Cholesky factor).
+    /// Task correction's normal matrix.
     restoration: DMatrix<f64>,
     /// Variable bounds (±∞ where none) and the values after the task step.
     pub(crate) lower: Vec<f64>,
@@ -111,9 +105,7 @@ impl Workspace {
             corrected: Linearization::new(n),
             probe_state: seed.clone(),
             probe: Linearization::new(n),
-            svd_w: DMatrix::zeros(n, 6 + n),
-            svd_u: DMatrix::identity(6 + n, 6 + n),
-            svd_hinges: Vec::with_capacity(n),
+            decomposed_hinges: Vec::with_capacity(n),
             range_v: DMatrix::zeros(n, n),
             range_count: 0,
             range_sigma2: vec![0.0; n],
@@ -131,9 +123,7 @@ impl Workspace {
             gradient_base: DVector::zeros(n),
             gradient_probe: DVector::zeros(n),
             null_gradient: vec![0.0; n],
-            m: DMatrix::zeros(n, n),
             m_inv_ct: DMatrix::zeros(n, n),
-            s: DMatrix::zeros(n, n),
             restoration: DMatrix::zeros(n, n),
             lower: vec![0.0; n],
             upper: vec![0.0; n],
@@ -189,52 +179,32 @@ impl Workspace {
         if hinges
             .iter()
             .map(|h| h.0)
-            .ne(self.svd_hinges.iter().copied())
+            .ne(self.decomposed_hinges.iter().copied())
         {
-            // Another row set: the previous left singular vectors mean nothing for it.
-            self.svd_u.fill_with_identity();
+            // Another row set, so another nullspace: the probed Hessian is not for it.
             self.hessian_valid = false;
-            self.svd_hinges.clear();
-            self.svd_hinges.extend(hinges.iter().map(|h| h.0));
+            self.decomposed_hinges.clear();
+            self.decomposed_hinges.extend(hinges.iter().map(|h| h.0));
         }
-        // W = J₁ᵀ·U (n × m), U the previous left singular vectors: J₁ changes little between
-        // iterations and between flight-loop solves, so W starts nearly orthogonal.
-        self.svd_w.columns_mut(0, m).gemm_tr(
-            1.0,
-            &self.current.jacobian,
-            &self.svd_u.view((0, 0), (6, m)),
-            0.0,
-        );
-        for (h, &(var, slope)) in self.current.hinges.iter().enumerate() {
-            for j in 0..m {
-                self.svd_w[(var, j)] += slope * self.svd_u[(6 + h, j)];
-            }
+        // J₁, with zero rows up to n so that the SVD yields all n right singular vectors.
+        let mut j1 = DMatrix::zeros(m.max(n), n);
+        j1.rows_mut(0, 6).copy_from(&self.current.jacobian);
+        for (h, &(var, slope)) in hinges.iter().enumerate() {
+            j1[(6 + h, var)] = slope;
         }
-        if !one_sided_jacobi(&mut self.svd_w, &mut self.svd_u, m) {
-            return false;
-        }
-        let largest = (0..m)
-            .map(|j| self.svd_w.column(j).norm())
-            .fold(0.0, f64::max);
-        self.range_count = 0;
-        for j in 0..m {
-            let sigma = self.svd_w.column(j).norm();
-            if largest > 0.0 && sigma > ratio * largest && self.range_count < n {
-                let slot = self.range_count;
-                let mut v = self.range_v.column_mut(slot);
-                v.copy_from(&self.svd_w.column(j));
-                v /= sigma;
-                self.range_sigma2[slot] = sigma * sigma;
-                self.range_gradient[slot] = self.range_v.column(slot).dot(&self.current.g);
-                self.range_count += 1;
-            }
-        }
-        self.null_count = orthogonal_complement(
-            &self.range_v,
-            self.range_count,
+        let Some((range_count, null_count)) = split_range_and_nullspace(
+            j1,
+            ratio,
+            &mut self.range_v,
+            &mut self.range_sigma2,
             &mut self.null,
-            &mut self.scratch,
-        );
+        ) else {
+            return false;
+        };
+        (self.range_count, self.null_count) = (range_count, null_count);
+        for slot in 0..range_count {
+            self.range_gradient[slot] = self.range_v.column(slot).dot(&self.current.g);
+        }
         let k = self.null_count;
         self.b_null
             .columns_mut(0, k)
@@ -395,30 +365,28 @@ impl Workspace {
             .map(|i| self.reduced_hessian[(i, i)].abs())
             .fold(0.0, f64::max);
         let mut damping = mu + p.config.solver.nullspace_ridge;
-        let mut factored = false;
+        let mut factor = None;
         for _ in 0..MAX_DAMPING_INCREASES {
+            let mut m = self.reduced_hessian.view((0, 0), (k, k)).clone_owned();
             for i in 0..k {
-                for j in 0..k {
-                    self.m[(i, j)] = self.reduced_hessian[(i, j)];
-                }
-                self.m[(i, i)] += damping;
+                m[(i, i)] += damping;
             }
-            if cholesky(&mut self.m, k) {
-                factored = true;
+            factor = cholesky(m);
+            if factor.is_some() {
                 break;
             }
             damping = 4.0 * damping + 1e-3 * scale;
         }
-        if !factored {
+        let Some(factor) = factor else {
             return predicted;
-        }
+        };
         for i in 0..k {
             let b_delta1: f64 = (0..n).map(|r| self.b_null[(r, i)] * self.delta1[r]).sum();
             self.z0[i] = -(b_delta1 + self.null_gradient[i]);
         }
-        cholesky_solve(&self.m, &mut self.z0[..k]);
+        factor.solve_mut(&mut DVectorViewMut::from_slice(&mut self.z0[..k], k));
         self.z[..k].copy_from_slice(&self.z0[..k]);
-        self.hold_bounds(p);
+        self.hold_bounds(p, &factor);
         for r in 0..n {
             self.delta[r] += (0..k).map(|j| self.null[(r, j)] * self.z[j]).sum::<f64>();
         }
@@ -429,7 +397,7 @@ impl Workspace {
     /// owns the limits), and may use the nullspace to bring back one the task step pushed out:
     /// the first bound the step would hit becomes an equality `(N z)_i = t_i` that lands the
     /// variable on it, z is re-solved, and so on until no bound is crossed.
-    fn hold_bounds(&mut self, p: &Problem) {
+    fn hold_bounds(&mut self, p: &Problem, factor: &Cholesky<f64, Dyn>) {
         let n = p.layout.n;
         let k = self.null_count;
         for i in 0..n {
@@ -469,7 +437,7 @@ impl Workspace {
                 break;
             };
             self.constraints.push((var, target));
-            if !self.constrained_solve(k) {
+            if !self.constrained_solve(k, factor) {
                 self.z[..k].fill(0.0);
                 break;
             }
@@ -477,36 +445,35 @@ impl Workspace {
     }
 
     /// z = z₀ − M⁻¹Cᵀ(C M⁻¹ Cᵀ)⁻¹(C z₀ − t): the least change of the regularisation step that
-    /// meets the equality constraints (rows C_i = N_i of the constrained variables). `m` holds
-    /// the Cholesky factor of M. False if the constraints are degenerate.
-    fn constrained_solve(&mut self, k: usize) -> bool {
+    /// meets the equality constraints (rows C_i = N_i of the constrained variables), with
+    /// `factor` the Cholesky factor of M. False if the constraints are degenerate.
+    fn constrained_solve(&mut self, k: usize, factor: &Cholesky<f64, Dyn>) -> bool {
         let nc = self.constraints.len();
+        let mut m_inv_ct = self.m_inv_ct.view_mut((0, 0), (k, nc));
         for (col, &(var, _)) in self.constraints.iter().enumerate() {
             for j in 0..k {
-                self.scratch[j] = self.null[(var, j)];
-            }
-            cholesky_solve(&self.m, &mut self.scratch[..k]);
-            for j in 0..k {
-                self.m_inv_ct[(j, col)] = self.scratch[j];
+                m_inv_ct[(j, col)] = self.null[(var, j)];
             }
         }
+        factor.solve_mut(&mut m_inv_ct);
+        let mut s = DMatrix::zeros(nc, nc);
         let mut largest: f64 = 0.0;
         for (a, &(va, ta)) in self.constraints.iter().enumerate() {
             for b in 0..nc {
-                self.s[(a, b)] = (0..k)
+                s[(a, b)] = (0..k)
                     .map(|j| self.null[(va, j)] * self.m_inv_ct[(j, b)])
                     .sum();
             }
-            largest = largest.max(self.s[(a, a)]);
+            largest = largest.max(s[(a, a)]);
             self.scratch[a] = (0..k).map(|j| self.null[(va, j)] * self.z0[j]).sum::<f64>() - ta;
         }
         for a in 0..nc {
-            self.s[(a, a)] += CONSTRAINT_RIDGE * largest + f64::MIN_POSITIVE;
+            s[(a, a)] += CONSTRAINT_RIDGE * largest + f64::MIN_POSITIVE;
         }
-        if !cholesky(&mut self.s, nc) {
+        let Some(s_factor) = cholesky(s) else {
             return false;
-        }
-        cholesky_solve(&self.s, &mut self.scratch[..nc]);
+        };
+        s_factor.solve_mut(&mut DVectorViewMut::from_slice(&mut self.scratch[..nc], nc));
         for j in 0..k {
             self.z[j] = self.z0[j]
                 - (0..nc)
@@ -579,10 +546,10 @@ impl Workspace {
                 self.restoration[(i, i)] += FREEZE * scale;
             }
         }
-        if !cholesky(&mut self.restoration, n) {
+        let Some(factor) = cholesky(self.restoration.clone()) else {
             return false;
-        }
-        cholesky_solve(&self.restoration, &mut self.scratch[..n]);
+        };
+        factor.solve_mut(&mut DVectorViewMut::from_slice(&mut self.scratch[..n], n));
         // The model predicts a decrease between −gᵀδ and −2gᵀδ: skip the evaluation when even
         // the larger is a small part of the cost (what is left is beyond Gauss–Newton's reach,
         // e.g. along a near-singular direction).

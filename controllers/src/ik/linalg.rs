@@ -1,198 +1,69 @@
-//! Small dense linear algebra on preallocated storage (no allocation per call).
+//! The IK's two decompositions, both nalgebra's: the SVD of the task Jacobian, split into the
+//! range of J₁ᵀ and its orthogonal complement (the task nullspace), and the Cholesky factor of
+//! the small symmetric positive-definite systems of the regularisation and correction steps.
 //!
-//! The IK's matrices are at most a dozen rows wide: a one-sided Jacobi SVD, an orthogonal
-//! complement and an in-place Cholesky factorisation are fast and accurate at that size, and
-//! they reuse the buffers the solver owns. The Cholesky routines work on the top-left `k × k`
-//! block of a larger buffer.
+//! nalgebra's SVD returns min(rows, columns) right singular vectors. The nullspace needs all
+//! n of them, so J₁ (6 + active hinges rows) is given zero rows up to n when it is wider than
+//! tall: zero rows change neither the singular values nor the right singular vectors, and the
+//! directions J₁ cannot see come out with singular value zero.
 
-use nalgebra::DMatrix;
+use nalgebra::{Cholesky, DMatrix, Dyn, SVD};
 
-/// Largest number of Jacobi sweeps (Jacobi converges quadratically: a handful suffice).
-const MAX_JACOBI_SWEEPS: usize = 40;
-/// One-sided Jacobi stops rotating a column pair once |cos| of their angle is below this
-/// (the dot product's own round-off is ~n·ε; 1e-12 keeps singular values and vectors to
-/// ~1e-12 relative, ample for the steps and the nullspace threshold).
-const ONE_SIDED_ORTHOGONALITY: f64 = 1e-12;
-/// A Jacobi sweep whose largest rotation tangent is below this ends the iteration (the next
-/// sweep would rotate by about its square, ~1e-12).
-const ONE_SIDED_LAST_SWEEP_TANGENT: f64 = 1e-6;
-/// Above this |cot 2φ| the Jacobi rotation tangent uses its asymptote 1/(2·cot 2φ).
-const JACOBI_HUGE_COT: f64 = 1e150;
-/// A candidate e_i with less than this squared norm outside the span found so far does not
-/// give a complement vector (it is in the span to round-off).
-const COMPLEMENT_MIN_RESIDUAL: f64 = 1e-6;
+/// Most implicit-shift QR sweeps of one SVD per column (LAPACK allows about 6 per column;
+/// a well-behaved problem needs about 2).
+const SVD_SWEEPS_PER_COLUMN: usize = 30;
 
-/// One-sided (Hestenes) Jacobi orthogonalisation of the first `m` columns of `w` (n rows):
-/// plane rotations of column pairs until all pairs are orthogonal to round-off, applied to the
-/// first `m` columns of `u` too. For `w = Jᵀ·U₀` this is the SVD of J: on return the columns of
-/// `w` are σ_j·v_j (right singular vectors scaled by the singular values) and `u`'s columns the
-/// left singular vectors (`u` must hold U₀ on entry: the identity, or the vectors of a nearby
-/// matrix, which cuts the sweeps to one or two). Returns false on a non-finite entry or when
-/// the sweeps run out.
-pub(crate) fn one_sided_jacobi(w: &mut DMatrix<f64>, u: &mut DMatrix<f64>, m: usize) -> bool {
-    let n = w.nrows();
-    let u_rows = u.nrows();
-    let w = w.as_mut_slice();
-    let u = u.as_mut_slice();
-    // A column this small (squared norm relative to |W|²) is zero to round-off: its direction
-    // is noise, and rotating it against the others would never settle.
-    let frobenius2: f64 = w[..m * n].iter().map(|x| x * x).sum();
-    let zero_column = (f64::EPSILON * f64::EPSILON) * frobenius2;
-    for _ in 0..MAX_JACOBI_SWEEPS {
-        let mut largest_tangent: f64 = 0.0;
-        for p in 0..m {
-            for q in p + 1..m {
-                let (alpha, beta, gamma) = {
-                    let (left, right) = w.split_at(q * n);
-                    let (wp, wq) = (&left[p * n..p * n + n], &right[..n]);
-                    wp.iter()
-                        .zip(wq)
-                        .fold((0.0, 0.0, 0.0), |(a, b, g), (x, y)| {
-                            (a + x * x, b + y * y, g + x * y)
-                        })
-                };
-                if !(alpha.is_finite() && beta.is_finite() && gamma.is_finite()) {
-                    return false;
-                }
-                if alpha.min(beta) <= zero_column
-                    || gamma.abs() <= ONE_SIDED_ORTHOGONALITY * (alpha * beta).sqrt()
-                {
-                    continue;
-                }
-                let zeta = (beta - alpha) / (2.0 * gamma);
-                let t = if zeta.abs() > JACOBI_HUGE_COT {
-                    0.5 / zeta
-                } else {
-                    zeta.signum() / (zeta.abs() + (zeta * zeta + 1.0).sqrt())
-                };
-                largest_tangent = largest_tangent.max(t.abs());
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                rotate_columns(w, n, n, p, q, c, s);
-                // Rows of U at and beyond m are zero in its first m columns.
-                rotate_columns(u, u_rows, m, p, q, c, s);
-            }
-        }
-        // Convergence is quadratic: after a sweep whose rotations were all this small, the
-        // next would only rotate by round-off.
-        if largest_tangent < ONE_SIDED_LAST_SWEEP_TANGENT {
-            return true;
+/// The right singular vectors of `j` (m × n with m ≥ n; pad with zero rows otherwise), split
+/// by `ratio`: those whose singular value exceeds `ratio·σ_max` span the range of Jᵀ and go to
+/// the first columns of `range`, their σ² to `sigma2`; the others span the nullspace of J and
+/// go to the first columns of `null`. `range` and `null` are n × n, `sigma2` holds n. Returns
+/// (range count, nullspace count), or None on a non-finite entry or when the SVD does not
+/// converge.
+pub(crate) fn split_range_and_nullspace(
+    j: DMatrix<f64>,
+    ratio: f64,
+    range: &mut DMatrix<f64>,
+    sigma2: &mut [f64],
+    null: &mut DMatrix<f64>,
+) -> Option<(usize, usize)> {
+    let n = j.ncols();
+    if n == 0 {
+        return Some((0, 0));
+    }
+    if !j.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let j = if j.nrows() < n {
+        j.resize_vertically(n, 0.0)
+    } else {
+        j
+    };
+    // Unordered: the split below needs no order, and sorting would panic on a NaN.
+    let svd = SVD::try_new_unordered(j, false, true, f64::EPSILON, SVD_SWEEPS_PER_COLUMN * n)?;
+    let v_t = svd.v_t.as_ref()?;
+    let sigma = &svd.singular_values;
+    let largest = sigma.amax();
+    let (mut r, mut k) = (0, 0);
+    for (i, &s) in sigma.iter().enumerate() {
+        if largest > 0.0 && s > ratio * largest {
+            range.column_mut(r).tr_copy_from(&v_t.row(i));
+            sigma2[r] = s * s;
+            r += 1;
+        } else {
+            null.column_mut(k).tr_copy_from(&v_t.row(i));
+            k += 1;
         }
     }
-    false
+    Some((r, k))
 }
 
-/// Columns p < q (first `len` rows) of the column-major matrix `m` with `rows` rows
-/// ← (c·m_p − s·m_q, s·m_p + c·m_q).
-fn rotate_columns(m: &mut [f64], rows: usize, len: usize, p: usize, q: usize, c: f64, s: f64) {
-    let (left, right) = m.split_at_mut(q * rows);
-    let column_p = &mut left[p * rows..p * rows + len];
-    let column_q = &mut right[..len];
-    for (x, y) in column_p.iter_mut().zip(column_q.iter_mut()) {
-        let (xp, yq) = (*x, *y);
-        *x = c * xp - s * yq;
-        *y = s * xp + c * yq;
+/// nalgebra's Cholesky factor of the symmetric positive-definite `m` (its lower triangle is
+/// read); None if an entry is not finite or `m` is not (numerically) positive definite.
+pub(crate) fn cholesky(m: DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
+    if !m.iter().all(|v| v.is_finite()) {
+        return None;
     }
-}
-
-/// An orthonormal basis of the complement of the orthonormal columns `range[..r]` (n rows)
-/// into the first `n − r` columns of `out`: the unit vectors e_i, most outside the range
-/// first, orthogonalised against the range and each other. `norms` is scratch of length n.
-/// Returns the number of vectors found.
-pub(crate) fn orthogonal_complement(
-    range: &DMatrix<f64>,
-    r: usize,
-    out: &mut DMatrix<f64>,
-    norms: &mut [f64],
-) -> usize {
-    let n = range.nrows();
-    let range = range.as_slice();
-    let out = out.as_mut_slice();
-    // Squared norm of each e_i outside the span found so far.
-    for (i, norm) in norms.iter_mut().enumerate().take(n) {
-        *norm = 1.0 - (0..r).map(|j| range[i + j * n].powi(2)).sum::<f64>();
-    }
-    let mut found = 0;
-    while found + r < n {
-        let Some((best, &residual)) = norms[..n]
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(b.1))
-        else {
-            break;
-        };
-        if residual < COMPLEMENT_MIN_RESIDUAL {
-            break;
-        }
-        let (done, rest) = out.split_at_mut(found * n);
-        let x = &mut rest[..n];
-        x.fill(0.0);
-        x[best] = 1.0;
-        // x = e_best minus its projections on the range and on the vectors found, twice for
-        // accuracy (classical Gram–Schmidt twice is as good as modified).
-        for _ in 0..2 {
-            for column in range[..r * n].chunks_exact(n).chain(done.chunks_exact(n)) {
-                let d: f64 = column.iter().zip(x.iter()).map(|(a, b)| a * b).sum();
-                for (xi, ci) in x.iter_mut().zip(column) {
-                    *xi -= d * ci;
-                }
-            }
-        }
-        let norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
-        for xi in x.iter_mut() {
-            *xi /= norm;
-        }
-        for (residual, xi) in norms.iter_mut().zip(x.iter()) {
-            *residual -= xi * xi;
-        }
-        norms[best] = f64::NEG_INFINITY;
-        found += 1;
-    }
-    found
-}
-
-/// Cholesky factorisation in place of the symmetric positive-definite `k × k` block of `m`:
-/// on return its lower triangle holds L with `M = L·Lᵀ`. Returns false if M is not
-/// (numerically) positive definite.
-pub(crate) fn cholesky(m: &mut DMatrix<f64>, k: usize) -> bool {
-    for j in 0..k {
-        let mut d = m[(j, j)];
-        for p in 0..j {
-            d -= m[(j, p)] * m[(j, p)];
-        }
-        if !(d > 0.0 && d.is_finite()) {
-            return false;
-        }
-        let d = d.sqrt();
-        m[(j, j)] = d;
-        for i in j + 1..k {
-            let mut s = m[(i, j)];
-            for p in 0..j {
-                s -= m[(i, p)] * m[(j, p)];
-            }
-            m[(i, j)] = s / d;
-        }
-    }
-    true
-}
-
-/// Solves `L·Lᵀ·x = b` in place (`b` becomes x) with the factor left by [`cholesky`].
-pub(crate) fn cholesky_solve(l: &DMatrix<f64>, b: &mut [f64]) {
-    let k = b.len();
-    for i in 0..k {
-        let mut s = b[i];
-        for p in 0..i {
-            s -= l[(i, p)] * b[p];
-        }
-        b[i] = s / l[(i, i)];
-    }
-    for i in (0..k).rev() {
-        let mut s = b[i];
-        for p in i + 1..k {
-            s -= l[(p, i)] * b[p];
-        }
-        b[i] = s / l[(i, i)];
-    }
+    Cholesky::new(m)
 }
 
 #[cfg(test)]
@@ -202,6 +73,8 @@ mod tests {
 
     /// Round-off allowed on reconstructions of well-conditioned 6 × 6 problems.
     const RECONSTRUCTION_TOLERANCE: f64 = 1e-12;
+    /// The default `nullspace_singular_value_ratio`.
+    const RATIO: f64 = 1e-6;
 
     fn test_matrix() -> DMatrix<f64> {
         // A rank-4 Gram matrix of a 4 × 6 "Jacobian".
@@ -223,61 +96,55 @@ mod tests {
         j
     }
 
-    #[test]
-    fn one_sided_jacobi_gives_the_svd_of_a_rank_deficient_jacobian() {
-        let j = rank_deficient_jacobian();
-        let mut w = j.transpose(); // 5 × 6
-        let mut u = DMatrix::identity(6, 6);
-        assert!(one_sided_jacobi(&mut w, &mut u, 6));
-        // W = JᵀU with orthogonal columns, U orthogonal.
-        assert!((j.transpose() * &u - &w).amax() < RECONSTRUCTION_TOLERANCE);
-        assert!((u.transpose() * &u - DMatrix::identity(6, 6)).amax() < RECONSTRUCTION_TOLERANCE);
-        let gram = w.transpose() * &w;
-        let off = gram.clone() - DMatrix::from_diagonal(&gram.diagonal());
-        assert!(off.amax() < RECONSTRUCTION_TOLERANCE * gram.amax());
-        // Four non-zero singular values, two zero to round-off.
-        let largest = gram.diagonal().amax().sqrt();
-        let zero = gram
-            .diagonal()
-            .iter()
-            .filter(|d| d.sqrt() < 1e-12 * largest)
-            .count();
-        assert_eq!(zero, 2);
-    }
-
-    #[test]
-    fn one_sided_jacobi_warm_started_from_nearby_vectors_converges() {
-        let j = rank_deficient_jacobian();
-        let mut w = j.transpose();
-        let mut u = DMatrix::identity(6, 6);
-        assert!(one_sided_jacobi(&mut w, &mut u, 6));
-        let nearby = &j + DMatrix::from_fn(6, 5, |r, c| 1e-3 * ((r + c) as f64));
-        let mut w2 = nearby.transpose() * &u;
-        assert!(one_sided_jacobi(&mut w2, &mut u, 6));
-        assert!((nearby.transpose() * &u - &w2).amax() < RECONSTRUCTION_TOLERANCE);
-        let gram = w2.transpose() * &w2;
-        let off = gram.clone() - DMatrix::from_diagonal(&gram.diagonal());
-        assert!(off.amax() < RECONSTRUCTION_TOLERANCE * gram.amax());
-    }
-
-    #[test]
-    fn orthogonal_complement_completes_an_orthonormal_basis() {
-        // Range: two orthonormal vectors in R⁵.
-        let mut range = DMatrix::zeros(5, 5);
-        let a = DVector::from_vec(vec![1.0, 2.0, 0.0, -1.0, 0.5]).normalize();
-        let b0 = DVector::from_vec(vec![0.0, 1.0, 1.0, 0.0, 0.0]);
-        let b = (&b0 - &a * a.dot(&b0)).normalize();
-        range.set_column(0, &a);
-        range.set_column(1, &b);
-        let mut null = DMatrix::zeros(5, 5);
-        let mut norms = vec![0.0; 5];
-        assert_eq!(orthogonal_complement(&range, 2, &mut null, &mut norms), 3);
-        let mut basis = range.columns(0, 2).clone_owned();
-        basis = basis.insert_columns(2, 3, 0.0);
-        basis.columns_mut(2, 3).copy_from(&null.columns(0, 3));
+    /// Splits `j` and checks the contract: range and nullspace together are an orthonormal
+    /// basis, J annihilates the nullspace, and Σ σ_i² v_i v_iᵀ over the range rebuilds JᵀJ.
+    fn assert_split(j: &DMatrix<f64>, expected_range: usize) {
+        let n = j.ncols();
+        let mut range = DMatrix::zeros(n, n);
+        let mut null = DMatrix::zeros(n, n);
+        let mut sigma2 = vec![0.0; n];
+        let split = split_range_and_nullspace(j.clone(), RATIO, &mut range, &mut sigma2, &mut null);
+        assert_eq!(split, Some((expected_range, n - expected_range)));
+        let (r, k) = (expected_range, n - expected_range);
+        let mut basis = DMatrix::zeros(n, n);
+        basis.columns_mut(0, r).copy_from(&range.columns(0, r));
+        basis.columns_mut(r, k).copy_from(&null.columns(0, k));
         assert!(
-            (basis.transpose() * &basis - DMatrix::identity(5, 5)).amax()
+            (basis.transpose() * &basis - DMatrix::identity(n, n)).amax()
                 < RECONSTRUCTION_TOLERANCE
+        );
+        let scale = j.amax();
+        assert!((j * null.columns(0, k)).amax() < RECONSTRUCTION_TOLERANCE * scale);
+        let mut gram = DMatrix::zeros(n, n);
+        for (i, s2) in sigma2.iter().take(r).enumerate() {
+            gram += range.column(i) * range.column(i).transpose() * *s2;
+        }
+        let jtj = j.transpose() * j;
+        assert!((gram - &jtj).amax() < RECONSTRUCTION_TOLERANCE * jtj.amax());
+    }
+
+    #[test]
+    fn svd_splits_a_rank_deficient_jacobian_into_range_and_nullspace() {
+        assert_split(&rank_deficient_jacobian(), 4);
+    }
+
+    #[test]
+    fn svd_of_a_wide_jacobian_gives_the_whole_nullspace() {
+        // 4 independent rows of 5 columns (fewer rows than variables, as a pose Jacobian of
+        // a vehicle with more than six variables): one nullspace vector from the zero rows.
+        assert_split(&rank_deficient_jacobian().rows(0, 4).clone_owned(), 4);
+    }
+
+    #[test]
+    fn svd_refuses_a_non_finite_jacobian() {
+        let mut j = rank_deficient_jacobian();
+        j[(2, 3)] = f64::NAN;
+        let mut range = DMatrix::zeros(5, 5);
+        let mut null = DMatrix::zeros(5, 5);
+        let mut sigma2 = vec![0.0; 5];
+        assert_eq!(
+            split_range_and_nullspace(j, RATIO, &mut range, &mut sigma2, &mut null),
+            None
         );
     }
 
@@ -285,18 +152,21 @@ mod tests {
     fn cholesky_solves_a_positive_definite_system() {
         let m0 = test_matrix() + DMatrix::identity(6, 6);
         let x_true = DVector::from_fn(6, |i, _| i as f64 - 2.5);
-        let b = &m0 * &x_true;
-        let mut m = m0.clone();
-        assert!(cholesky(&mut m, 6));
-        let mut x = b.as_slice().to_vec();
-        cholesky_solve(&m, &mut x);
-        let err = (DVector::from_vec(x) - x_true).amax();
+        let mut x = &m0 * &x_true;
+        let Some(factor) = cholesky(m0.clone()) else {
+            panic!("not factored");
+        };
+        factor.solve_mut(&mut x);
+        let err = (x - x_true).amax();
         assert!(err < RECONSTRUCTION_TOLERANCE, "error {err}");
     }
 
     #[test]
-    fn cholesky_refuses_a_singular_matrix() {
-        let mut m = DMatrix::from_element(3, 3, 1.0);
-        assert!(!cholesky(&mut m, 3));
+    fn cholesky_refuses_a_singular_or_non_finite_matrix() {
+        let m = DMatrix::from_element(3, 3, 1.0);
+        assert!(cholesky(m).is_none());
+        let mut m = DMatrix::identity(3, 3);
+        m[(1, 1)] = f64::INFINITY;
+        assert!(cholesky(m).is_none());
     }
 }

@@ -4,7 +4,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Matrix6xX, UnitQuaternion, Vector3, Ve
 
 use super::chain::{Chain, ChainPoses, Motion};
 use super::config::{IkConfig, IkSolverSettings};
-use super::so3;
+use crate::so3::left_jacobian_inverse;
 
 /// A limit hinge becomes active only beyond this (m or rad). Without it a variable resting on
 /// its bound flips the hinge row on and off with round-off, which changes the task nullspace
@@ -189,12 +189,11 @@ pub(crate) fn pose_residual(
     let lever = x.rotation * base_from_ee; // p_ee − p_base, world
     let ee_rotation = x.rotation * poses.base_from_ee.rotation;
     let position_error = x.position + lever - target.position;
-    let orientation_error = so3::log(&(target.rotation.inverse() * ee_rotation));
+    let orientation_error = (target.rotation.inverse() * ee_rotation).scaled_axis();
     // Every variable turns the EE by a world-frame (left) increment ω: R_ee ← exp(ω)·R_ee, so
     // the orientation residual moves by J_l⁻¹(e)·R_targetᵀ·ω.
-    let to_residual = so3::left_jacobian_inverse(&orientation_error)
-        * target.rotation_transposed
-        * w.pose_orientation;
+    let to_residual =
+        left_jacobian_inverse(&orientation_error) * target.rotation_transposed * w.pose_orientation;
     let mut set_column = |col: usize, linear: Vector3<f64>, angular: Vector3<f64>| {
         let lin = linear * w.pose_position;
         let ang = to_residual * angular;
@@ -301,11 +300,11 @@ pub(crate) fn linearize(
         }
     }
     let wo = w.smoothness_base_orientation;
-    let base_error = so3::log(&(x.rotation * anchor.rotation.inverse()));
+    let base_error = (x.rotation * anchor.rotation.inverse()).scaled_axis();
     let r_base = base_error * wo;
     cost += r_base.norm_squared();
     if !l.orientation_axes.is_empty() {
-        let jb = so3::left_jacobian_inverse(&base_error) * wo;
+        let jb = left_jacobian_inverse(&base_error) * wo;
         let first = l.position_axes.len();
         for (i, &ai) in l.orientation_axes.iter().enumerate() {
             out.c[first + i] += jb.column(ai).dot(&r_base);
@@ -339,7 +338,7 @@ pub(crate) fn retract(layout: &Layout, x: &State, delta: &[f64], out: &mut State
         for (i, &axis) in layout.orientation_axes.iter().enumerate() {
             omega[axis] = delta[layout.position_axes.len() + i];
         }
-        so3::exp(&omega) * x.rotation
+        UnitQuaternion::from_scaled_axis(omega) * x.rotation
     };
     for (k, (o, &q)) in out.arm.iter_mut().zip(&x.arm).enumerate() {
         *o = q + delta[layout.arm_offset + k];
