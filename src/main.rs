@@ -37,7 +37,7 @@ enum Command {
     Platforms(platforms::Args),
     /// Fly a reference trajectory in the twin and report tracking errors, tilt and
     /// saturation: the validation experiments of the paper.
-    Track(track::Args),
+    Track(Box<track::Args>),
 }
 
 fn main() -> ExitCode {

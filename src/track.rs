@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use comfy_table::{Table, presets};
 use controllers::{ControllerKind, profile};
-use policy_runtime::{TrackConfig, Trajectory, run_track};
+use policy_runtime::{Interface, TrackConfig, Trajectory, run_track};
 use sim_twin::{Disturbances, MotorConfig, TwinConfig};
 
 use crate::cli_error::bad_input;
@@ -25,7 +25,7 @@ Trajectories (all start hovering at (0, 0, 1) m):
 Errors are scored after the settling time; the maximum rotor thrust covers the whole flight.
 The paper's actuator experiment, for example:
   amstack track --platform fa-hexa --trajectory sines-high --disturbances saturation --motor-tau 0.0475
-  amstack track --platform fa-hexa --trajectory ground-sweep --disturbances ground --mcap sweep.mcap")]
+  amstack track --platform fa-hexa --trajectory ground-sweep --interface ee --disturbances ground --mcap sweep.mcap")]
 pub struct Args {
     /// Vehicle id (ua-quad, ua-hexa, fa-hexa, omni-hexa, ee-only, or one added with --vehicle).
     #[arg(long, default_value = "fa-hexa")]
@@ -36,6 +36,10 @@ pub struct Args {
     /// Reference to fly.
     #[arg(long, default_value = "hover")]
     trajectory: String,
+    /// Action interface: base-joint (base pose + arm joints to the controller) or ee (the
+    /// end-effector pose through whole-body IK, as the paper's ground-effect run).
+    #[arg(long, default_value = "base-joint", value_parser = ["base-joint", "ee"])]
+    interface: String,
     /// Flight length, s [default: hover, step 10; sines 30; ground-sweep 60; arm-sweep 16].
     #[arg(long, value_name = "S")]
     duration: Option<f64>,
@@ -121,10 +125,16 @@ fn config(args: &Args) -> Result<TrackConfig> {
             args.settle
         )));
     }
+    let interface = if args.interface == "ee" {
+        Interface::Ee
+    } else {
+        Interface::BaseJoint
+    };
     Ok(TrackConfig {
         vehicle,
         controller,
         trajectory,
+        interface,
         duration_s,
         settle_s: args.settle,
         twin,
@@ -145,10 +155,11 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let config = config(args)?;
     eprintln!(
-        "flying {} on {} ({}) for {} s, disturbances: {}",
+        "flying {} on {} ({}, {} interface) for {} s, disturbances: {}",
         config.trajectory.name(),
         config.vehicle.id,
         config.controller.name(),
+        config.interface.name(),
         config.duration_s,
         args.disturbances
     );

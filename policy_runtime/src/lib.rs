@@ -29,6 +29,8 @@ pub mod track;
 pub mod trajectory;
 
 pub use link::{Link, LinkError, TwinLink};
-pub use stack::{BaseJointTarget, FlightStack, StackError, ThrustLimits, TickRecord};
-pub use track::{TrackConfig, TrackError, TrackResult, run_track};
+pub use stack::{
+    Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits, TickRecord,
+};
+pub use track::{Interface, TrackConfig, TrackError, TrackResult, run_track};
 pub use trajectory::Trajectory;

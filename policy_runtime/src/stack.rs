@@ -2,6 +2,7 @@
 //! actuator command, with saturation fed back to the controller.
 
 use allocation::{Allocation, AllocationMethod, Allocator, any_rotor_saturated};
+use controllers::ik::{BaseLimits, IkConfig, IkStatus, WholeBodyIk};
 use controllers::{BaseController, BodyParams, ControllerConfig, ControllerStatus, build};
 use nalgebra::Isometry3;
 use platform::{ActuatorCommand, Measurement, RigidBodyState, Vehicle, Wrench};
@@ -17,6 +18,32 @@ pub struct BaseJointTarget {
     pub arm_joints: Vec<f64>,
     /// Gripper action in [−1, 1]: −1 closed, +1 open.
     pub gripper: f64,
+}
+
+/// An end-effector target: the end-effector interface of AM-Bench.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EeTarget {
+    /// Target end-effector pose in the command frame (AMBENCH_SPEC §1.1): the link is at
+    /// `command_to_link ⊗ rotation`.
+    pub world_from_ee_command: Isometry3<f64>,
+    /// Gripper action in [−1, 1].
+    pub gripper: f64,
+}
+
+/// The action interfaces of AM-Bench.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Action {
+    /// End-effector target, through whole-body IK (or directly, for the EE-only oracle).
+    Ee(EeTarget),
+    /// Base pose and arm joints.
+    BaseJoint(BaseJointTarget),
+}
+
+/// Whole-body IK for the end-effector interface, and the base limits it keeps.
+#[derive(Debug)]
+struct EeInterface {
+    ik: WholeBodyIk,
+    limits: BaseLimits,
 }
 
 /// How thrusts are chosen from the allocation.
@@ -48,6 +75,9 @@ pub struct TickRecord {
     pub controller: ControllerStatus,
     /// The command sent.
     pub command: ActuatorCommand,
+    /// The IK's status, for an end-effector action through IK.
+    #[serde(skip)]
+    pub ik: Option<IkStatus>,
 }
 
 /// Controller, allocator and the vehicle's command layout, built once.
@@ -65,6 +95,7 @@ pub struct FlightStack {
     project_on_measured_tilt: bool,
     /// Low-passed joint configuration the mass properties follow.
     posture: Vec<f64>,
+    ee: Option<EeInterface>,
     dt_s: f64,
 }
 
@@ -116,6 +147,18 @@ impl FlightStack {
             })
             .collect();
         let vehicle_initial = vehicle.initial_configuration();
+        // The EE interface needs IK unless the end effector is the controlled body.
+        let ee = if vehicle.ee_link == vehicle.base_link {
+            None
+        } else {
+            let config = IkConfig::for_vehicle(&vehicle.id).unwrap_or_default();
+            let ik = WholeBodyIk::new(&vehicle, config)
+                .map_err(|e| StackError(format!("whole-body IK: {e}")))?;
+            Some(EeInterface {
+                ik,
+                limits: BaseLimits::above_ground(),
+            })
+        };
         Ok(Self {
             measured_tilt: vec![0.0; tilt_dofs.len()],
             vehicle,
@@ -128,8 +171,20 @@ impl FlightStack {
             tilt_dofs,
             project_on_measured_tilt: false,
             posture: vehicle_initial,
+            ee,
             dt_s,
         })
+    }
+
+    /// The base limits the IK keeps (e.g. a wall's face minus the safety margin); by
+    /// default, above the ground. End-effector actions go through whole-body IK with the
+    /// vehicle's reference profile (AMBENCH_SPEC §2.6; the default profile for a vehicle
+    /// added by a user), or straight to the controller when the end effector is the
+    /// controlled body (the EE-only oracle).
+    pub fn set_base_limits(&mut self, limits: BaseLimits) {
+        if let Some(ee) = &mut self.ee {
+            ee.limits = limits;
+        }
     }
 
     /// Whether each tilting rotor's thrust is projected on its measured direction (for links
@@ -152,8 +207,64 @@ impl FlightStack {
 
     /// Clears the controller for a new flight from `state`.
     pub fn reset(&mut self, state: &RigidBodyState) {
+        self.reset_at(state, &self.vehicle.initial_configuration());
+    }
+
+    /// Clears the controller for a new flight from `state` with the joints at
+    /// `configuration`; the IK warm-starts from them (as the reference does at an episode's
+    /// start).
+    pub fn reset_at(&mut self, state: &RigidBodyState, configuration: &[f64]) {
         self.controller.reset(state);
         self.posture = self.vehicle.initial_configuration();
+        if let Some(ee) = &mut self.ee {
+            // A seed of the wrong length or non-finite is refused; the IK then keeps its rest seed.
+            let _ = ee.ik.reset(&state.pose(), configuration);
+        }
+    }
+
+    /// One tick of either interface.
+    pub fn act(&mut self, measurement: &Measurement, action: &Action) -> TickRecord {
+        match action {
+            Action::BaseJoint(target) => self.tick(measurement, target),
+            Action::Ee(ee) => {
+                let (target, status) = self.ee_to_base_joint(ee);
+                let mut record = self.tick(measurement, &target);
+                record.ik = status;
+                record
+            }
+        }
+    }
+
+    /// The end-effector link pose an EE action asks for.
+    pub fn link_target(&self, ee: &EeTarget) -> Isometry3<f64> {
+        let mut link = ee.world_from_ee_command;
+        link.rotation = self.vehicle.command_to_link * link.rotation;
+        link
+    }
+
+    /// An EE target as a base + joint target: through IK, or as the base itself for a
+    /// vehicle whose controlled body is the end effector.
+    fn ee_to_base_joint(&mut self, ee: &EeTarget) -> (BaseJointTarget, Option<IkStatus>) {
+        let link = self.link_target(ee);
+        match &mut self.ee {
+            Some(interface) => {
+                let solution = interface.ik.solve(&link, &interface.limits);
+                let target = BaseJointTarget {
+                    world_from_base: solution.world_from_base,
+                    arm_joints: solution.arm_joints,
+                    gripper: ee.gripper,
+                };
+                (target, Some(solution.status))
+            }
+            None => (
+                BaseJointTarget {
+                    world_from_base: link,
+                    arm_joints: Vec::new(),
+                    gripper: ee.gripper,
+                },
+                None,
+            ),
+        }
     }
 
     /// One tick: from the latest measurement and the target, the command to send.
@@ -254,6 +365,7 @@ impl FlightStack {
             allocation_saturated,
             controller: self.controller.status(),
             command,
+            ik: None,
         }
     }
 }

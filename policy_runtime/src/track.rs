@@ -3,8 +3,10 @@
 //!
 //! Metrics, over the ticks after `settle_s` (the start transient is not scored):
 //! - `ee_pos_rmse_m`: RMS of ‖p_ee − p_ee,ref‖, with p_ee,ref the end-effector link where
-//!   the base and joint targets put it (forward kinematics of the vehicle description);
-//! - `base_pos_rmse_m`, `base_z_rmse_m`: RMS of the base position error, and of its z part;
+//!   the reference's base and joint targets put it (forward kinematics of the vehicle
+//!   description); with the EE interface this is the EE target handed to the IK;
+//! - `base_pos_rmse_m`, `base_z_rmse_m`: RMS of the base position error against the base
+//!   target the controller tracked (the IK's, with the EE interface), and of its z part;
 //! - `tilt_use_rad`: the largest √(roll² + pitch²) of the base;
 //! - `saturation_rate`: share of ticks with the saturation indicator set (any realised
 //!   rotor thrust at a limit, or a command the motors clamped); null without rotors;
@@ -26,8 +28,29 @@ use sim_twin::{Twin, TwinConfig};
 use crate::flight_log::{FlightLog, rotors_saturated};
 use crate::link::{Link, LinkError, TwinLink};
 use crate::record::{McapRecorder, RecordError, RunMetadata};
-use crate::stack::{BaseJointTarget, FlightStack, StackError, ThrustLimits};
+use crate::stack::{Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits};
 use crate::trajectory::Trajectory;
+
+/// Which action interface carries the reference to the controller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Interface {
+    /// Base pose and arm joints straight to the controller and the joint drives.
+    BaseJoint,
+    /// The end-effector pose the reference implies, through whole-body IK (the paper's
+    /// ground-effect comparison flies this way).
+    Ee,
+}
+
+impl Interface {
+    /// The command-line name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::BaseJoint => "base-joint",
+            Self::Ee => "ee",
+        }
+    }
+}
 
 /// What to fly.
 #[derive(Debug, Clone)]
@@ -38,6 +61,8 @@ pub struct TrackConfig {
     pub controller: ControllerConfig,
     /// The reference.
     pub trajectory: Trajectory,
+    /// The action interface.
+    pub interface: Interface,
     /// Flight length, s.
     pub duration_s: f64,
     /// Start transient excluded from the error metrics, s.
@@ -57,6 +82,8 @@ pub struct TrackResult {
     pub controller: String,
     /// Trajectory name.
     pub trajectory: String,
+    /// Action interface (`base-joint` or `ee`).
+    pub interface: String,
     /// Disturbances on.
     pub disturbances: Vec<String>,
     /// Motor time constant, s (null: instantaneous).
@@ -181,7 +208,7 @@ pub fn run_track(
         None => None,
         Some(path) => {
             let run = RunMetadata::new(&vehicle.id, config.controller.name(), config.twin.seed)
-                .with_interface("base-joint")
+                .with_interface(config.interface.name())
                 .with_trajectory(config.trajectory.name())
                 .with_config(&config.twin)?;
             Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
@@ -200,7 +227,7 @@ pub fn run_track(
     let mut sums = Sums::default();
     let started = Instant::now();
     let mut measurement = link.receive()?;
-    stack.reset(&measurement.base);
+    stack.reset_at(&measurement.base, &measurement.joint_positions);
     let mut next_progress = 1.0;
     for k in 0..ticks {
         let t = k as f64 * dt;
@@ -208,21 +235,25 @@ pub fn run_track(
         if let Some(n) = &action_noise {
             noisy(&mut target, &mut rng, n);
         }
-        let record = stack.tick(&measurement, &target);
-        let ee_reference = target.world_from_base
-            * vehicle
-                .model
-                .root_from_link(&record.command.joint_targets, vehicle.ee_link);
+        let ee_reference = ee_link_target(vehicle, &target);
+        let action = match config.interface {
+            Interface::BaseJoint => Action::BaseJoint(target.clone()),
+            Interface::Ee => {
+                let mut world_from_ee_command = ee_reference;
+                world_from_ee_command.rotation =
+                    vehicle.command_to_link.inverse() * ee_reference.rotation;
+                Action::Ee(EeTarget {
+                    world_from_ee_command,
+                    gripper: target.gripper,
+                })
+            }
+        };
+        let record = stack.act(&measurement, &action);
         if let Some(log) = &mut log {
             log.tick(&measurement, &record, &ee_reference)?;
         }
         if t >= config.settle_s {
-            score(
-                &mut sums,
-                &measurement,
-                &target.world_from_base,
-                &ee_reference,
-            );
+            score(&mut sums, &measurement, &record.base_target, &ee_reference);
         }
         link.send(&record.command)?;
         measurement = link.receive()?;
@@ -262,6 +293,7 @@ pub fn run_track(
         vehicle: vehicle.id.clone(),
         controller: config.controller.name().to_owned(),
         trajectory: config.trajectory.name().to_owned(),
+        interface: config.interface.name().to_owned(),
         disturbances: config
             .twin
             .disturbances
@@ -286,6 +318,15 @@ pub fn run_track(
         ticks_per_second: ticks as f64 / wall_time_s.max(1e-9),
         mcap,
     })
+}
+
+/// Where a base + joint target puts the end-effector link.
+fn ee_link_target(vehicle: &Vehicle, target: &BaseJointTarget) -> Isometry3<f64> {
+    let mut q = vehicle.initial_configuration();
+    for (&dof, &value) in vehicle.arm_dofs().iter().zip(&target.arm_joints) {
+        q[dof] = value;
+    }
+    target.world_from_base * vehicle.model.root_from_link(&q, vehicle.ee_link)
 }
 
 fn score(

@@ -4,7 +4,7 @@
 use controllers::{ControllerKind, profile};
 use platform::Vehicle;
 use policy_runtime::record::Recording;
-use policy_runtime::{TrackConfig, TrackResult, Trajectory, run_track};
+use policy_runtime::{Interface, TrackConfig, TrackResult, Trajectory, run_track};
 use sim_twin::{Disturbances, MotorConfig, TwinConfig};
 
 fn vehicle(id: &str) -> Vehicle {
@@ -24,6 +24,7 @@ fn flight(
         vehicle: v,
         controller,
         trajectory,
+        interface: Interface::BaseJoint,
         duration_s,
         settle_s: 2.0,
         twin,
@@ -61,6 +62,15 @@ fn every_vehicle_hovers_within_a_centimetre() {
             r.ee_pos_rmse_m < 0.01,
             "{id} {kind:?}: EE RMS {} m",
             r.ee_pos_rmse_m
+        );
+        // The same hover asked for as an end-effector target, through whole-body IK.
+        let mut ee = flight(id, kind, Trajectory::Hover, 4.0, TwinConfig::default());
+        ee.interface = Interface::Ee;
+        let through_ik = fly(&ee);
+        assert!(
+            through_ik.ee_pos_rmse_m < 0.01,
+            "{id} {kind:?} through IK: EE RMS {} m",
+            through_ik.ee_pos_rmse_m
         );
         assert!(
             r.tilt_use_rad < 0.01,
