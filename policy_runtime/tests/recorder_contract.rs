@@ -13,9 +13,7 @@
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
 use std::os::unix::process::ExitStatusExt;
-use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::OnceLock;
 
 use nalgebra::{Isometry3, Vector3};
 use policy_runtime::record::foxglove::{FrameTransform, FrameTransforms, PoseInFrame};
@@ -95,44 +93,8 @@ fn write_ticks(
     }
 }
 
-/// The venv python with the pinned `mcap` package (set up once per test binary).
-fn python() -> &'static Path {
-    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
-    PYTHON.get_or_init(|| {
-        let script = scripts_dir().join("setup-python.sh");
-        let out = Command::new("bash")
-            .arg(&script)
-            .stderr(Stdio::inherit())
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "{} failed", script.display());
-        let stdout = String::from_utf8(out.stdout).unwrap();
-        PathBuf::from(stdout.lines().last().unwrap().trim())
-    })
-}
-
-fn scripts_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts")
-}
-
-/// Runs `scripts/mcap_check.py FILE --json ARGS…`: exit code and report.
-fn mcap_check(file: &Path, args: &[&str]) -> (i32, serde_json::Value) {
-    let out = Command::new(python())
-        .arg(scripts_dir().join("mcap_check.py"))
-        .arg(file)
-        .arg("--json")
-        .args(args)
-        .output()
-        .unwrap();
-    let report = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-        panic!(
-            "mcap_check.py printed no JSON ({e}): {}\n{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        )
-    });
-    (out.status.code().unwrap_or(-1), report)
-}
+/// The independent reader (PyPI `mcap`), shared with the cross-crate tests.
+use tests::mcap_check;
 
 /// Messages per topic in a `mcap_check.py` report.
 fn python_counts(report: &serde_json::Value) -> BTreeMap<String, u64> {
