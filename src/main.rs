@@ -64,8 +64,15 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            let interrupted = matches!(
+                e.downcast_ref::<policy_runtime::TrackError>(),
+                Some(policy_runtime::TrackError::Interrupted { .. })
+            );
             let code = if e.downcast_ref::<BadInput>().is_some() {
                 2
+            } else if interrupted {
+                // The shell's convention for a run stopped by SIGINT.
+                130
             } else {
                 1
             };

@@ -1,6 +1,9 @@
 //! `amstack track`: fly a reference in the twin, print and save its scores.
 
+use std::ops::ControlFlow;
 use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Result;
 use comfy_table::{Table, presets};
@@ -164,9 +167,19 @@ pub fn run(args: &Args) -> Result<()> {
         args.disturbances
     );
     let duration = config.duration_s;
+    // Ctrl-C stops the flight at the next simulated second and closes the log properly.
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    // A second handler cannot be installed (only in tests calling run twice): keep going.
+    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
     let result = run_track(&config, |t| {
         if t >= 5.0 && (t.round() as u64).is_multiple_of(5) {
             eprintln!("  t = {t:.0} / {duration} s");
+        }
+        if stop.load(Ordering::SeqCst) {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
         }
     })?;
     let mut table = Table::new();

@@ -217,3 +217,48 @@ fn help_teaches_and_succeeds() {
         "{text}"
     );
 }
+
+#[test]
+fn ctrl_c_stops_a_flight_and_leaves_a_complete_log() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let log = dir.path().join("flight.mcap");
+    let child = Command::new(env!("CARGO_BIN_EXE_amstack"))
+        .args([
+            "track",
+            "--platform",
+            "fa-hexa",
+            "--trajectory",
+            "hover",
+            "--duration",
+            "3600",
+            "--mcap",
+        ])
+        .arg(&log)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn();
+    let child = child.unwrap_or_else(|e| panic!("cannot start amstack: {e}"));
+    // Let it fly a little, then interrupt it as a user would.
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status();
+    assert!(
+        sent.as_ref().is_ok_and(|s| s.success()),
+        "kill -INT failed: {sent:?}"
+    );
+    let out = child.wait_with_output().unwrap_or_else(|e| panic!("{e}"));
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(
+        err.lines()
+            .last()
+            .is_some_and(|l| l.contains("interrupted at t =")),
+        "{err}"
+    );
+    let bytes = std::fs::read(&log).unwrap_or_default();
+    let recording =
+        policy_runtime::record::Recording::from_bytes(&bytes).unwrap_or_else(|e| panic!("{e}"));
+    assert!(recording.complete, "the summary was written");
+    assert!(!recording.messages.is_empty());
+}

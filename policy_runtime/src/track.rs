@@ -12,6 +12,7 @@
 //!   rotor thrust at a limit, or a command the motors clamped); null without rotors;
 //! - `max_rotor_thrust_n`: the largest realised rotor thrust over the whole flight.
 
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -133,6 +134,12 @@ pub enum TrackError {
     /// A setting out of range.
     #[error("{0}")]
     Config(String),
+    /// Stopped on request (Ctrl-C) after `at_s` simulated seconds; the log was finished.
+    #[error("interrupted at t = {at_s:.2} s; the flight log was closed")]
+    Interrupted {
+        /// Simulated time reached, s.
+        at_s: f64,
+    },
 }
 
 #[derive(Debug, Default)]
@@ -167,10 +174,11 @@ fn noisy(target: &mut BaseJointTarget, rng: &mut ChaCha8Rng, noise: &Normal<f64>
 }
 
 /// Flies `config` and scores it. `progress` is called with the simulated time about once a
-/// simulated second.
+/// simulated second; returning `ControlFlow::Break` stops the flight (the log is finished,
+/// the result is [`TrackError::Interrupted`]).
 pub fn run_track(
     config: &TrackConfig,
-    mut progress: impl FnMut(f64),
+    mut progress: impl FnMut(f64) -> ControlFlow<()>,
 ) -> Result<TrackResult, TrackError> {
     if !(config.duration_s.is_finite() && config.duration_s > 0.0) {
         return Err(TrackError::Config(format!(
@@ -273,8 +281,15 @@ pub fn run_track(
             }
         }
         if measurement.time_s >= next_progress {
-            progress(measurement.time_s);
             next_progress += 1.0;
+            if progress(measurement.time_s).is_break() {
+                if let Some(log) = log {
+                    log.finish()?;
+                }
+                return Err(TrackError::Interrupted {
+                    at_s: measurement.time_s,
+                });
+            }
         }
     }
     let mcap = match log {

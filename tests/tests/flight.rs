@@ -33,7 +33,7 @@ fn flight(
 }
 
 fn fly(config: &TrackConfig) -> TrackResult {
-    run_track(config, |_| {})
+    run_track(config, |_| std::ops::ControlFlow::Continue(()))
         .unwrap_or_else(|e| panic!("{} {}: {e}", config.vehicle.id, config.trajectory.name()))
 }
 
