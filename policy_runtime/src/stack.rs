@@ -95,6 +95,8 @@ pub struct FlightStack {
     project_on_measured_tilt: bool,
     /// Low-passed joint configuration the mass properties follow.
     posture: Vec<f64>,
+    /// The vehicle's initial configuration: the targets of joints no action commands.
+    initial: Vec<f64>,
     ee: Option<EeInterface>,
     dt_s: f64,
 }
@@ -170,7 +172,8 @@ impl FlightStack {
             gripper_dofs,
             tilt_dofs,
             project_on_measured_tilt: false,
-            posture: vehicle_initial,
+            posture: vehicle_initial.clone(),
+            initial: vehicle_initial,
             ee,
             dt_s,
         })
@@ -207,7 +210,8 @@ impl FlightStack {
 
     /// Clears the controller for a new flight from `state`.
     pub fn reset(&mut self, state: &RigidBodyState) {
-        self.reset_at(state, &self.vehicle.initial_configuration());
+        let initial = self.initial.clone();
+        self.reset_at(state, &initial);
     }
 
     /// Clears the controller for a new flight from `state` with the joints at
@@ -215,7 +219,7 @@ impl FlightStack {
     /// start).
     pub fn reset_at(&mut self, state: &RigidBodyState, configuration: &[f64]) {
         self.controller.reset(state);
-        self.posture = self.vehicle.initial_configuration();
+        self.posture.clone_from(&self.initial);
         if let Some(ee) = &mut self.ee {
             // A seed of the wrong length or non-finite is refused; the IK then keeps its rest seed.
             let _ = ee.ik.reset(&state.pose(), configuration);
@@ -285,7 +289,7 @@ impl FlightStack {
         let wrench = self
             .controller
             .update(&measurement.base, &target.world_from_base, self.dt_s);
-        let mut joint_targets = self.vehicle.initial_configuration();
+        let mut joint_targets = self.initial.clone();
         for (&dof, &q) in self.arm_dofs.iter().zip(&target.arm_joints) {
             joint_targets[dof] = q;
         }
