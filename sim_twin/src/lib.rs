@@ -9,6 +9,9 @@
 //!   distances from parry ray casts that skip the robot's own colliders.
 //! - [`TwinConfig`]: control rate (120 Hz), physics substeps, disturbance switches, motor
 //!   dynamics, noise, seed. Same seed, same commands → bit-identical results.
+//! - [`ipc`]: the twin in its own process, served over iceoryx2 shared memory
+//!   (`amstack twin serve`), lockstep or realtime, with a handshake, loss detection and a
+//!   failsafe.
 //!
 //! Frames: world Z-up, gravity (0, 0, −9.81) m/s²; body FLU. rapier's glam types stay
 //! inside this crate ([`convert`] is the one boundary).
@@ -17,6 +20,7 @@ pub mod aero;
 mod config;
 mod convert;
 mod error;
+pub mod ipc;
 mod twin;
 mod vehicle_body;
 

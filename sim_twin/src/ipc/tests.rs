@@ -1,0 +1,139 @@
+//! Wire round trips and the handshake's refusals (no second process).
+
+use platform::Vehicle;
+
+use super::*;
+use crate::{Disturbances, Twin, TwinConfig};
+
+fn vehicle(id: &str) -> Vehicle {
+    Vehicle::builtin(id).unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[test]
+fn measurement_survives_the_wire_bit_for_bit() {
+    let config = TwinConfig {
+        disturbances: Disturbances::all(),
+        seed: 3,
+        ..TwinConfig::default()
+    };
+    let mut twin = Twin::new(vehicle("omni-hexa"), config).unwrap_or_else(|e| panic!("{e}"));
+    let v = twin.vehicle().clone();
+    let command = platform::ActuatorCommand {
+        rotor_thrusts_n: vec![6.0; v.rotors.len()],
+        joint_targets: v.initial_configuration(),
+        direct_wrench_in_body: None,
+    };
+    let m = twin.step(&command).unwrap_or_else(|e| panic!("{e}"));
+    let wire = MeasurementMsg::from_measurement(&m).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(wire.to_measurement(), m);
+    let sent = CommandMsg::from_command(&command, 7, 9).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(sent.to_command(), command);
+    assert_eq!((sent.session, sent.tick), (7, 9));
+}
+
+#[test]
+fn direct_wrench_crosses_the_wire() {
+    let command = platform::ActuatorCommand {
+        rotor_thrusts_n: Vec::new(),
+        joint_targets: Vec::new(),
+        direct_wrench_in_body: Some(platform::Wrench::new(
+            nalgebra::Vector3::new(1.0, 2.0, 3.0),
+            nalgebra::Vector3::new(-1.0, -2.0, -3.5),
+        )),
+    };
+    let wire = CommandMsg::from_command(&command, 1, 0).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(wire.to_command(), command);
+}
+
+#[test]
+fn too_many_rotors_is_refused_naming_the_count() {
+    let command = platform::ActuatorCommand {
+        rotor_thrusts_n: vec![0.0; MAX_ROTORS + 1],
+        ..platform::ActuatorCommand::default()
+    };
+    let e = CommandMsg::from_command(&command, 0, 0).err();
+    assert_eq!(
+        e.map(|e| e.to_string()),
+        Some(format!(
+            "rotor thrusts: {} does not fit the wire's {MAX_ROTORS}",
+            MAX_ROTORS + 1
+        ))
+    );
+}
+
+fn offer(id: &str, config: &TwinConfig) -> Offer {
+    Offer::new(&vehicle(id), config).unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[test]
+fn matching_terms_are_accepted() {
+    let c = TwinConfig::default();
+    assert_eq!(
+        check_hello(
+            &offer("fa-hexa", &c).hello(1, [0, 0]),
+            &offer("fa-hexa", &c)
+        ),
+        Ok(())
+    );
+}
+
+#[test]
+fn a_mismatched_vehicle_is_refused_naming_both() {
+    let c = TwinConfig::default();
+    let refusal = check_hello(
+        &offer("ua-quad", &c).hello(1, [0, 0]),
+        &offer("fa-hexa", &c),
+    );
+    assert_eq!(
+        refusal,
+        Err(
+            "vehicle mismatch: the flight process flies 'ua-quad', the twin serves 'fa-hexa'"
+                .to_owned()
+        )
+    );
+}
+
+#[test]
+fn a_mismatched_configuration_is_refused_naming_the_field_and_both_values() {
+    let flight = TwinConfig {
+        seed: 4,
+        ..TwinConfig::default()
+    };
+    let twin = TwinConfig::default();
+    let refusal = check_hello(
+        &offer("fa-hexa", &flight).hello(1, [0, 0]),
+        &offer("fa-hexa", &twin),
+    )
+    .err()
+    .unwrap_or_default();
+    assert!(refusal.contains("at seed: flight 4, twin 0"), "{refusal}");
+    assert!(
+        refusal.contains(&format!("{:016x}", config_hash(&flight))),
+        "{refusal}"
+    );
+    assert!(
+        refusal.contains(&format!("{:016x}", config_hash(&twin))),
+        "{refusal}"
+    );
+}
+
+#[test]
+fn a_mismatched_message_version_is_refused_naming_both() {
+    let c = TwinConfig::default();
+    let mut hello = offer("fa-hexa", &c).hello(1, [0, 0]);
+    hello.version = MESSAGE_VERSION + 1;
+    let refusal = check_hello(&hello, &offer("fa-hexa", &c))
+        .err()
+        .unwrap_or_default();
+    assert!(
+        refusal.contains(&format!("v{}", MESSAGE_VERSION + 1))
+            && refusal.contains(&format!("v{MESSAGE_VERSION}")),
+        "{refusal}"
+    );
+}
+
+#[test]
+fn node_ids_split_and_join() {
+    let id = 0x0123_4567_89ab_cdef_fedc_ba98_7654_3210_u128;
+    assert_eq!(join_id(split_id(id)), id);
+}
