@@ -14,6 +14,9 @@
 //! - [`trajectory`] and [`track`]: the reference trajectories of `amstack track` and the
 //!   flight that scores them.
 //! - [`flight_log`]: the channels of a flight's MCAP log.
+//! - [`metrics`]: the benchmark's metrics (AMBENCH_SPEC §6): per-tick records, rollout and
+//!   run summaries, latched subtask criteria, the reference's N/A rules.
+//! - [`scripted`]: waypoint scripts, the scripted demonstrations' interpolation.
 //! - [`record`]: the MCAP flight-log recorder. [`record::McapRecorder`] writes one file per
 //!   run: an `amstack.run` metadata record ([`record::RunMetadata`]), JSON-encoded channels
 //!   with JSON-Schema schemas derived from the Rust types, Foxglove's well-known pose and
@@ -23,7 +26,9 @@
 
 pub mod flight_log;
 pub mod link;
+pub mod metrics;
 pub mod record;
+pub mod scripted;
 pub mod stack;
 pub mod track;
 pub mod trajectory;
