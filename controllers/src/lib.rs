@@ -21,6 +21,7 @@ mod desired;
 mod gains;
 pub mod ik;
 mod l1;
+pub mod mpc;
 mod pid4;
 mod pid6;
 mod profile;

@@ -110,7 +110,7 @@
 //! [`IkSolution`]. `cargo bench -p controllers --bench ik` measures 9–16 µs per warm-started
 //! flight-loop solve.
 
-mod chain;
+pub(crate) mod chain;
 mod config;
 mod iteration;
 mod limits;

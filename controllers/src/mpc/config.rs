@@ -1,0 +1,318 @@
+//! Settings of the whole-body NMPC: horizon, weights, bounds, output filter, QP tolerances and
+//! fallback, with the reference's numbers as defaults (AMBENCH_SPEC §2.5 `_MPC_PARAMS`).
+//!
+//! Plain data: every field is public and documented with its unit and default, and checked by
+//! [`MpcConfig::validate`]. Loaded from TOML with unknown keys rejected.
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// A configuration value the MPC cannot work with.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum MpcConfigError {
+    /// A field is out of its range.
+    #[error("mpc config: {field} = {value} {requirement}")]
+    Invalid {
+        /// Dotted field name (`weights.ee_position`).
+        field: &'static str,
+        /// The value, as written.
+        value: String,
+        /// What it must be.
+        requirement: &'static str,
+    },
+    /// The TOML text does not parse into an [`MpcConfig`].
+    #[error("mpc config: {0}")]
+    Toml(String),
+}
+
+/// Diagonal weights of the nonlinear least-squares cost `½‖y − y_ref‖²_W` (AMBENCH_SPEC §2.5
+/// `W = blkdiag(Q, R, R_Δ)`, terminal `W_e = Q`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MpcWeights {
+    /// End-effector position error (world x, y, z), 1/m². Default 6000 each.
+    pub ee_position: [f64; 3],
+    /// End-effector roll, pitch, yaw error, 1/rad². Default 200 each.
+    pub ee_orientation: [f64; 3],
+    /// Base linear velocity, s²/m². Default 20 each.
+    pub velocity: [f64; 3],
+    /// Base Euler angles against (0, 0, target yaw), 1/rad². Default 50 each.
+    pub attitude: [f64; 3],
+    /// Base angular velocity, s²/rad². Default 20 each.
+    pub angular_velocity: [f64; 3],
+    /// Arm joints against the default posture, 1/rad². Default 10 each.
+    pub arm: [f64; 4],
+    /// Input effort: force (N⁻²) ×3, torque ((N·m)⁻²) ×3, arm references (rad⁻²) ×4.
+    /// Default 0.02 ×3, 0.1 ×3, 1.0 ×4.
+    pub input: [f64; 10],
+    /// Input change from the last applied input, same units. Default 0.01 ×6, 200 ×4.
+    pub input_rate: [f64; 10],
+}
+
+impl Default for MpcWeights {
+    fn default() -> Self {
+        Self {
+            ee_position: [6000.0; 3],
+            ee_orientation: [200.0; 3],
+            velocity: [20.0; 3],
+            attitude: [50.0; 3],
+            angular_velocity: [20.0; 3],
+            arm: [10.0; 4],
+            input: [0.02, 0.02, 0.02, 0.1, 0.1, 0.1, 1.0, 1.0, 1.0, 1.0],
+            input_rate: [
+                0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 200.0, 200.0, 200.0, 200.0,
+            ],
+        }
+    }
+}
+
+/// Which QP solver an RTI step uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum QpPath {
+    /// The structure-exploiting Riccati interior-point solver of this crate (fast path).
+    #[default]
+    Riccati,
+    /// clarabel on the sparse multiple-shooting QP (reference path).
+    Clarabel,
+}
+
+impl QpPath {
+    /// Both paths, fast path first.
+    pub const ALL: [QpPath; 2] = [QpPath::Riccati, QpPath::Clarabel];
+
+    /// `riccati` or `clarabel`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Riccati => "riccati",
+            Self::Clarabel => "clarabel",
+        }
+    }
+}
+
+/// Interior-point settings, shared by both QP paths.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct QpSettings {
+    /// Most interior-point iterations per QP: the deterministic time budget of a solve (a
+    /// QP not converged within it is a failed solve and starts the fallback). Default 40.
+    pub max_iterations: u32,
+    /// Stationarity, primal feasibility and complementarity tolerance (absolute; clarabel's
+    /// gap and feasibility tolerances). Default 1e-7.
+    pub tolerance: f64,
+    /// Riccati path only: after convergence, solve the equality-constrained QP of the active
+    /// rows to remove the interior point's residual complementarity (exact active set, as
+    /// OSQP's polish). Default false (the real-time path does not need it).
+    pub polish: bool,
+}
+
+impl Default for QpSettings {
+    fn default() -> Self {
+        Self {
+            max_iterations: 40,
+            tolerance: 1e-7,
+            polish: false,
+        }
+    }
+}
+
+/// The whole-body NMPC of the FA-Hexa (AMBENCH_SPEC §2.5).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MpcConfig {
+    /// Prediction horizon, s. Default 0.8.
+    pub horizon_s: f64,
+    /// Shooting intervals over the horizon. Default 32 (0.025 s each).
+    pub intervals: usize,
+    /// First-order arm servo gain k_a of `q̇ = k_a (q_ref − q)`, 1/s. Default 12.
+    pub arm_gain_per_s: f64,
+    /// Cost weights.
+    pub weights: MpcWeights,
+    /// Lowest base position (world x, y, z), m. Default (−1, −5, 0).
+    pub position_min_m: [f64; 3],
+    /// Highest base position, m. Default (1.2, 2, 4); a wall lowers x per tick.
+    pub position_max_m: [f64; 3],
+    /// Base roll and pitch stay within ±this, rad. Default 0.01.
+    pub roll_pitch_limit_rad: f64,
+    /// Base yaw stays within ±this, rad. Default π.
+    pub yaw_limit_rad: f64,
+    /// Arm joints and their references stay within ±this, intersected with the URDF limits,
+    /// rad. Default π (the reference's ±180°).
+    pub joint_limit_rad: f64,
+    /// Default arm posture (cost reference of joints and arm references), rad. Default 0.
+    pub default_arm_rad: [f64; 4],
+    /// End-effector height above the base, lowest, m. Default 0.1.
+    pub ee_height_min_m: f64,
+    /// End-effector height above the base, highest, m. Default 2.5.
+    pub ee_height_max_m: f64,
+    /// Output filter `u = g∘u_opt + (1−g)∘u_last` (force ×3, torque ×3, arm ×4). Default
+    /// 1 ×6, 0.5 ×4.
+    pub output_filter_gain: [f64; 10],
+    /// A bound the measured state already violates is approached at this rate over the
+    /// horizon instead of at once (keeps the QP feasible after a disturbance), s. Default 0.2.
+    pub recovery_time_constant_s: f64,
+    /// QP settings.
+    pub qp: QpSettings,
+    /// Which QP path the controller uses. Default `riccati`.
+    pub qp_path: QpPath,
+    /// Ticks the shifted previous solution is held after a failed solve before the IK-PID
+    /// path takes over. Default 12 (0.1 s at 120 Hz).
+    pub fallback_hold_ticks: u32,
+}
+
+impl Default for MpcConfig {
+    fn default() -> Self {
+        Self {
+            horizon_s: 0.8,
+            intervals: 32,
+            arm_gain_per_s: 12.0,
+            weights: MpcWeights::default(),
+            position_min_m: [-1.0, -5.0, 0.0],
+            position_max_m: [1.2, 2.0, 4.0],
+            roll_pitch_limit_rad: 0.01,
+            yaw_limit_rad: std::f64::consts::PI,
+            joint_limit_rad: std::f64::consts::PI,
+            default_arm_rad: [0.0; 4],
+            ee_height_min_m: 0.1,
+            ee_height_max_m: 2.5,
+            output_filter_gain: [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.5],
+            recovery_time_constant_s: 0.2,
+            qp: QpSettings::default(),
+            qp_path: QpPath::Riccati,
+            fallback_hold_ticks: 12,
+        }
+    }
+}
+
+fn invalid(
+    field: &'static str,
+    value: impl std::fmt::Debug,
+    requirement: &'static str,
+) -> MpcConfigError {
+    MpcConfigError::Invalid {
+        field,
+        value: format!("{value:?}"),
+        requirement,
+    }
+}
+
+fn non_negative(field: &'static str, values: &[f64]) -> Result<(), MpcConfigError> {
+    if values.iter().all(|v| v.is_finite() && *v >= 0.0) {
+        Ok(())
+    } else {
+        Err(invalid(field, values, "must be finite and not negative"))
+    }
+}
+
+fn positive(field: &'static str, v: f64) -> Result<(), MpcConfigError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(invalid(field, v, "must be finite and positive"))
+    }
+}
+
+impl MpcConfig {
+    /// The reference's FA-Hexa profile (`_MPC_PARAMS`), the default.
+    pub fn fa_hexa() -> Self {
+        Self::default()
+    }
+
+    /// Length of one shooting interval, s.
+    pub fn interval_s(&self) -> f64 {
+        self.horizon_s / self.intervals as f64
+    }
+
+    /// Parses and validates a TOML config; unknown keys are refused.
+    pub fn from_toml_str(text: &str) -> Result<Self, MpcConfigError> {
+        let config: Self =
+            toml::from_str(text).map_err(|e| MpcConfigError::Toml(e.message().to_owned()))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), MpcConfigError> {
+        positive("horizon_s", self.horizon_s)?;
+        if !(1..=1000).contains(&self.intervals) {
+            return Err(invalid(
+                "intervals",
+                self.intervals,
+                "must be within 1..=1000",
+            ));
+        }
+        positive("arm_gain_per_s", self.arm_gain_per_s)?;
+        let w = &self.weights;
+        non_negative("weights.ee_position", &w.ee_position)?;
+        non_negative("weights.ee_orientation", &w.ee_orientation)?;
+        non_negative("weights.velocity", &w.velocity)?;
+        non_negative("weights.attitude", &w.attitude)?;
+        non_negative("weights.angular_velocity", &w.angular_velocity)?;
+        non_negative("weights.arm", &w.arm)?;
+        non_negative("weights.input_rate", &w.input_rate)?;
+        // The input Hessian must be positive definite for a unique QP solution.
+        if !w
+            .input
+            .iter()
+            .zip(&w.input_rate)
+            .all(|(a, b)| a.is_finite() && *a >= 0.0 && a + b > 0.0)
+        {
+            return Err(invalid(
+                "weights.input",
+                w.input,
+                "must be finite, not negative, and input + input_rate > 0 for every input",
+            ));
+        }
+        for k in 0..3 {
+            let (lo, hi) = (self.position_min_m[k], self.position_max_m[k]);
+            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                return Err(invalid(
+                    "position_min_m/position_max_m",
+                    (self.position_min_m, self.position_max_m),
+                    "must be finite with min < max on every axis",
+                ));
+            }
+        }
+        positive("roll_pitch_limit_rad", self.roll_pitch_limit_rad)?;
+        positive("yaw_limit_rad", self.yaw_limit_rad)?;
+        positive("joint_limit_rad", self.joint_limit_rad)?;
+        if !self.default_arm_rad.iter().all(|v| v.is_finite()) {
+            return Err(invalid(
+                "default_arm_rad",
+                self.default_arm_rad,
+                "must be finite",
+            ));
+        }
+        if !(self.ee_height_min_m.is_finite()
+            && self.ee_height_max_m.is_finite()
+            && self.ee_height_min_m < self.ee_height_max_m)
+        {
+            return Err(invalid(
+                "ee_height_min_m/ee_height_max_m",
+                (self.ee_height_min_m, self.ee_height_max_m),
+                "must be finite with min < max",
+            ));
+        }
+        if !self
+            .output_filter_gain
+            .iter()
+            .all(|g| g.is_finite() && *g > 0.0 && *g <= 1.0)
+        {
+            return Err(invalid(
+                "output_filter_gain",
+                self.output_filter_gain,
+                "must be within (0, 1]",
+            ));
+        }
+        positive("recovery_time_constant_s", self.recovery_time_constant_s)?;
+        if self.qp.max_iterations == 0 {
+            return Err(invalid(
+                "qp.max_iterations",
+                self.qp.max_iterations,
+                "must be at least 1",
+            ));
+        }
+        positive("qp.tolerance", self.qp.tolerance)?;
+        Ok(())
+    }
+}

@@ -1,0 +1,33 @@
+//! Whole-body nonlinear MPC of the FA-Hexa by SQP real-time iterations (AMBENCH_SPEC §2.5,
+//! paper appendix "Model Predictive Control").
+//!
+//! - [`model`]: the prediction model — base double integrators, Euler-rate attitude, the
+//!   first-order arm servo — its RK4 integrator with exact sensitivities, and the end
+//!   effector's whole-body forward kinematics (from the `platform` description) with
+//!   analytic Jacobians.
+//! - [`SqpRti`]: the OCP (horizon 0.8 s in 32 intervals, nonlinear least-squares cost on the EE
+//!   pose and the regularisation terms, wall-aware position, attitude, joint and EE-height
+//!   bounds) and one Gauss–Newton SQP iteration per tick, warm-started by shifting.
+//! - Two QP paths that solve the same [`StructuredQp`]: [`ClarabelQp`] (clarabel on the sparse
+//!   multiple-shooting QP, built once and updated in place) and [`RiccatiIpm`] (a Riccati
+//!   recursion interior-point method written for this stage-wise structure).
+
+mod clarabel_qp;
+mod config;
+pub mod model;
+mod qp;
+mod riccati;
+mod rti;
+
+#[cfg(test)]
+mod tests;
+
+pub use clarabel_qp::ClarabelQp;
+pub use config::{MpcConfig, MpcConfigError, MpcWeights, QpPath, QpSettings};
+pub use model::{EeKinematics, ModelError, MpcModel};
+pub use qp::{
+    InputVector, NU, NX, QpSolution, QpSolver, QpStatus, StageConstraints, StateVector,
+    StructuredQp,
+};
+pub use riccati::RiccatiIpm;
+pub use rti::{MpcError, MpcReference, RtiReport, SqpRti, wrap_angle};

@@ -1,0 +1,858 @@
+//! QP path B: a primal–dual interior-point method whose Newton systems are solved by a Riccati
+//! recursion over the stages (the structure HPIPM exploits), written for [`StructuredQp`].
+//!
+//! # Method
+//!
+//! Every inequality is a row `G z ≤ h` with a slack `s = h − G z ≥ 0` and a multiplier
+//! `λ ≥ 0`; the dynamics have multipliers `y_{k+1}` (costates). With `W = diag(λ/s)`, the
+//! Newton step of the perturbed KKT conditions is the equality-constrained stage-wise QP
+//!
+//! ```text
+//! min ½ dzᵀ(H + GᵀWG)dz + ĝᵀdz   s.t.  dx_0 = 0,  dx_{k+1} = A dx_k + B du_k
+//! ĝ = ∇J(z) + Gᵀ(λ + W r_i − r_c/s),   r_i = G z + s − h,   r_c = s∘λ − σμ (+ Mehrotra term)
+//! ```
+//!
+//! whose multipliers are the new costates. It is solved by the Riccati recursion
+//! (`R̄ = R̃ + BᵀPB`, `S̄ = S + BᵀPA`, `P ← Q̃ + AᵀPA − S̄ᵀR̄⁻¹S̄`, `R̄ = LLᵀ`), then
+//! `ds = −r_i − G dz`, `dλ = −(r_c + λ∘ds)/s`. Mehrotra's predictor–corrector uses one
+//! factorisation for two right-hand sides. Box rows add to the diagonals of Q̃ and R̃ and a
+//! general row adds a rank-one term, so the inequalities never enlarge the recursion.
+//!
+//! The iterate starts dynamically feasible (inputs zero, states rolled out from x̄_0 with the
+//! defects) and every step keeps it so. A and B are time-invariant: their non-zeros are found
+//! once per solve, and every product with them walks only those (the FA-Hexa's integrator
+//! chains make A 16 + 10 non-zeros off the identity and B two per column).
+//!
+//! Cost per iteration: one recursion of N stages with ~6k flops each (dense P: `VᵀV` and the
+//! triangular solves dominate), two vector sweeps. No allocation after the first solve.
+
+// Stage and row indices run in parallel over several buffers: index loops mirror the math.
+#![allow(clippy::needless_range_loop)]
+
+use nalgebra::SMatrix;
+
+use crate::mpc::config::QpSettings;
+use crate::mpc::qp::{
+    InputMatrix, InputStateMatrix, InputVector, NU, NX, QpSolution, QpSolver, QpStatus,
+    StateInputMatrix, StateMatrix, StateVector, StructuredQp,
+};
+
+/// Fraction of the step to the boundary taken.
+const STEP_TO_BOUNDARY: f64 = 0.995;
+/// Smallest initial slack.
+const INITIAL_SLACK_MIN: f64 = 1e-1;
+/// Initial multipliers.
+const INITIAL_MULTIPLIER: f64 = 1.0;
+/// Polish penalty, relative to the largest input Hessian entry.
+const POLISH_PENALTY: f64 = 1e8;
+/// Method-of-multipliers steps of the polish.
+const POLISH_STEPS: usize = 4;
+/// Most iterative-refinement steps per Newton solve.
+const REFINEMENT_STEPS: usize = 2;
+/// A Newton solve whose residual is below this fraction of its right-hand side is not refined.
+const REFINEMENT_THRESHOLD: f64 = 1e-13;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum RowKind {
+    State(usize),
+    Input(usize),
+    General(usize),
+}
+
+/// One inequality `sign·(row of z) ≤ h`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Row {
+    kind: RowKind,
+    sign: f64,
+    h: f64,
+}
+
+/// Non-zeros of a matrix, by column: (row, value).
+#[derive(Debug, Clone, Default)]
+struct SparseColumns {
+    columns: Vec<Vec<(usize, f64)>>,
+}
+
+impl SparseColumns {
+    fn set<const R: usize, const C: usize>(&mut self, m: &SMatrix<f64, R, C>) {
+        self.columns.resize_with(C, Vec::new);
+        for (j, col) in self.columns.iter_mut().enumerate() {
+            col.clear();
+            for i in 0..R {
+                let v = m[(i, j)];
+                if v != 0.0 {
+                    col.push((i, v));
+                }
+            }
+        }
+    }
+
+    /// out = M · self (M is R × R).
+    fn right_multiply<const R: usize, const C: usize>(
+        &self,
+        m: &SMatrix<f64, R, R>,
+        out: &mut SMatrix<f64, R, C>,
+    ) {
+        out.fill(0.0);
+        for (j, col) in self.columns.iter().enumerate() {
+            for &(i, a) in col {
+                let src = m.column(i);
+                let mut dst = out.column_mut(j);
+                dst.axpy(a, &src, 1.0);
+            }
+        }
+    }
+
+    /// out = selfᵀ · X (X is R × K, self is R × C).
+    fn transpose_multiply<const R: usize, const C: usize, const K: usize>(
+        &self,
+        x: &SMatrix<f64, R, K>,
+        out: &mut SMatrix<f64, C, K>,
+    ) {
+        for (j, col) in self.columns.iter().enumerate() {
+            for c in 0..K {
+                let mut acc = 0.0;
+                for &(i, a) in col {
+                    acc += a * x[(i, c)];
+                }
+                out[(j, c)] = acc;
+            }
+        }
+    }
+
+    /// out += self · v.
+    fn multiply_add<const R: usize, const C: usize>(
+        &self,
+        v: &SMatrix<f64, C, 1>,
+        out: &mut SMatrix<f64, R, 1>,
+    ) {
+        for (j, col) in self.columns.iter().enumerate() {
+            let vj = v[j];
+            if vj != 0.0 {
+                for &(i, a) in col {
+                    out[i] += a * vj;
+                }
+            }
+        }
+    }
+
+    /// out = selfᵀ · v.
+    fn transpose_vector<const R: usize, const C: usize>(
+        &self,
+        v: &SMatrix<f64, R, 1>,
+        out: &mut SMatrix<f64, C, 1>,
+    ) {
+        for (j, col) in self.columns.iter().enumerate() {
+            out[j] = col.iter().map(|&(i, a)| a * v[i]).sum();
+        }
+    }
+}
+
+/// The Riccati interior-point solver (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct RiccatiIpm {
+    settings: QpSettings,
+    a: SparseColumns,
+    b: SparseColumns,
+    rows: Vec<Row>,
+    /// Rows of stage k are `rows[start[k]..start[k + 1]]`.
+    start: Vec<usize>,
+    s: Vec<f64>,
+    lambda: Vec<f64>,
+    w: Vec<f64>,
+    r_ineq: Vec<f64>,
+    ds: Vec<f64>,
+    dlambda: Vec<f64>,
+    ds_aff: Vec<f64>,
+    dlambda_aff: Vec<f64>,
+    /// Per-row coefficient of the Newton gradient.
+    coef: Vec<f64>,
+    y: Vec<StateVector>,
+    y_hat: Vec<StateVector>,
+    gx: Vec<StateVector>,
+    gu: Vec<InputVector>,
+    rhs_x: Vec<StateVector>,
+    rhs_u: Vec<InputVector>,
+    p_mat: Vec<StateMatrix>,
+    p_vec: Vec<StateVector>,
+    gain: Vec<InputStateMatrix>,
+    chol: Vec<InputMatrix>,
+    q_aug: Vec<StateMatrix>,
+    r_aug: Vec<InputMatrix>,
+    res_x: Vec<StateVector>,
+    res_u: Vec<InputVector>,
+    dx: Vec<StateVector>,
+    du: Vec<InputVector>,
+}
+
+impl RiccatiIpm {
+    /// A solver with `settings`.
+    pub fn new(settings: QpSettings) -> Self {
+        Self {
+            settings,
+            a: SparseColumns::default(),
+            b: SparseColumns::default(),
+            rows: Vec::new(),
+            start: Vec::new(),
+            s: Vec::new(),
+            lambda: Vec::new(),
+            w: Vec::new(),
+            r_ineq: Vec::new(),
+            ds: Vec::new(),
+            dlambda: Vec::new(),
+            ds_aff: Vec::new(),
+            dlambda_aff: Vec::new(),
+            coef: Vec::new(),
+            y: Vec::new(),
+            y_hat: Vec::new(),
+            gx: Vec::new(),
+            gu: Vec::new(),
+            rhs_x: Vec::new(),
+            rhs_u: Vec::new(),
+            p_mat: Vec::new(),
+            p_vec: Vec::new(),
+            gain: Vec::new(),
+            chol: Vec::new(),
+            q_aug: Vec::new(),
+            r_aug: Vec::new(),
+            res_x: Vec::new(),
+            res_u: Vec::new(),
+            dx: Vec::new(),
+            du: Vec::new(),
+        }
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &QpSettings {
+        &self.settings
+    }
+
+    /// Replaces the settings.
+    pub fn set_settings(&mut self, settings: QpSettings) {
+        self.settings = settings;
+    }
+
+    fn setup(&mut self, qp: &StructuredQp) {
+        let n = qp.intervals;
+        self.a.set(&qp.a);
+        self.b.set(&qp.b);
+        self.rows.clear();
+        self.start.clear();
+        for (k, c) in qp.constraints.iter().enumerate() {
+            self.start.push(self.rows.len());
+            if k > 0 {
+                for (j, &i) in c.state_indices.iter().enumerate() {
+                    self.rows.push(Row {
+                        kind: RowKind::State(i),
+                        sign: -1.0,
+                        h: -c.state_lower[j],
+                    });
+                    self.rows.push(Row {
+                        kind: RowKind::State(i),
+                        sign: 1.0,
+                        h: c.state_upper[j],
+                    });
+                }
+            }
+            if k < n {
+                for (j, &i) in c.input_indices.iter().enumerate() {
+                    self.rows.push(Row {
+                        kind: RowKind::Input(i),
+                        sign: -1.0,
+                        h: -c.input_lower[j],
+                    });
+                    self.rows.push(Row {
+                        kind: RowKind::Input(i),
+                        sign: 1.0,
+                        h: c.input_upper[j],
+                    });
+                }
+            }
+            if k > 0 {
+                for j in 0..c.general.len() {
+                    self.rows.push(Row {
+                        kind: RowKind::General(j),
+                        sign: -1.0,
+                        h: -c.general_lower[j],
+                    });
+                    self.rows.push(Row {
+                        kind: RowKind::General(j),
+                        sign: 1.0,
+                        h: c.general_upper[j],
+                    });
+                }
+            }
+        }
+        self.start.push(self.rows.len());
+        let m = self.rows.len();
+        for v in [
+            &mut self.s,
+            &mut self.lambda,
+            &mut self.w,
+            &mut self.r_ineq,
+            &mut self.ds,
+            &mut self.dlambda,
+            &mut self.ds_aff,
+            &mut self.dlambda_aff,
+            &mut self.coef,
+        ] {
+            v.clear();
+            v.resize(m, 0.0);
+        }
+        let resize_x = |v: &mut Vec<StateVector>, len| {
+            v.clear();
+            v.resize(len, StateVector::zeros());
+        };
+        resize_x(&mut self.y, n + 1);
+        resize_x(&mut self.y_hat, n + 1);
+        resize_x(&mut self.gx, n + 1);
+        resize_x(&mut self.rhs_x, n + 1);
+        resize_x(&mut self.p_vec, n + 1);
+        resize_x(&mut self.dx, n + 1);
+        let resize_u = |v: &mut Vec<InputVector>, len| {
+            v.clear();
+            v.resize(len, InputVector::zeros());
+        };
+        resize_u(&mut self.gu, n);
+        resize_u(&mut self.rhs_u, n);
+        resize_u(&mut self.du, n);
+        self.p_mat.clear();
+        self.p_mat.resize(n + 1, StateMatrix::zeros());
+        self.gain.clear();
+        self.gain.resize(n, InputStateMatrix::zeros());
+        self.chol.clear();
+        self.chol.resize(n, InputMatrix::zeros());
+        self.q_aug.clear();
+        self.q_aug.resize(n + 1, StateMatrix::zeros());
+        self.r_aug.clear();
+        self.r_aug.resize(n, InputMatrix::zeros());
+        resize_x(&mut self.res_x, n + 1);
+        resize_u(&mut self.res_u, n);
+    }
+
+    /// The value of row `r` of stage `k` at (x, u).
+    fn row_value(
+        qp: &StructuredQp,
+        k: usize,
+        row: &Row,
+        x: &StateVector,
+        u: Option<&InputVector>,
+    ) -> f64 {
+        let v = match row.kind {
+            RowKind::State(i) => x[i],
+            RowKind::Input(i) => u.map_or(0.0, |u| u[i]),
+            RowKind::General(j) => qp.constraints[k].general[j].dot(x),
+        };
+        row.sign * v
+    }
+
+    /// Adds `sign·coef·(row)` into the stage gradients.
+    fn scatter(
+        qp: &StructuredQp,
+        k: usize,
+        row: &Row,
+        coef: f64,
+        gx: &mut StateVector,
+        gu: Option<&mut InputVector>,
+    ) {
+        let c = row.sign * coef;
+        match row.kind {
+            RowKind::State(i) => gx[i] += c,
+            RowKind::Input(i) => {
+                if let Some(gu) = gu {
+                    gu[i] += c;
+                }
+            }
+            RowKind::General(j) => gx.axpy(c, &qp.constraints[k].general[j], 1.0),
+        }
+    }
+
+    /// ∇J at the iterate into gx, gu.
+    fn cost_gradient(&mut self, qp: &StructuredQp, x: &[StateVector], u: &[InputVector]) {
+        let n = qp.intervals;
+        for k in 0..n {
+            self.gx[k] = qp.q[k] * x[k] + qp.s[k].transpose() * u[k] + qp.q_vec[k];
+            self.gu[k] = qp.s[k] * x[k] + qp.r[k] * u[k] + qp.r_vec[k];
+        }
+        self.gx[n] = qp.q[n] * x[n] + qp.q_vec[n];
+    }
+
+    /// Riccati factorisation of the Newton matrix. False on a failed Cholesky.
+    fn factorize(&mut self, qp: &StructuredQp) -> bool {
+        let n = qp.intervals;
+        let mut q_tilde = qp.q[n];
+        self.augment(qp, n, &mut q_tilde, None);
+        self.p_mat[n] = q_tilde;
+        self.q_aug[n] = q_tilde;
+        let mut pa = StateMatrix::zeros();
+        let mut pb = StateInputMatrix::zeros();
+        let mut btpb = InputMatrix::zeros();
+        let mut btpa = InputStateMatrix::zeros();
+        let mut atpa = StateMatrix::zeros();
+        for k in (0..n).rev() {
+            let p_next = &self.p_mat[k + 1];
+            self.a.right_multiply(p_next, &mut pa);
+            self.b.right_multiply(p_next, &mut pb);
+            self.b.transpose_multiply(&pb, &mut btpb);
+            self.b.transpose_multiply(&pa, &mut btpa);
+            self.a.transpose_multiply(&pa, &mut atpa);
+            let mut q_tilde = qp.q[k];
+            let mut r_tilde = qp.r[k];
+            self.augment(qp, k, &mut q_tilde, Some(&mut r_tilde));
+            self.q_aug[k] = q_tilde;
+            self.r_aug[k] = r_tilde;
+            let r_bar = r_tilde + btpb;
+            let mut v = qp.s[k] + btpa;
+            let q_bar = q_tilde + atpa;
+            let Some(chol) = r_bar.cholesky() else {
+                return false;
+            };
+            let l = chol.l();
+            // V = L⁻¹S̄, P = Q̄ − VᵀV, K = −L⁻ᵀV.
+            if !l.solve_lower_triangular_mut(&mut v) {
+                return false;
+            }
+            let mut p = q_bar - v.transpose() * v;
+            p = (p + p.transpose()) * 0.5;
+            self.p_mat[k] = p;
+            let mut gain = v;
+            if !l.tr_solve_lower_triangular_mut(&mut gain) {
+                return false;
+            }
+            self.gain[k] = -gain;
+            self.chol[k] = l;
+        }
+        true
+    }
+
+    /// Q̃ = Q + Σ w·(row)(row)ᵀ over the state rows of stage k, R̃ likewise for input rows.
+    fn augment(
+        &self,
+        qp: &StructuredQp,
+        k: usize,
+        q: &mut StateMatrix,
+        mut r: Option<&mut InputMatrix>,
+    ) {
+        for idx in self.start[k]..self.start[k + 1] {
+            let w = self.w[idx];
+            match self.rows[idx].kind {
+                RowKind::State(i) => q[(i, i)] += w,
+                RowKind::Input(i) => {
+                    if let Some(r) = r.as_deref_mut() {
+                        r[(i, i)] += w;
+                    }
+                }
+                RowKind::General(j) => {
+                    let g = &qp.constraints[k].general[j];
+                    q.ger(w, g, g, 1.0);
+                }
+            }
+        }
+    }
+
+    /// Solves the Newton system for the linear term in rhs_x/rhs_u into dx, du and ŷ, then
+    /// refines the solution against the unfactored system (the recursion loses digits once
+    /// some λ/s are huge, late in a tight solve).
+    fn back_solve(&mut self, qp: &StructuredQp) {
+        self.sweep(qp);
+        for _ in 0..REFINEMENT_STEPS {
+            let n = qp.intervals;
+            let mut worst: f64 = 0.0;
+            let mut scale: f64 = 0.0;
+            for k in 0..=n {
+                let mut rx = self.q_aug[k] * self.dx[k] + self.rhs_x[k];
+                scale = scale.max(self.rhs_x[k].amax());
+                if k < n {
+                    rx += qp.s[k].transpose() * self.du[k];
+                    let mut t = StateVector::zeros();
+                    self.a.transpose_vector(&self.y_hat[k + 1], &mut t);
+                    rx += t;
+                    let mut ru = qp.s[k] * self.dx[k] + self.r_aug[k] * self.du[k] + self.rhs_u[k];
+                    let mut tu = InputVector::zeros();
+                    self.b.transpose_vector(&self.y_hat[k + 1], &mut tu);
+                    ru += tu;
+                    scale = scale.max(self.rhs_u[k].amax());
+                    worst = worst.max(ru.amax());
+                    self.res_u[k] = ru;
+                }
+                if k > 0 {
+                    rx -= self.y_hat[k];
+                    worst = worst.max(rx.amax());
+                } else {
+                    rx = StateVector::zeros();
+                }
+                self.res_x[k] = rx;
+            }
+            if worst <= REFINEMENT_THRESHOLD * scale.max(1.0) {
+                break;
+            }
+            // The correction solves the same system with the residual as linear term.
+            let (dx, du, y) = (self.dx.clone(), self.du.clone(), self.y_hat.clone());
+            std::mem::swap(&mut self.rhs_x, &mut self.res_x);
+            std::mem::swap(&mut self.rhs_u, &mut self.res_u);
+            self.sweep(qp);
+            std::mem::swap(&mut self.rhs_x, &mut self.res_x);
+            std::mem::swap(&mut self.rhs_u, &mut self.res_u);
+            for k in 0..=n {
+                self.dx[k] += dx[k];
+                self.y_hat[k] += y[k];
+                if k < n {
+                    self.du[k] += du[k];
+                }
+            }
+        }
+    }
+
+    /// One Riccati solve of the Newton system for the linear term in rhs_x/rhs_u.
+    fn sweep(&mut self, qp: &StructuredQp) {
+        let n = qp.intervals;
+        self.p_vec[n] = self.rhs_x[n];
+        let mut r_bar = InputVector::zeros();
+        let mut q_bar = StateVector::zeros();
+        // The feed-forward terms k_k, kept in du until the forward sweep.
+        for k in (0..n).rev() {
+            self.b.transpose_vector(&self.p_vec[k + 1], &mut r_bar);
+            r_bar += self.rhs_u[k];
+            self.a.transpose_vector(&self.p_vec[k + 1], &mut q_bar);
+            q_bar += self.rhs_x[k];
+            let l = &self.chol[k];
+            let mut ff = r_bar;
+            l.solve_lower_triangular_mut(&mut ff);
+            l.tr_solve_lower_triangular_mut(&mut ff);
+            self.du[k] = -ff;
+            self.p_vec[k] = q_bar + self.gain[k].transpose() * r_bar;
+        }
+        self.dx[0] = StateVector::zeros();
+        for k in 0..n {
+            let du = self.gain[k] * self.dx[k] + self.du[k];
+            self.du[k] = du;
+            let mut next = StateVector::zeros();
+            self.a.multiply_add(&self.dx[k], &mut next);
+            self.b.multiply_add(&du, &mut next);
+            self.dx[k + 1] = next;
+            self.y_hat[k + 1] = self.p_mat[k + 1] * next + self.p_vec[k + 1];
+        }
+    }
+
+    /// ds = −r_i − G dz and dλ = −(r_c + λ∘ds)/s, with r_c from `rc(i)`.
+    fn recover(&mut self, qp: &StructuredQp, sigma_mu: Option<f64>) {
+        let n = qp.intervals;
+        for k in 0..=n {
+            for idx in self.start[k]..self.start[k + 1] {
+                let row = &self.rows[idx];
+                let g_dz = Self::row_value(qp, k, row, &self.dx[k], self.du.get(k));
+                let ds = -self.r_ineq[idx] - g_dz;
+                let rc = match sigma_mu {
+                    None => self.s[idx] * self.lambda[idx],
+                    Some(sm) => {
+                        self.s[idx] * self.lambda[idx] + self.ds_aff[idx] * self.dlambda_aff[idx]
+                            - sm
+                    }
+                };
+                self.ds[idx] = ds;
+                self.dlambda[idx] = -(rc + self.lambda[idx] * ds) / self.s[idx];
+            }
+        }
+    }
+
+    /// Builds the Newton gradient from the per-row coefficients.
+    fn newton_rhs(&mut self, qp: &StructuredQp) {
+        let n = qp.intervals;
+        for k in 0..=n {
+            let mut gx = self.gx[k];
+            let mut gu = if k < n {
+                self.gu[k]
+            } else {
+                InputVector::zeros()
+            };
+            for idx in self.start[k]..self.start[k + 1] {
+                Self::scatter(
+                    qp,
+                    k,
+                    &self.rows[idx],
+                    self.coef[idx],
+                    &mut gx,
+                    Some(&mut gu),
+                );
+            }
+            self.rhs_x[k] = gx;
+            if k < n {
+                self.rhs_u[k] = gu;
+            }
+        }
+    }
+
+    fn max_step(&self) -> f64 {
+        let mut alpha: f64 = 1.0;
+        for i in 0..self.s.len() {
+            if self.ds[i] < 0.0 {
+                alpha = alpha.min(-self.s[i] / self.ds[i]);
+            }
+            if self.dlambda[i] < 0.0 {
+                alpha = alpha.min(-self.lambda[i] / self.dlambda[i]);
+            }
+        }
+        alpha
+    }
+
+    /// Polish (as OSQP does): with the rows whose multiplier exceeds their slack taken as
+    /// equalities and the others dropped, a few method-of-multipliers Newton steps
+    /// `min J + λ_Aᵀ(G_A z − h_A) + ρ/2‖G_A z − h_A‖²`, `λ_A ← λ_A + ρ(G_A z − h_A)` remove the
+    /// interior-point method's residual complementarity (O(√μ) on weakly active rows). The
+    /// polished point is kept only if it is feasible, its multipliers stay non-negative and
+    /// it is no worse in objective; returns whether it was kept.
+    fn polish(&mut self, qp: &StructuredQp, out: &mut QpSolution) -> bool {
+        let n = qp.intervals;
+        let m = self.rows.len();
+        let rho = POLISH_PENALTY * qp.r.iter().map(|r| r.amax()).fold(1.0, f64::max);
+        let mut x = out.x.clone();
+        let mut u = out.u.clone();
+        let mut lambda = vec![0.0; m];
+        for i in 0..m {
+            let active = self.lambda[i] > self.s[i];
+            self.w[i] = if active { rho } else { 0.0 };
+            lambda[i] = if active { self.lambda[i] } else { 0.0 };
+        }
+        if !self.factorize(qp) {
+            return false;
+        }
+        for _ in 0..POLISH_STEPS {
+            self.cost_gradient(qp, &x, &u);
+            for k in 0..=n {
+                for idx in self.start[k]..self.start[k + 1] {
+                    let row = self.rows[idx];
+                    let r = Self::row_value(qp, k, &row, &x[k], u.get(k)) - row.h;
+                    self.coef[idx] = if self.w[idx] > 0.0 {
+                        lambda[idx] + rho * r
+                    } else {
+                        0.0
+                    };
+                }
+            }
+            self.newton_rhs(qp);
+            self.back_solve(qp);
+            for k in 0..=n {
+                x[k] += self.dx[k];
+                if k < n {
+                    u[k] += self.du[k];
+                }
+            }
+            for k in 0..=n {
+                for idx in self.start[k]..self.start[k + 1] {
+                    if self.w[idx] > 0.0 {
+                        let row = self.rows[idx];
+                        let r = Self::row_value(qp, k, &row, &x[k], u.get(k)) - row.h;
+                        lambda[idx] += rho * r;
+                    }
+                }
+            }
+        }
+        let tol = self.settings.tolerance.max(1e-12);
+        let feasible = qp.inequality_violation(&x, &u) <= 10.0 * tol;
+        let dual_ok = lambda.iter().all(|l| *l >= -1e-9 * rho.max(1.0));
+        let better = qp.objective(&x, &u) <= qp.objective(&out.x, &out.u) + 1e-12;
+        let finite = x.iter().all(|v| v.iter().all(|e| e.is_finite()))
+            && u.iter().all(|v| v.iter().all(|e| e.is_finite()));
+        if feasible && dual_ok && better && finite {
+            out.x.copy_from_slice(&x);
+            out.u.copy_from_slice(&u);
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Largest stationarity residual with the current multipliers.
+    fn stationarity(&self, qp: &StructuredQp) -> f64 {
+        let n = qp.intervals;
+        let mut worst: f64 = 0.0;
+        let mut t_x = StateVector::zeros();
+        let mut t_u = InputVector::zeros();
+        for k in 0..=n {
+            let mut rx = self.gx[k];
+            let mut ru = if k < n {
+                self.gu[k]
+            } else {
+                InputVector::zeros()
+            };
+            for idx in self.start[k]..self.start[k + 1] {
+                Self::scatter(
+                    qp,
+                    k,
+                    &self.rows[idx],
+                    self.lambda[idx],
+                    &mut rx,
+                    Some(&mut ru),
+                );
+            }
+            if k < n {
+                self.a.transpose_vector(&self.y[k + 1], &mut t_x);
+                self.b.transpose_vector(&self.y[k + 1], &mut t_u);
+                rx += t_x;
+                ru += t_u;
+                worst = worst.max(ru.amax());
+            }
+            if k > 0 {
+                rx -= self.y[k];
+                worst = worst.max(rx.amax());
+            }
+        }
+        worst
+    }
+}
+
+impl QpSolver for RiccatiIpm {
+    fn solve(&mut self, qp: &StructuredQp, out: &mut QpSolution) -> QpStatus {
+        let n = qp.intervals;
+        self.setup(qp);
+        out.x.resize(n + 1, StateVector::zeros());
+        out.u.resize(n, InputVector::zeros());
+        // A dynamically feasible start: zero inputs, states rolled out.
+        out.x[0] = qp.x0;
+        for k in 0..n {
+            out.u[k] = InputVector::zeros();
+            out.x[k + 1] = qp.a * out.x[k] + qp.defects[k];
+        }
+        let m = self.rows.len();
+        for k in 0..=n {
+            for idx in self.start[k]..self.start[k + 1] {
+                let row = self.rows[idx];
+                let v = Self::row_value(qp, k, &row, &out.x[k], out.u.get(k));
+                self.s[idx] = (row.h - v).max(INITIAL_SLACK_MIN);
+                self.lambda[idx] = INITIAL_MULTIPLIER;
+            }
+        }
+        for y in &mut self.y {
+            *y = StateVector::zeros();
+        }
+        let tol = self.settings.tolerance;
+        // Stationarity is judged relative to the size of the cost gradient (round-off in the
+        // recursion grows with it); feasibility and complementarity absolutely.
+        let gradient_scale = qp
+            .q_vec
+            .iter()
+            .map(|v| v.amax())
+            .chain(qp.r_vec.iter().map(|v| v.amax()))
+            .fold(1.0, f64::max);
+        let mut status = QpStatus::MaxIterations;
+        let mut iterations = 0;
+        loop {
+            // Residuals at the iterate.
+            self.cost_gradient(qp, &out.x, &out.u);
+            let mut r_ineq_max: f64 = 0.0;
+            for k in 0..=n {
+                for idx in self.start[k]..self.start[k + 1] {
+                    let row = self.rows[idx];
+                    let v = Self::row_value(qp, k, &row, &out.x[k], out.u.get(k));
+                    self.r_ineq[idx] = v + self.s[idx] - row.h;
+                    r_ineq_max = r_ineq_max.max(self.r_ineq[idx].abs());
+                }
+            }
+            let mu = if m > 0 {
+                self.s
+                    .iter()
+                    .zip(&self.lambda)
+                    .map(|(s, l)| s * l)
+                    .sum::<f64>()
+                    / m as f64
+            } else {
+                0.0
+            };
+            let stationarity = self.stationarity(qp);
+            if !(stationarity.is_finite() && mu.is_finite() && r_ineq_max.is_finite()) {
+                status = QpStatus::NumericalFailure;
+                break;
+            }
+            if stationarity <= tol * gradient_scale && r_ineq_max <= tol && mu <= tol {
+                status = QpStatus::Solved;
+                break;
+            }
+            if iterations >= self.settings.max_iterations {
+                break;
+            }
+            iterations += 1;
+            for i in 0..m {
+                self.w[i] = self.lambda[i] / self.s[i];
+            }
+            if !self.factorize(qp) {
+                status = QpStatus::NumericalFailure;
+                break;
+            }
+            // Predictor (affine scaling): r_c = s∘λ, coefficient W r_i.
+            for i in 0..m {
+                self.coef[i] = self.w[i] * self.r_ineq[i];
+            }
+            self.newton_rhs(qp);
+            self.back_solve(qp);
+            self.recover(qp, None);
+            let alpha_aff = self.max_step();
+            let mu_aff = if m > 0 {
+                (0..m)
+                    .map(|i| {
+                        (self.s[i] + alpha_aff * self.ds[i])
+                            * (self.lambda[i] + alpha_aff * self.dlambda[i])
+                    })
+                    .sum::<f64>()
+                    / m as f64
+            } else {
+                0.0
+            };
+            let sigma = if mu > 0.0 {
+                (mu_aff / mu).clamp(0.0, 1.0).powi(3)
+            } else {
+                0.0
+            };
+            self.ds_aff.copy_from_slice(&self.ds);
+            self.dlambda_aff.copy_from_slice(&self.dlambda);
+            // Corrector: r_c = s∘λ + ds_aff∘dλ_aff − σμ.
+            let sigma_mu = sigma * mu;
+            for i in 0..m {
+                self.coef[i] = self.w[i] * self.r_ineq[i]
+                    - (self.ds_aff[i] * self.dlambda_aff[i] - sigma_mu) / self.s[i];
+            }
+            self.newton_rhs(qp);
+            self.back_solve(qp);
+            self.recover(qp, Some(sigma_mu));
+            let alpha = (STEP_TO_BOUNDARY * self.max_step()).min(1.0);
+            for k in 0..=n {
+                out.x[k].axpy(alpha, &self.dx[k], 1.0);
+                if k < n {
+                    out.u[k].axpy(alpha, &self.du[k], 1.0);
+                }
+                if k > 0 {
+                    let y = self.y[k] + (self.y_hat[k] - self.y[k]) * alpha;
+                    self.y[k] = y;
+                }
+            }
+            for i in 0..m {
+                self.s[i] += alpha * self.ds[i];
+                self.lambda[i] += alpha * self.dlambda[i];
+            }
+        }
+        if status == QpStatus::Solved && self.settings.polish {
+            self.polish(qp, out);
+        }
+        out.iterations = iterations;
+        out.status = status;
+        if status == QpStatus::NumericalFailure
+            || out.x.iter().any(|x| !x.iter().all(|v| v.is_finite()))
+            || out.u.iter().any(|u| !u.iter().all(|v| v.is_finite()))
+        {
+            out.status = QpStatus::NumericalFailure;
+            for x in &mut out.x {
+                *x = StateVector::zeros();
+            }
+            for u in &mut out.u {
+                *u = InputVector::zeros();
+            }
+        }
+        out.status
+    }
+
+    fn name(&self) -> &'static str {
+        "riccati"
+    }
+}
+
+/// Compile-time check of the dimensions the recursion assumes.
+const _: () = assert!(NX == 16 && NU == 10);

@@ -1,0 +1,557 @@
+//! The optimal control problem of the paper and its SQP real-time iteration.
+//!
+//! # OCP (AMBENCH_SPEC §2.5)
+//!
+//! ```text
+//! min  Σ_{k<N} h·½‖y(x_k, u_k) − y_ref‖²_W + ½‖y_e(x_N) − y_ref,e‖²_{W_e}
+//! s.t. x_0 = x̂,  x_{k+1} = RK4(x_k, u_k; h),  h = T/N = 0.025 s
+//!      p_min ≤ p_k ≤ p_max (x upper bound lowered by a wall),  |roll|,|pitch| ≤ 0.01,
+//!      |yaw| ≤ π,  q_min ≤ q_k ≤ q_max,  q_min ≤ q_ref,k ≤ q_max   (k = 1..N for states)
+//!      0.1 ≤ (p_ee − p)_z ≤ 2.5                                   (path constraint, k = 1..N)
+//! y = [p_ee − p_ref, rpy_ee − rpy_ref, v, η − (0, 0, yaw_ref), ω, q − q_0,
+//!      u − (0, 0, q_0), u − u_prev],   y_e = the first 19 entries
+//! ```
+//!
+//! W = blkdiag(Q, R, R_Δ) with the reference's weights ([`MpcWeights`]). Stage costs are
+//! scaled by h and the terminal cost by 1 (acados' default `cost_scaling`; the reference's
+//! acados version is not pinned [U]). Angle residuals (EE roll–pitch–yaw, base yaw) are wrapped
+//! to (−π, π]. q_min/q_max are the URDF limits intersected with ±`joint_limit_rad`.
+//!
+//! Conscious differences from the reference:
+//! - `u_prev` is the last applied input *without* gravity, like u (the reference stores the
+//!   force with gravity added, so its rate term pulls every predicted force toward +m·g).
+//! - A bound that the measured state already violates is not imposed at once: at stage k it
+//!   is widened to `b + (v̂ − b)·exp(−t_k/τ)` (τ = `recovery_time_constant_s`, or 2/k_a for the
+//!   joints and the EE height, which only the arm servo can move), so a disturbance never
+//!   makes the QP infeasible. Within its bounds the measured state sees the reference's
+//!   constraints unchanged.
+//!
+//! # SQP-RTI
+//!
+//! One Gauss–Newton SQP iteration per control tick. Preparation: the previous solution is
+//! shifted by the time elapsed since it was computed (inputs interpolated over the shooting
+//! grid, the last one held) and the states are rolled out from x̂ with the integrator, so the
+//! linearisation point is dynamically consistent; residuals and their Jacobians are evaluated
+//! at every knot and the QP in the deltas is assembled (`H = h·JᵀWJ`, `g = h·JᵀW(y − y_ref)`;
+//! A, B are the integrator's exact sensitivities). Feedback: the QP is solved by the chosen
+//! path and the full step is taken. A solve that fails leaves the shifted solution in place.
+
+use nalgebra::{SMatrix, UnitQuaternion, Vector3};
+use platform::Vehicle;
+use serde::Serialize;
+
+use crate::ik::BaseLimits;
+use crate::mpc::clarabel_qp::ClarabelQp;
+use crate::mpc::config::{MpcConfig, MpcConfigError, QpPath};
+use crate::mpc::model::{IU_QREF, IX_ETA, IX_OMEGA, IX_P, IX_Q, IX_V, ModelError, MpcModel, NQ};
+use crate::mpc::qp::{
+    InputMatrix, InputStateMatrix, InputVector, NU, NX, QpSolution, QpSolver, QpStatus,
+    StateInputMatrix, StateMatrix, StateVector, StructuredQp,
+};
+use crate::mpc::riccati::RiccatiIpm;
+
+/// Bounded state entries: position, Euler angles, arm joints.
+const STATE_BOUND_INDICES: [usize; 10] = [
+    IX_P,
+    IX_P + 1,
+    IX_P + 2,
+    IX_ETA,
+    IX_ETA + 1,
+    IX_ETA + 2,
+    IX_Q,
+    IX_Q + 1,
+    IX_Q + 2,
+    IX_Q + 3,
+];
+/// Bounded input entries: the arm references.
+const INPUT_BOUND_INDICES: [usize; NQ] = [IU_QREF, IU_QREF + 1, IU_QREF + 2, IU_QREF + 3];
+
+/// Why the MPC cannot be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MpcError {
+    /// A setting is out of range.
+    #[error(transparent)]
+    Config(#[from] MpcConfigError),
+    /// The vehicle does not fit the OCP.
+    #[error(transparent)]
+    Model(#[from] ModelError),
+}
+
+/// What the MPC tracks at one tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MpcReference {
+    /// Target `ee_link` position in the world, m (held over the horizon).
+    pub ee_position_m: Vector3<f64>,
+    /// Target `ee_link` orientation in the world.
+    pub ee_rotation: UnitQuaternion<f64>,
+    /// The last applied input (world force without gravity, world torque, arm references).
+    pub input_previous: InputVector,
+}
+
+/// What one RTI step did.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RtiReport {
+    /// QP outcome (not `solved`: the shifted previous solution was kept).
+    pub status: QpStatus,
+    /// QP interior-point iterations.
+    pub qp_iterations: u32,
+    /// NLS cost of the solution (or of the kept one).
+    pub cost: f64,
+    /// Largest violation of the OCP's inequalities (path constraint evaluated on the
+    /// nonlinear kinematics) at the solution's knots, m or rad.
+    pub max_constraint_violation: f64,
+}
+
+/// Wraps an angle to (−π, π].
+pub fn wrap_angle(a: f64) -> f64 {
+    let two_pi = std::f64::consts::TAU;
+    let w = a - two_pi * (a / two_pi).round();
+    if w <= -std::f64::consts::PI {
+        w + two_pi
+    } else {
+        w
+    }
+}
+
+/// Effective absolute bounds of one stage.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct StageBounds {
+    state_lower: [f64; 10],
+    state_upper: [f64; 10],
+    height_lower: f64,
+    height_upper: f64,
+}
+
+/// The OCP and its SQP-RTI solver.
+#[derive(Debug)]
+pub struct SqpRti {
+    config: MpcConfig,
+    model: MpcModel,
+    h: f64,
+    a: StateMatrix,
+    b: StateInputMatrix,
+    joint_lower: [f64; NQ],
+    joint_upper: [f64; NQ],
+    /// Diagonal state weights of the linear residuals (v, η, ω, q), stage and terminal alike.
+    state_weights: StateVector,
+    input_weights: InputVector,
+    rate_weights: InputVector,
+    ee_weights: SMatrix<f64, 6, 1>,
+    xs: Vec<StateVector>,
+    us: Vec<InputVector>,
+    bounds: Vec<StageBounds>,
+    reference: Option<MpcReference>,
+    qp: StructuredQp,
+    solution: QpSolution,
+    riccati: RiccatiIpm,
+    clarabel: ClarabelQp,
+    warm: bool,
+}
+
+impl SqpRti {
+    /// The OCP of `vehicle` with `config`.
+    pub fn new(vehicle: &Vehicle, config: MpcConfig) -> Result<Self, MpcError> {
+        config.validate()?;
+        let model = MpcModel::new(vehicle, config.arm_gain_per_s)?;
+        let h = config.interval_s();
+        let (_, a, b) = model.rk4(&StateVector::zeros(), &InputVector::zeros(), h);
+        let mut joint_lower = [0.0; NQ];
+        let mut joint_upper = [0.0; NQ];
+        for j in 0..NQ {
+            joint_lower[j] = model.arm_lower_rad[j].max(-config.joint_limit_rad);
+            joint_upper[j] = model.arm_upper_rad[j].min(config.joint_limit_rad);
+        }
+        let w = &config.weights;
+        let mut state_weights = StateVector::zeros();
+        for i in 0..3 {
+            state_weights[IX_V + i] = w.velocity[i];
+            state_weights[IX_ETA + i] = w.attitude[i];
+            state_weights[IX_OMEGA + i] = w.angular_velocity[i];
+        }
+        for j in 0..NQ {
+            state_weights[IX_Q + j] = w.arm[j];
+        }
+        let ee_weights = SMatrix::<f64, 6, 1>::from_column_slice(&[
+            w.ee_position[0],
+            w.ee_position[1],
+            w.ee_position[2],
+            w.ee_orientation[0],
+            w.ee_orientation[1],
+            w.ee_orientation[2],
+        ]);
+        let n = config.intervals;
+        let mut qp = StructuredQp::zeros(n);
+        qp.a = a;
+        qp.b = b;
+        for (k, c) in qp.constraints.iter_mut().enumerate() {
+            if k > 0 {
+                c.state_indices = STATE_BOUND_INDICES.to_vec();
+                c.state_lower = vec![0.0; 10];
+                c.state_upper = vec![0.0; 10];
+                c.general = vec![StateVector::zeros()];
+                c.general_lower = vec![0.0];
+                c.general_upper = vec![0.0];
+            }
+            if k < n {
+                c.input_indices = INPUT_BOUND_INDICES.to_vec();
+                c.input_lower = vec![0.0; NQ];
+                c.input_upper = vec![0.0; NQ];
+            }
+        }
+        let empty = StageBounds {
+            state_lower: [0.0; 10],
+            state_upper: [0.0; 10],
+            height_lower: 0.0,
+            height_upper: 0.0,
+        };
+        Ok(Self {
+            model,
+            h,
+            a,
+            b,
+            joint_lower,
+            joint_upper,
+            state_weights,
+            input_weights: InputVector::from_column_slice(&w.input),
+            rate_weights: InputVector::from_column_slice(&w.input_rate),
+            ee_weights,
+            xs: vec![StateVector::zeros(); n + 1],
+            us: vec![InputVector::zeros(); n],
+            bounds: vec![empty; n + 1],
+            reference: None,
+            qp,
+            solution: QpSolution::zeros(n),
+            riccati: RiccatiIpm::new(config.qp),
+            clarabel: ClarabelQp::new(config.qp),
+            warm: false,
+            config,
+        })
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &MpcConfig {
+        &self.config
+    }
+
+    /// The prediction model.
+    pub fn model(&self) -> &MpcModel {
+        &self.model
+    }
+
+    /// Changes the QP settings of both paths.
+    pub fn set_qp_settings(&mut self, settings: crate::mpc::config::QpSettings) {
+        self.config.qp = settings;
+        self.riccati.set_settings(settings);
+        self.clarabel.set_settings(settings);
+    }
+
+    /// Arm joint bounds used (URDF ∩ ±joint_limit_rad), rad.
+    pub fn joint_bounds(&self) -> ([f64; NQ], [f64; NQ]) {
+        (self.joint_lower, self.joint_upper)
+    }
+
+    /// Forgets the previous solution: the next step starts cold.
+    pub fn reset(&mut self) {
+        self.warm = false;
+    }
+
+    /// Predicted states x_0..x_N of the current iterate.
+    pub fn states(&self) -> &[StateVector] {
+        &self.xs
+    }
+
+    /// Inputs u_0..u_{N−1} of the current iterate.
+    pub fn inputs(&self) -> &[InputVector] {
+        &self.us
+    }
+
+    /// The QP of the last preparation.
+    pub fn qp(&self) -> &StructuredQp {
+        &self.qp
+    }
+
+    /// The end effector at state `x`.
+    pub fn ee_kinematics(&mut self, x: &StateVector) -> crate::mpc::model::EeKinematics {
+        self.model.ee(x)
+    }
+
+    /// Shifts the previous solution by `elapsed_s` (or starts cold), rolls the states out from
+    /// `x_hat`, and assembles the QP for `reference` with the base within `limits`.
+    pub fn prepare(
+        &mut self,
+        x_hat: &StateVector,
+        reference: &MpcReference,
+        limits: &BaseLimits,
+        elapsed_s: f64,
+    ) {
+        let n = self.config.intervals;
+        if self.warm {
+            let shift = (elapsed_s / self.h).max(0.0);
+            let old = self.us.clone();
+            for k in 0..n {
+                let t = k as f64 + shift;
+                let i = t.floor() as usize;
+                let f = t - t.floor();
+                let a = old[i.min(n - 1)];
+                let b = old[(i + 1).min(n - 1)];
+                self.us[k] = a + (b - a) * f;
+            }
+        } else {
+            for u in &mut self.us {
+                *u = InputVector::zeros();
+                for j in 0..NQ {
+                    u[IU_QREF + j] =
+                        x_hat[IX_Q + j].clamp(self.joint_lower[j], self.joint_upper[j]);
+                }
+            }
+        }
+        self.xs[0] = *x_hat;
+        for k in 0..n {
+            self.xs[k + 1] = self.a * self.xs[k] + self.b * self.us[k];
+        }
+        self.reference = Some(*reference);
+        self.set_bounds(x_hat, limits);
+        self.linearize(reference);
+    }
+
+    fn set_bounds(&mut self, x_hat: &StateVector, limits: &BaseLimits) {
+        let c = &self.config;
+        let mut lower = [0.0; 10];
+        let mut upper = [0.0; 10];
+        for axis in 0..3 {
+            let (lo, hi) = limits.bounds(axis);
+            lower[axis] = c.position_min_m[axis].max(lo);
+            upper[axis] = c.position_max_m[axis].min(hi);
+        }
+        lower[3] = -c.roll_pitch_limit_rad;
+        upper[3] = c.roll_pitch_limit_rad;
+        lower[4] = -c.roll_pitch_limit_rad;
+        upper[4] = c.roll_pitch_limit_rad;
+        lower[5] = -c.yaw_limit_rad;
+        upper[5] = c.yaw_limit_rad;
+        lower[6..].copy_from_slice(&self.joint_lower);
+        upper[6..].copy_from_slice(&self.joint_upper);
+        let arm_tau = 2.0 / c.arm_gain_per_s;
+        let height_hat = self.model.ee(x_hat).position.z - x_hat[IX_P + 2];
+        let relax = |lo: f64, hi: f64, v: f64, decay: f64| -> (f64, f64) {
+            (lo.min(lo + (v - lo) * decay), hi.max(hi + (v - hi) * decay))
+        };
+        for k in 1..=c.intervals {
+            let t = k as f64 * self.h;
+            let decay_fast = (-t / c.recovery_time_constant_s).exp();
+            let decay_arm = (-t / arm_tau.max(c.recovery_time_constant_s)).exp();
+            let b = &mut self.bounds[k];
+            for (i, &ix) in STATE_BOUND_INDICES.iter().enumerate() {
+                let decay = if i >= 6 { decay_arm } else { decay_fast };
+                let (lo, hi) = relax(lower[i], upper[i], x_hat[ix], decay);
+                b.state_lower[i] = lo;
+                b.state_upper[i] = hi;
+            }
+            let (lo, hi) = relax(c.ee_height_min_m, c.ee_height_max_m, height_hat, decay_arm);
+            b.height_lower = lo;
+            b.height_upper = hi;
+        }
+    }
+
+    fn stage_scale(&self, k: usize) -> f64 {
+        if k < self.config.intervals {
+            self.h
+        } else {
+            1.0
+        }
+    }
+
+    /// Residual vector of the EE (position, wrapped rpy) and its Jacobian at x.
+    fn ee_residual(
+        &mut self,
+        x: &StateVector,
+        reference: &MpcReference,
+        ref_rpy: &Vector3<f64>,
+    ) -> (SMatrix<f64, 6, 1>, SMatrix<f64, 6, NX>, f64, StateVector) {
+        let ee = self.model.ee(x);
+        let mut y = SMatrix::<f64, 6, 1>::zeros();
+        let mut jac = SMatrix::<f64, 6, NX>::zeros();
+        for i in 0..3 {
+            y[i] = ee.position[i] - reference.ee_position_m[i];
+            y[3 + i] = wrap_angle(ee.rpy[i] - ref_rpy[i]);
+        }
+        jac.fixed_rows_mut::<3>(0).copy_from(&ee.position_jacobian);
+        jac.fixed_rows_mut::<3>(3).copy_from(&ee.rpy_jacobian);
+        let height = ee.position.z - x[IX_P + 2];
+        let mut height_gradient: StateVector = ee.position_jacobian.row(2).transpose();
+        height_gradient[IX_P + 2] = 0.0;
+        (y, jac, height, height_gradient)
+    }
+
+    /// Linear state residuals r (v, η − η_ref, ω, q − q_0) with zeros elsewhere.
+    fn state_residual(&self, x: &StateVector, yaw_ref: f64) -> StateVector {
+        let mut r = StateVector::zeros();
+        for i in 0..3 {
+            r[IX_V + i] = x[IX_V + i];
+            r[IX_OMEGA + i] = x[IX_OMEGA + i];
+        }
+        r[IX_ETA] = x[IX_ETA];
+        r[IX_ETA + 1] = x[IX_ETA + 1];
+        r[IX_ETA + 2] = wrap_angle(x[IX_ETA + 2] - yaw_ref);
+        for j in 0..NQ {
+            r[IX_Q + j] = x[IX_Q + j] - self.config.default_arm_rad[j];
+        }
+        r
+    }
+
+    fn input_reference(&self) -> InputVector {
+        let mut u = InputVector::zeros();
+        for j in 0..NQ {
+            u[IU_QREF + j] = self.config.default_arm_rad[j];
+        }
+        u
+    }
+
+    fn linearize(&mut self, reference: &MpcReference) {
+        let n = self.config.intervals;
+        let (rr, rp, ry) = reference.ee_rotation.euler_angles();
+        let ref_rpy = Vector3::new(rr, rp, ry);
+        let u_ref = self.input_reference();
+        let r_diag = self.input_weights + self.rate_weights;
+        let w_ee = SMatrix::<f64, 6, 6>::from_diagonal(&self.ee_weights);
+        for k in 0..=n {
+            let x = self.xs[k];
+            let scale = self.stage_scale(k);
+            let (y, jac, height, height_gradient) = self.ee_residual(&x, reference, &ref_rpy);
+            let r_state = self.state_residual(&x, ry);
+            let wj = w_ee * jac;
+            let mut q = jac.transpose() * wj;
+            let mut qv = wj.transpose() * y;
+            for i in 0..NX {
+                q[(i, i)] += self.state_weights[i];
+                qv[i] += self.state_weights[i] * r_state[i];
+            }
+            self.qp.q[k] = q * scale;
+            self.qp.q_vec[k] = qv * scale;
+            if k < n {
+                let u = self.us[k];
+                self.qp.r[k] = InputMatrix::from_diagonal(&(r_diag * scale));
+                self.qp.s[k] = InputStateMatrix::zeros();
+                self.qp.r_vec[k] = (self.input_weights.component_mul(&(u - u_ref))
+                    + self
+                        .rate_weights
+                        .component_mul(&(u - reference.input_previous)))
+                    * scale;
+                self.qp.defects[k] = self.a * x + self.b * u - self.xs[k + 1];
+                let c = &mut self.qp.constraints[k];
+                for (j, &iu) in INPUT_BOUND_INDICES.iter().enumerate() {
+                    c.input_lower[j] = self.joint_lower[j] - u[iu];
+                    c.input_upper[j] = self.joint_upper[j] - u[iu];
+                }
+            }
+            if k > 0 {
+                let b = self.bounds[k];
+                let c = &mut self.qp.constraints[k];
+                for (i, &ix) in STATE_BOUND_INDICES.iter().enumerate() {
+                    c.state_lower[i] = b.state_lower[i] - x[ix];
+                    c.state_upper[i] = b.state_upper[i] - x[ix];
+                }
+                c.general[0] = height_gradient;
+                c.general_lower[0] = b.height_lower - height;
+                c.general_upper[0] = b.height_upper - height;
+            }
+        }
+        self.qp.x0 = StateVector::zeros();
+    }
+
+    /// NLS cost and largest inequality violation of the current iterate.
+    pub fn evaluate(&mut self) -> (f64, f64) {
+        let Some(reference) = self.reference else {
+            return (0.0, 0.0);
+        };
+        let n = self.config.intervals;
+        let (rr, rp, ry) = reference.ee_rotation.euler_angles();
+        let ref_rpy = Vector3::new(rr, rp, ry);
+        let u_ref = self.input_reference();
+        let mut cost = 0.0;
+        let mut violation: f64 = 0.0;
+        for k in 0..=n {
+            let x = self.xs[k];
+            let (y, _, height, _) = self.ee_residual(&x, &reference, &ref_rpy);
+            let r_state = self.state_residual(&x, ry);
+            let mut stage = 0.0;
+            for i in 0..6 {
+                stage += self.ee_weights[i] * y[i] * y[i];
+            }
+            for i in 0..NX {
+                stage += self.state_weights[i] * r_state[i] * r_state[i];
+            }
+            if k < n {
+                let u = self.us[k];
+                let du = u - u_ref;
+                let dp = u - reference.input_previous;
+                for i in 0..NU {
+                    stage += self.input_weights[i] * du[i] * du[i]
+                        + self.rate_weights[i] * dp[i] * dp[i];
+                }
+                for (j, &iu) in INPUT_BOUND_INDICES.iter().enumerate() {
+                    violation = violation
+                        .max(self.joint_lower[j] - u[iu])
+                        .max(u[iu] - self.joint_upper[j]);
+                }
+            }
+            cost += 0.5 * self.stage_scale(k) * stage;
+            if k > 0 {
+                let b = &self.bounds[k];
+                for (i, &ix) in STATE_BOUND_INDICES.iter().enumerate() {
+                    violation = violation
+                        .max(b.state_lower[i] - x[ix])
+                        .max(x[ix] - b.state_upper[i]);
+                }
+                violation = violation
+                    .max(b.height_lower - height)
+                    .max(height - b.height_upper);
+            }
+        }
+        (cost, violation)
+    }
+
+    /// Solves the prepared QP with `path`; on success takes the full step. The QP solution
+    /// (deltas) is left in [`Self::last_qp_solution`].
+    pub fn feedback(&mut self, path: QpPath) -> RtiReport {
+        let solver: &mut dyn QpSolver = match path {
+            QpPath::Riccati => &mut self.riccati,
+            QpPath::Clarabel => &mut self.clarabel,
+        };
+        let status = solver.solve(&self.qp, &mut self.solution);
+        if status == QpStatus::Solved {
+            for (x, dx) in self.xs.iter_mut().zip(&self.solution.x) {
+                *x += dx;
+            }
+            for (u, du) in self.us.iter_mut().zip(&self.solution.u) {
+                *u += du;
+            }
+        }
+        self.warm = true;
+        let (cost, max_constraint_violation) = self.evaluate();
+        RtiReport {
+            status,
+            qp_iterations: self.solution.iterations,
+            cost,
+            max_constraint_violation,
+        }
+    }
+
+    /// The QP solution (deltas) of the last feedback.
+    pub fn last_qp_solution(&self) -> &QpSolution {
+        &self.solution
+    }
+
+    /// [`Self::prepare`] then [`Self::feedback`].
+    pub fn step(
+        &mut self,
+        x_hat: &StateVector,
+        reference: &MpcReference,
+        limits: &BaseLimits,
+        elapsed_s: f64,
+        path: QpPath,
+    ) -> RtiReport {
+        self.prepare(x_hat, reference, limits, elapsed_s);
+        self.feedback(path)
+    }
+}
