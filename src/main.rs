@@ -4,9 +4,11 @@
 //! Exit codes: 0 success, 2 bad input (one line on stderr naming what was wrong), 1 failure.
 
 mod cli_error;
+mod fly;
 mod output;
 mod platforms;
 mod track;
+mod twin_serve;
 mod vehicles;
 
 use std::process::ExitCode;
@@ -38,6 +40,11 @@ enum Command {
     /// Fly a reference trajectory in the twin and report tracking errors, tilt and
     /// saturation: the validation experiments of the paper.
     Track(Box<track::Args>),
+    /// The flight stack of `track` against a chosen link: the twin in this process
+    /// (`--link twin`) or in another process over iceoryx2 (`--link ipc:<service>`).
+    Fly(Box<fly::FlyArgs>),
+    /// The twin on its own: `amstack twin serve` offers it to a flight process over iceoryx2.
+    Twin(twin_serve::TwinArgs),
 }
 
 fn main() -> ExitCode {
@@ -60,6 +67,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Platforms(args) => platforms::run(&args),
         Command::Track(args) => track::run(&args),
+        Command::Fly(args) => fly::run(&args),
+        Command::Twin(args) => twin_serve::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Result;
 use comfy_table::{Table, presets};
 use controllers::{ControllerKind, profile};
-use policy_runtime::{Interface, TrackConfig, Trajectory, run_track};
+use policy_runtime::{Interface, TrackConfig, TrackResult, Trajectory, run_track};
 use sim_twin::{Disturbances, MotorConfig, TwinConfig};
 
 use crate::cli_error::bad_input;
@@ -77,7 +77,7 @@ pub struct Args {
     vehicles: Vec<PathBuf>,
 }
 
-fn config(args: &Args) -> Result<TrackConfig> {
+pub(crate) fn config(args: &Args) -> Result<TrackConfig> {
     let vehicles = all_vehicles(&args.vehicles)?;
     let Some(vehicle) = vehicles.iter().find(|v| v.id == args.platform).cloned() else {
         let ids: Vec<&str> = vehicles.iter().map(|v| v.id.as_str()).collect();
@@ -151,6 +151,16 @@ fn cell(x: Option<f64>, scale: f64, decimals: usize) -> String {
 }
 
 pub fn run(args: &Args) -> Result<()> {
+    run_with(args, |config, progress| Ok(run_track(config, progress)?))
+}
+
+/// One flight flown by `flight` (the in-process twin for `amstack track`, any link for
+/// `amstack fly`), with everything around it: output checks, the banner, Ctrl-C, the table
+/// and the JSON.
+pub(crate) fn run_with(
+    args: &Args,
+    flight: impl FnOnce(&TrackConfig, &mut dyn FnMut(f64) -> ControlFlow<()>) -> Result<TrackResult>,
+) -> Result<()> {
     for (flag, path) in [("--json", &args.json), ("--mcap", &args.mcap)] {
         if let Some(p) = path {
             check_writable(flag, p)?;
@@ -172,7 +182,7 @@ pub fn run(args: &Args) -> Result<()> {
     let flag = Arc::clone(&stop);
     // A second handler cannot be installed (only in tests calling run twice): keep going.
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
-    let result = run_track(&config, |t| {
+    let result = flight(&config, &mut |t| {
         if t >= 5.0 && (t.round() as u64).is_multiple_of(5) {
             eprintln!("  t = {t:.0} / {duration} s");
         }

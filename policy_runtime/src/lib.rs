@@ -9,6 +9,8 @@
 //! # What exists
 //!
 //! - [`link`]: the [`Link`] seam and its first implementation, the in-process twin.
+//! - [`ipc_link`]: the twin in another process over iceoryx2 ([`IpcLink`]), lockstep or
+//!   realtime, with a handshake and a deadline on every answer.
 //! - [`stack`]: one tick of the flight stack — target → base controller → allocation →
 //!   actuator command, with the allocator's unallocated wrench fed back to the controller.
 //! - [`trajectory`] and [`track`]: the reference trajectories of `amstack track` and the
@@ -25,6 +27,7 @@
 //!   [`record::Recording`] reads a file back by streaming, complete or cut short.
 
 pub mod flight_log;
+pub mod ipc_link;
 pub mod link;
 pub mod metrics;
 pub mod record;
@@ -33,9 +36,10 @@ pub mod stack;
 pub mod track;
 pub mod trajectory;
 
+pub use ipc_link::{IpcLink, IpcLinkConfig, IpcLinkError};
 pub use link::{Link, LinkError, TwinLink};
 pub use stack::{
     Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits, TickRecord,
 };
-pub use track::{Interface, TrackConfig, TrackError, TrackResult, run_track};
+pub use track::{Interface, TrackConfig, TrackError, TrackResult, run_track, run_track_with_link};
 pub use trajectory::Trajectory;

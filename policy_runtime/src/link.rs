@@ -14,6 +14,9 @@ pub enum LinkError {
     /// The in-process twin refused a command or could not be built.
     #[error(transparent)]
     Twin(#[from] TwinError),
+    /// The twin in another process (iceoryx2) refused, failed or stopped answering.
+    #[error(transparent)]
+    Ipc(crate::ipc_link::IpcLinkError),
 }
 
 /// One side of the flight stack's contact with the vehicle (simulated or real).

@@ -173,13 +173,8 @@ fn noisy(target: &mut BaseJointTarget, rng: &mut ChaCha8Rng, noise: &Normal<f64>
     target.gripper += noise.sample(rng);
 }
 
-/// Flies `config` and scores it. `progress` is called with the simulated time about once a
-/// simulated second; returning `ControlFlow::Break` stops the flight (the log is finished,
-/// the result is [`TrackError::Interrupted`]).
-pub fn run_track(
-    config: &TrackConfig,
-    mut progress: impl FnMut(f64) -> ControlFlow<()>,
-) -> Result<TrackResult, TrackError> {
+/// Checks the flight length and the settling time.
+fn validate(config: &TrackConfig) -> Result<(), TrackError> {
     if !(config.duration_s.is_finite() && config.duration_s > 0.0) {
         return Err(TrackError::Config(format!(
             "duration {} s must be finite and positive",
@@ -195,6 +190,31 @@ pub fn run_track(
             config.settle_s, config.duration_s
         )));
     }
+    Ok(())
+}
+
+/// Flies `config` and scores it. `progress` is called with the simulated time about once a
+/// simulated second; returning `ControlFlow::Break` stops the flight (the log is finished,
+/// the result is [`TrackError::Interrupted`]).
+pub fn run_track(
+    config: &TrackConfig,
+    progress: impl FnMut(f64) -> ControlFlow<()>,
+) -> Result<TrackResult, TrackError> {
+    validate(config)?;
+    let twin = Twin::new(config.vehicle.clone(), config.twin.clone()).map_err(LinkError::from)?;
+    run_track_with_link(config, &mut TwinLink::new(twin), progress)
+}
+
+/// [`run_track`] over any link — the twin in another process, say. `config.twin` must
+/// describe the twin behind the link (its rate, limits, tilt model and noise settings shape
+/// the flight stack and the action noise). A link that fails mid-flight ends the flight
+/// with its error, the log finished.
+pub fn run_track_with_link(
+    config: &TrackConfig,
+    link: &mut dyn Link,
+    mut progress: impl FnMut(f64) -> ControlFlow<()>,
+) -> Result<TrackResult, TrackError> {
+    validate(config)?;
     let vehicle = &config.vehicle;
     let dt = config.twin.control_dt_s();
     let limits = if config.twin.disturbances.saturation {
@@ -210,8 +230,6 @@ pub fn run_track(
         dt,
     )?
     .with_tilt_projection(config.twin.tilt_thrust == sim_twin::TiltThrust::Measured);
-    let mut link =
-        TwinLink::new(Twin::new(vehicle.clone(), config.twin.clone()).map_err(LinkError::from)?);
     let mut log = match &config.mcap {
         None => None,
         Some(path) => {
@@ -263,8 +281,16 @@ pub fn run_track(
         if t >= config.settle_s {
             score(&mut sums, &measurement, &record.base_target, &ee_reference);
         }
-        link.send(&record.command)?;
-        measurement = link.receive()?;
+        measurement = match link.send(&record.command).and_then(|()| link.receive()) {
+            Ok(m) => m,
+            Err(e) => {
+                // The world stopped answering (a twin process gone): the log is still closed.
+                if let Some(log) = log {
+                    log.finish()?;
+                }
+                return Err(e.into());
+            }
+        };
         if let Some(log) = &mut log {
             log.outcome(&measurement)?;
         }

@@ -1,0 +1,156 @@
+//! `amstack twin serve`: the twin alone in its process, offered over iceoryx2 shared memory.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::Result;
+use sim_twin::ipc::{Mode, ServeConfig, ServeError, TwinServer};
+use sim_twin::{Disturbances, MotorConfig, TwinConfig};
+
+use crate::cli_error::bad_input;
+use crate::vehicles::all_vehicles;
+
+#[derive(Debug, clap::Args)]
+pub struct TwinArgs {
+    #[command(subcommand)]
+    command: TwinCommand,
+}
+
+#[derive(Debug, clap::Subcommand)]
+enum TwinCommand {
+    /// Run the twin in this process and serve it over iceoryx2 shared memory to one flight
+    /// process at a time (`amstack fly --link ipc:<service>`).
+    Serve(Box<ServeArgs>),
+}
+
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Lockstep (the default, PX4's SITL contract): the twin advances exactly one control period
+when the command for its current tick arrives, so a split-process flight is bit-identical
+to the in-process one. Realtime: the twin steps on the wall clock at the control rate with
+the latest command, as hardware would.
+
+Every connection starts a session from the twin's reset state. The flight process must ask
+for the same vehicle and twin settings (disturbances, motor model, seed...): a mismatch is
+refused with both values named. If the flight process dies (or, in realtime, goes silent),
+the twin holds its last command for --hold-ms, then applies the failsafe (disarm: rotors
+0 N, joints held), runs 3 s more so the vehicle comes to rest, and waits for the next flight
+process. Resources left under /dev/shm by crashed processes are removed at start.
+
+Example:
+  amstack twin serve --ipc sitl --platform fa-hexa &
+  amstack fly --link ipc:sitl --platform fa-hexa --trajectory step --json r.json")]
+pub struct ServeArgs {
+    /// iceoryx2 service name the flight process connects to (`--link ipc:<NAME>`).
+    #[arg(long, value_name = "NAME")]
+    ipc: String,
+    /// Vehicle id (ua-quad, ua-hexa, fa-hexa, omni-hexa, ee-only, or one added with --vehicle).
+    #[arg(long, default_value = "fa-hexa")]
+    platform: String,
+    /// Advance one control period per command (the default).
+    #[arg(long, conflicts_with = "realtime")]
+    lockstep: bool,
+    /// Run on the wall clock at the control rate, applying the latest command.
+    #[arg(long)]
+    realtime: bool,
+    /// How long a lost flight process's last command is held before the failsafe, ms.
+    #[arg(long, value_name = "MS", default_value_t = 500)]
+    hold_ms: u64,
+    /// Lockstep: a flight process alive but silent this long counts as lost, ms.
+    #[arg(long, value_name = "MS", default_value_t = 5000)]
+    stall_ms: u64,
+    /// Exit after serving this many sessions (default: until Ctrl-C).
+    #[arg(long, value_name = "N")]
+    sessions: Option<u64>,
+    /// Comma-separated disturbances, as `amstack track --disturbances`.
+    #[arg(long, value_name = "LIST", default_value = "none")]
+    disturbances: String,
+    /// Motor time constant, s (needs `saturation`).
+    #[arg(long, value_name = "S")]
+    motor_tau: Option<f64>,
+    /// Motor normalised-speed rate limit, 1/s (needs `saturation`).
+    #[arg(long, value_name = "R")]
+    motor_rate_limit: Option<f64>,
+    /// Ground-effect intensity k.
+    #[arg(long, value_name = "K")]
+    ground_effect_k: Option<f64>,
+    /// Seed of every random draw (noise); every session starts from it.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
+    #[arg(long = "vehicle", value_name = "FILE.toml")]
+    vehicles: Vec<PathBuf>,
+}
+
+/// The twin configuration from the same flags as `amstack track` (so the two sides of a
+/// split flight agree when given the same flags).
+fn twin_config(args: &ServeArgs) -> Result<TwinConfig> {
+    let disturbances = Disturbances::parse_list(&args.disturbances)
+        .map_err(|e| bad_input(format!("--disturbances: {e}")))?;
+    let mut twin = TwinConfig {
+        disturbances,
+        motor: MotorConfig {
+            time_constant_s: args.motor_tau,
+            rate_limit_per_s: args.motor_rate_limit,
+        },
+        seed: args.seed,
+        ..TwinConfig::default()
+    };
+    if let Some(k) = args.ground_effect_k {
+        twin.aero.ground_effect_k = k;
+    }
+    twin.validate()
+        .map_err(|e| bad_input(format!("twin: {e}")))?;
+    Ok(twin)
+}
+
+pub fn run(args: &TwinArgs) -> Result<()> {
+    match &args.command {
+        TwinCommand::Serve(serve) => run_serve(serve),
+    }
+}
+
+fn run_serve(args: &ServeArgs) -> Result<()> {
+    if args.ipc.is_empty() || args.ipc.contains(char::is_whitespace) {
+        return Err(bad_input(format!(
+            "--ipc '{}': a service name without spaces",
+            args.ipc
+        )));
+    }
+    let vehicles = all_vehicles(&args.vehicles)?;
+    let Some(vehicle) = vehicles.iter().find(|v| v.id == args.platform).cloned() else {
+        let ids: Vec<&str> = vehicles.iter().map(|v| v.id.as_str()).collect();
+        return Err(bad_input(format!(
+            "--platform {}: unknown vehicle (known: {})",
+            args.platform,
+            ids.join(", ")
+        )));
+    };
+    let twin = twin_config(args)?;
+    let mode = if args.realtime {
+        Mode::Realtime
+    } else {
+        Mode::Lockstep
+    };
+    let config = ServeConfig {
+        hold: Duration::from_millis(args.hold_ms),
+        stall_timeout: Duration::from_millis(args.stall_ms),
+        max_sessions: args.sessions,
+        ..ServeConfig::new(args.ipc.clone(), mode)
+    };
+    let mut server = TwinServer::new(vehicle, twin, config).map_err(|e| match e {
+        ServeError::Taken(_) | ServeError::TooLarge(_) => bad_input(e.to_string()),
+        e => anyhow::Error::new(e),
+    })?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
+    let summary = server.run(&stop, |event| eprintln!("twin: {event}"))?;
+    eprintln!(
+        "twin: stopped after {} session(s), {} refused",
+        summary.sessions, summary.refused
+    );
+    Ok(())
+}
