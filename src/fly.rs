@@ -129,28 +129,28 @@ pub fn run(args: &FlyArgs) -> Result<()> {
         LinkChoice::Twin => return track::run(&args.track),
         LinkChoice::Ipc(service) => service,
     };
+    let config = track::prepare(&args.track)?;
     let link_config = IpcLinkConfig {
         answer_timeout: Duration::from_millis(args.link_timeout_ms.max(1)),
         connect_timeout: Duration::from_millis(args.connect_timeout_ms),
         record_timing: args.timing || args.timing_json.is_some(),
         ..IpcLinkConfig::new(service)
     };
+    // Connect before anything is printed: a refusal is bad input, one line.
+    let mut link =
+        IpcLink::connect(&config.vehicle, &config.twin, link_config).map_err(|e| match e {
+            IpcLinkError::Refused { .. } | IpcLinkError::TooLarge(_) => bad_input(e.to_string()),
+            e => anyhow::Error::new(e),
+        })?;
+    eprintln!(
+        "connected to the twin (process {}) on '{}': {} session {:x}",
+        link.twin_pid(),
+        args.link,
+        link.mode().name(),
+        link.session()
+    );
     let mut figures = None;
-    track::run_with(&args.track, |config, progress| {
-        let mut link =
-            IpcLink::connect(&config.vehicle, &config.twin, link_config).map_err(|e| match e {
-                IpcLinkError::Refused { .. } | IpcLinkError::TooLarge(_) => {
-                    bad_input(e.to_string())
-                }
-                e => anyhow::Error::new(e),
-            })?;
-        eprintln!(
-            "connected to the twin (process {}) on '{}': {} session {:x}",
-            link.twin_pid(),
-            args.link,
-            link.mode().name(),
-            link.session()
-        );
+    track::run_with(&args.track, &config, |config, progress| {
         let result = match run_track_with_link(config, &mut link, progress) {
             Ok(r) => r,
             Err(e) => {
@@ -164,21 +164,26 @@ pub fn run(args: &FlyArgs) -> Result<()> {
         Ok(result)
     })?;
     if let Some(t) = figures.filter(|_| args.timing || args.timing_json.is_some()) {
-        let line = |name: &str, p: &Percentiles| {
-            eprintln!(
-                "  {name:<34} median {:>8.1} µs   p99 {:>8.1} µs   p99.9 {:>8.1} µs   max {:>8.1} µs",
-                p.median_us, p.p99_us, p.p99_9_us, p.max_us
-            );
-        };
-        eprintln!("per-tick timing over {} ({} ticks):", t.link, t.ticks);
-        line("round trip (command → measurement)", &t.round_trip);
-        line("twin stepping (reported)", &t.twin_busy);
-        line("transport (round trip − stepping)", &t.transport);
-        eprintln!("  ticks per second: {:.0}", t.ticks_per_second);
-        if let Some(path) = &args.timing_json {
-            write_json(path, &serde_json::to_value(&t)?)?;
-            eprintln!("wrote {}", path.display());
-        }
+        report_timing(&t, args.timing_json.as_deref())?;
+    }
+    Ok(())
+}
+
+fn report_timing(t: &Timing, json: Option<&std::path::Path>) -> Result<()> {
+    let line = |name: &str, p: &Percentiles| {
+        eprintln!(
+            "  {name:<34} median {:>8.1} µs   p99 {:>8.1} µs   p99.9 {:>8.1} µs   max {:>8.1} µs",
+            p.median_us, p.p99_us, p.p99_9_us, p.max_us
+        );
+    };
+    eprintln!("per-tick timing over {} ({} ticks):", t.link, t.ticks);
+    line("round trip (command → measurement)", &t.round_trip);
+    line("twin stepping (reported)", &t.twin_busy);
+    line("transport (round trip − stepping)", &t.transport);
+    eprintln!("  ticks per second: {:.0}", t.ticks_per_second);
+    if let Some(path) = json {
+        write_json(path, &serde_json::to_value(t)?)?;
+        eprintln!("wrote {}", path.display());
     }
     Ok(())
 }

@@ -77,7 +77,7 @@ pub struct Args {
     vehicles: Vec<PathBuf>,
 }
 
-pub(crate) fn config(args: &Args) -> Result<TrackConfig> {
+fn config(args: &Args) -> Result<TrackConfig> {
     let vehicles = all_vehicles(&args.vehicles)?;
     let Some(vehicle) = vehicles.iter().find(|v| v.id == args.platform).cloned() else {
         let ids: Vec<&str> = vehicles.iter().map(|v| v.id.as_str()).collect();
@@ -151,22 +151,31 @@ fn cell(x: Option<f64>, scale: f64, decimals: usize) -> String {
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    run_with(args, |config, progress| Ok(run_track(config, progress)?))
+    let config = prepare(args)?;
+    run_with(args, &config, |config, progress| {
+        Ok(run_track(config, progress)?)
+    })
 }
 
-/// One flight flown by `flight` (the in-process twin for `amstack track`, any link for
-/// `amstack fly`), with everything around it: output checks, the banner, Ctrl-C, the table
-/// and the JSON.
-pub(crate) fn run_with(
-    args: &Args,
-    flight: impl FnOnce(&TrackConfig, &mut dyn FnMut(f64) -> ControlFlow<()>) -> Result<TrackResult>,
-) -> Result<()> {
+/// Checks that the result files can be written and builds the flight's configuration: the
+/// bad-input errors, before anything is flown or printed.
+pub(crate) fn prepare(args: &Args) -> Result<TrackConfig> {
     for (flag, path) in [("--json", &args.json), ("--mcap", &args.mcap)] {
         if let Some(p) = path {
             check_writable(flag, p)?;
         }
     }
-    let config = config(args)?;
+    config(args)
+}
+
+/// One flight of `config` (from [`prepare`]) flown by `flight` — the in-process twin for
+/// `amstack track`, any link for `amstack fly` — with everything around it: the banner,
+/// Ctrl-C, the table and the JSON.
+pub(crate) fn run_with(
+    args: &Args,
+    config: &TrackConfig,
+    flight: impl FnOnce(&TrackConfig, &mut dyn FnMut(f64) -> ControlFlow<()>) -> Result<TrackResult>,
+) -> Result<()> {
     eprintln!(
         "flying {} on {} ({}, {} interface) for {} s, disturbances: {}",
         config.trajectory.name(),
@@ -182,7 +191,7 @@ pub(crate) fn run_with(
     let flag = Arc::clone(&stop);
     // A second handler cannot be installed (only in tests calling run twice): keep going.
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
-    let result = flight(&config, &mut |t| {
+    let result = flight(config, &mut |t| {
         if t >= 5.0 && (t.round() as u64).is_multiple_of(5) {
             eprintln!("  t = {t:.0} / {duration} s");
         }

@@ -18,9 +18,9 @@ use platform::{ActuatorCommand, Measurement, Vehicle};
 use sim_twin::TwinConfig;
 use sim_twin::ipc::{
     COMMAND_END_OF_SESSION, CommandMsg, CommandService, Hello, ImuMsg, Ipc, IpcError,
-    MeasurementMsg, MeasurementService, Mode, Offer, TooLarge, Waiter, Welcome, cleanup_dead_nodes,
-    command_service, get_str, handshake_service, join_id, measurement_service, node, node_alive,
-    split_id,
+    MeasurementMsg, MeasurementService, Mode, Offer, TooLarge, Waiter, Welcome,
+    cleanup_dead_nodes_now, command_service, get_str, handshake_service, join_id,
+    measurement_service, node, node_alive, split_id,
 };
 
 use crate::link::{Link, LinkError};
@@ -157,8 +157,9 @@ impl IpcLink {
         config: IpcLinkConfig,
     ) -> Result<Self, IpcLinkError> {
         let offer = Offer::new(vehicle, twin)?;
+        // Before this process's node exists: creating it would clean silently.
+        let stale_nodes_cleaned = cleanup_dead_nodes_now();
         let node = node("amstack-fly")?;
-        let stale_nodes_cleaned = cleanup_dead_nodes(&node);
         let measurement_svc = measurement_service(&node, &config.service)?;
         let command_svc = command_service(&node, &config.service)?;
         let handshake_svc = handshake_service(&node, &config.service)?;

@@ -19,7 +19,8 @@ use super::messages::{
 use super::wait::Waiter;
 use super::{
     CommandService, HandshakeService, Ipc, IpcError, MeasurementService, cleanup_dead_nodes,
-    command_service, handshake_service, measurement_service, node, node_alive,
+    cleanup_dead_nodes_now, command_service, handshake_service, measurement_service, node,
+    node_alive,
 };
 use crate::{Twin, TwinConfig, TwinError};
 
@@ -359,8 +360,9 @@ impl TwinServer {
         let joint_roles = joint_roles(&vehicle);
         let seed = twin_config.seed;
         let twin = Twin::new(vehicle, twin_config)?;
+        // Before this process's node exists: creating it would clean silently.
+        let stale_nodes_cleaned = cleanup_dead_nodes_now();
         let node = node("amstack-twin")?;
-        let stale_nodes_cleaned = cleanup_dead_nodes(&node);
         let handshake_svc = handshake_service(&node, &config.service)?;
         let command_svc = command_service(&node, &config.service)?;
         let measurement_svc = measurement_service(&node, &config.service)?;

@@ -1,0 +1,518 @@
+//! Split-process SITL: `amstack twin serve` and `amstack fly --link ipc:…` as two real
+//! processes over iceoryx2 shared memory, started, killed and cleaned up by the tests.
+//!
+//! The `amstack` binary is the one cargo builds for the root package's CLI test
+//! (`cargo test --workspace`); alone, run `cargo build --bin amstack` first. The tests run one
+//! at a time (each busy-polls two processes on a small machine) and every process and
+//! shared-memory resource they start is removed when a test ends, passed or failed.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use policy_runtime::record::Recording;
+
+/// Generous: these bound a hang, they are not what a test measures.
+const PATIENCE: Duration = Duration::from_secs(60);
+
+fn amstack() -> PathBuf {
+    let exe = std::env::current_exe().unwrap_or_else(|e| panic!("current_exe: {e}"));
+    // target/<profile>/deps/sitl-… → target/<profile>/amstack
+    let bin = exe
+        .parent()
+        .and_then(Path::parent)
+        .map(|dir| dir.join("amstack"))
+        .unwrap_or_default();
+    assert!(
+        bin.is_file(),
+        "{} is missing: run `cargo build --bin amstack` (cargo test --workspace builds it)",
+        bin.display()
+    );
+    bin
+}
+
+/// One test at a time.
+fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// A service name no other test run uses.
+fn service(test: &str) -> String {
+    format!("test-{}-{test}", std::process::id())
+}
+
+/// A child `amstack` process whose stderr is collected line by line as it comes.
+struct Proc {
+    name: String,
+    child: Child,
+    lines: Arc<Mutex<Vec<String>>>,
+    status: Option<ExitStatus>,
+}
+
+impl Proc {
+    fn start(name: &str, args: &[&str]) -> Self {
+        let mut child = Command::new(amstack())
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+        let lines = Arc::new(Mutex::new(Vec::new()));
+        if let Some(stderr) = child.stderr.take() {
+            let sink = Arc::clone(&lines);
+            std::thread::spawn(move || {
+                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                    sink.lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .push(line);
+                }
+            });
+        }
+        Self {
+            name: name.to_owned(),
+            child,
+            lines,
+            status: None,
+        }
+    }
+
+    fn stderr(&self) -> String {
+        self.lines
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .join("\n")
+    }
+
+    /// The first stderr line containing `needle`, waiting for it.
+    fn wait_for(&mut self, needle: &str) -> String {
+        let started = Instant::now();
+        loop {
+            let found = self
+                .lines
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .iter()
+                .find(|l| l.contains(needle))
+                .cloned();
+            if let Some(line) = found {
+                return line;
+            }
+            let exited = self.status.is_some() || matches!(self.child.try_wait(), Ok(Some(_)));
+            if exited || started.elapsed() > PATIENCE {
+                // The reader may still be draining the last lines of an exited process.
+                std::thread::sleep(Duration::from_millis(200));
+                if let Some(line) = self.stderr().lines().find(|l| l.contains(needle)) {
+                    return line.to_owned();
+                }
+                panic!(
+                    "{}: no line with {needle:?} ({}):\n{}",
+                    self.name,
+                    if exited { "it exited" } else { "timed out" },
+                    self.stderr()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    fn wait(&mut self) -> ExitStatus {
+        if let Some(s) = self.status {
+            return s;
+        }
+        let started = Instant::now();
+        loop {
+            match self.child.try_wait() {
+                Ok(Some(s)) => {
+                    // Let the reader catch the last lines.
+                    std::thread::sleep(Duration::from_millis(100));
+                    self.status = Some(s);
+                    return s;
+                }
+                Ok(None) if started.elapsed() < PATIENCE => {
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                _ => panic!("{} did not exit:\n{}", self.name, self.stderr()),
+            }
+        }
+    }
+
+    /// A crash: SIGKILL, nothing cleaned up by the process itself.
+    fn kill(&mut self) {
+        let _ = self.child.kill();
+        self.wait();
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        if self.status.is_some() || matches!(self.child.try_wait(), Ok(Some(_))) {
+            return;
+        }
+        // Ctrl-C first (the process closes its logs and services), then SIGKILL.
+        let _ = Command::new("kill")
+            .args(["-INT", &self.child.id().to_string()])
+            .status();
+        let started = Instant::now();
+        while started.elapsed() < Duration::from_secs(3) {
+            if matches!(self.child.try_wait(), Ok(Some(_))) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The processes of one test; on drop they are stopped and whatever a killed one left in
+/// shared memory is removed.
+struct Sitl {
+    procs: Vec<Proc>,
+    _serial: MutexGuard<'static, ()>,
+}
+
+impl Sitl {
+    fn new() -> Self {
+        Self {
+            procs: Vec::new(),
+            _serial: serial(),
+        }
+    }
+
+    fn start(&mut self, name: &str, args: &[&str]) -> usize {
+        self.procs.push(Proc::start(name, args));
+        self.procs.len() - 1
+    }
+
+    fn twin(&mut self, service: &str, extra: &[&str]) -> usize {
+        let mut args = vec!["twin", "serve", "--ipc", service];
+        args.extend_from_slice(extra);
+        let i = self.start("twin", &args);
+        self.procs[i].wait_for("twin: serving");
+        i
+    }
+}
+
+impl Drop for Sitl {
+    fn drop(&mut self) {
+        self.procs.clear();
+        sim_twin::ipc::cleanup_dead_nodes_now();
+    }
+}
+
+fn read_json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}: {text}", path.display()))
+}
+
+/// A results JSON without what differs between any two runs (wall clock, the log's path).
+fn scores(path: &Path) -> serde_json::Value {
+    let mut v = read_json(path);
+    if let Some(o) = v.as_object_mut() {
+        for k in ["wall_time_s", "ticks_per_second", "mcap"] {
+            o.remove(k);
+        }
+    }
+    v
+}
+
+fn recording(path: &Path) -> Recording {
+    Recording::from_bytes(&std::fs::read(path).unwrap_or_default())
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+#[test]
+fn lockstep_split_flight_equals_the_in_process_one() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    // Every disturbance and both noises on (the seed's streams must line up across the
+    // wire), the L1 controller on the FA-Hexa; the EE-only oracle's direct wrench.
+    let scenarios: [&[&str]; 2] = [
+        &[
+            "--platform",
+            "fa-hexa",
+            "--controller",
+            "l1",
+            "--trajectory",
+            "step",
+            "--duration",
+            "3",
+            "--disturbances",
+            "all",
+            "--seed",
+            "7",
+        ],
+        &[
+            "--platform",
+            "ee-only",
+            "--trajectory",
+            "step",
+            "--duration",
+            "2",
+            "--settle",
+            "1",
+        ],
+    ];
+    for (k, flags) in scenarios.iter().enumerate() {
+        let path = |name: &str| dir.path().join(format!("{k}-{name}"));
+        let mut sitl = Sitl::new();
+        let svc = service(&format!("equal{k}"));
+        // The twin takes the flags that describe it; the flight all of them.
+        let twin_flags: Vec<&str> = flags
+            .chunks(2)
+            .filter(|p| ["--platform", "--disturbances", "--seed"].contains(&p[0]))
+            .flatten()
+            .copied()
+            .collect();
+        let mut twin_args = vec!["--sessions", "1"];
+        twin_args.extend(&twin_flags);
+        let twin = sitl.twin(&svc, &twin_args);
+
+        let (json_a, mcap_a) = (path("in.json"), path("in.mcap"));
+        let (json_b, mcap_b) = (path("ipc.json"), path("ipc.mcap"));
+        let mut track = vec!["track", "--json", json_a.to_str().unwrap_or_default()];
+        track.extend(["--mcap", mcap_a.to_str().unwrap_or_default()]);
+        track.extend(flags.iter());
+        let link = format!("ipc:{svc}");
+        let mut fly = vec!["fly", "--link", &link, "--link-timeout-ms", "10000"];
+        fly.extend(["--json", json_b.to_str().unwrap_or_default()]);
+        fly.extend(["--mcap", mcap_b.to_str().unwrap_or_default()]);
+        fly.extend(flags.iter());
+
+        let in_process = sitl.start("track", &track);
+        let split = sitl.start("fly", &fly);
+        for i in [in_process, split] {
+            let status = sitl.procs[i].wait();
+            assert!(status.success(), "{}", sitl.procs[i].stderr());
+        }
+        sitl.procs[split].wait_for("lockstep session");
+        assert!(
+            sitl.procs[twin].wait().success(),
+            "{}",
+            sitl.procs[twin].stderr()
+        );
+
+        assert_eq!(scores(&json_a), scores(&json_b), "scenario {k}");
+        let (a, b) = (recording(&mcap_a), recording(&mcap_b));
+        assert!(a.complete && b.complete);
+        assert_eq!(a.messages.len(), b.messages.len(), "scenario {k}");
+        assert!(
+            a.messages.iter().zip(&b.messages).all(|(x, y)| x == y),
+            "scenario {k}: log payloads differ"
+        );
+    }
+}
+
+#[test]
+fn killing_the_twin_stops_the_flight_with_a_finished_log() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let mcap = dir.path().join("cut.mcap");
+    let mut sitl = Sitl::new();
+    let svc = service("kill-twin");
+    let twin = sitl.twin(&svc, &[]);
+    let link = format!("ipc:{svc}");
+    let fly = sitl.start(
+        "fly",
+        &[
+            "fly",
+            "--link",
+            &link,
+            "--trajectory",
+            "hover",
+            "--duration",
+            "600",
+            "--mcap",
+            mcap.to_str().unwrap_or_default(),
+        ],
+    );
+    sitl.procs[fly].wait_for("connected to the twin");
+    std::thread::sleep(Duration::from_millis(300));
+    sitl.procs[twin].kill();
+
+    let status = sitl.procs[fly].wait();
+    let stderr = sitl.procs[fly].stderr();
+    assert_eq!(status.code(), Some(1), "{stderr}");
+    // The default deadline is 50 ms; the dead node is noticed before it.
+    let noticed = sitl.procs[fly].wait_for("stopped answering");
+    assert!(
+        noticed.contains("its process is gone") && noticed.contains("deadline 50 ms"),
+        "{noticed}"
+    );
+    eprintln!("{noticed}");
+    sitl.procs[fly].wait_for("closed the flight log");
+
+    let log = recording(&mcap);
+    assert!(log.complete, "the log was finished");
+    assert!(!log.messages.is_empty());
+    let (code, report) = tests::mcap_check(&mcap, &["--require-complete"]);
+    assert_eq!(code, 0, "{report:#}");
+
+    // The flight process cleaned up after the twin as it exited. A twin killed with nobody
+    // attached leaves its resources; the next twin on the name removes them and serves.
+    let crashed = sitl.twin(&svc, &[]);
+    sitl.procs[crashed].kill();
+    let again = sitl.twin(&svc, &["--sessions", "1"]);
+    let started = sitl.procs[again].wait_for("twin: serving");
+    assert!(started.contains("resources of 1 dead"), "{started}");
+    let fly = sitl.start(
+        "fly",
+        &["fly", "--link", &link, "--duration", "1", "--settle", "0"],
+    );
+    assert!(
+        sitl.procs[fly].wait().success(),
+        "{}",
+        sitl.procs[fly].stderr()
+    );
+    assert!(sitl.procs[again].wait().success());
+}
+
+#[test]
+fn a_killed_flight_gets_the_failsafe_and_a_new_flight_reconnects() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let json = dir.path().join("second.json");
+    let mut sitl = Sitl::new();
+    let svc = service("kill-flight");
+    let twin = sitl.twin(&svc, &["--hold-ms", "200", "--sessions", "2"]);
+    let link = format!("ipc:{svc}");
+    let first = sitl.start(
+        "first flight",
+        &[
+            "fly",
+            "--link",
+            &link,
+            "--link-timeout-ms",
+            "10000",
+            "--duration",
+            "600",
+        ],
+    );
+    sitl.procs[first].wait_for("connected to the twin");
+    std::thread::sleep(Duration::from_millis(300));
+    sitl.procs[first].kill();
+
+    let t = &mut sitl.procs[twin];
+    let lost = t.wait_for("lost at");
+    assert!(
+        lost.contains("its process is gone")
+            && lost.contains("holding its last command for 200 ms"),
+        "{lost}"
+    );
+    t.wait_for("failsafe disarm");
+    // Disarmed, the FA-Hexa falls from its 1 m hover and rests on the ground.
+    let settled = t.wait_for("after the failsafe");
+    let z: f64 = settled
+        .split("base z = ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no height in {settled:?}"));
+    assert!(z < 0.3, "{settled}");
+
+    let second = sitl.start(
+        "second flight",
+        &[
+            "fly",
+            "--link",
+            &link,
+            "--link-timeout-ms",
+            "10000",
+            "--duration",
+            "3",
+            "--json",
+            json.to_str().unwrap_or_default(),
+        ],
+    );
+    let status = sitl.procs[second].wait();
+    assert!(status.success(), "{}", sitl.procs[second].stderr());
+    // It flew from the twin's reset state: a hover within a centimetre.
+    let r = read_json(&json);
+    assert!(
+        r["ee_pos_rmse_m"].as_f64().is_some_and(|e| e < 0.01),
+        "{r:#}"
+    );
+    let t = &mut sitl.procs[twin];
+    t.wait_for("ended by the flight process");
+    assert!(t.wait().success(), "{}", t.stderr());
+}
+
+#[test]
+fn a_mismatched_vehicle_is_refused_naming_both() {
+    let mut sitl = Sitl::new();
+    let svc = service("mismatch");
+    let twin = sitl.twin(&svc, &["--platform", "fa-hexa"]);
+    let link = format!("ipc:{svc}");
+    let fly = sitl.start("fly", &["fly", "--link", &link, "--platform", "ua-quad"]);
+    let status = sitl.procs[fly].wait();
+    let stderr = sitl.procs[fly].stderr();
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "one line: {stderr}");
+    assert!(
+        stderr.contains("flies 'ua-quad'") && stderr.contains("serves 'fa-hexa'"),
+        "{stderr}"
+    );
+    let refused = sitl.procs[twin].wait_for("refused flight process");
+    assert!(
+        refused.contains("'ua-quad'") && refused.contains("'fa-hexa'"),
+        "{refused}"
+    );
+}
+
+#[test]
+fn realtime_twin_flies_on_the_wall_clock() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let json = dir.path().join("rt.json");
+    let mut sitl = Sitl::new();
+    let svc = service("realtime");
+    let twin = sitl.twin(&svc, &["--realtime", "--sessions", "1"]);
+    let link = format!("ipc:{svc}");
+    let fly = sitl.start(
+        "fly",
+        &[
+            "fly",
+            "--link",
+            &link,
+            "--link-timeout-ms",
+            "10000",
+            "--duration",
+            "1.5",
+            "--settle",
+            "0.5",
+            "--json",
+            json.to_str().unwrap_or_default(),
+        ],
+    );
+    let status = sitl.procs[fly].wait();
+    assert!(status.success(), "{}", sitl.procs[fly].stderr());
+    sitl.procs[fly].wait_for("realtime session");
+    let r = read_json(&json);
+    // 120 Hz on the wall clock: about 120 ticks per second, and a hover that holds.
+    let rate = r["ticks_per_second"].as_f64().unwrap_or_default();
+    assert!(rate < 200.0, "{r:#}");
+    assert!(
+        r["ee_pos_rmse_m"].as_f64().is_some_and(|e| e < 0.02),
+        "{r:#}"
+    );
+    assert!(sitl.procs[twin].wait().success());
+}
+
+#[test]
+fn bad_link_and_serve_flags_are_bad_input() {
+    for args in [
+        &["fly", "--link", "udp:1234"][..],
+        &["fly", "--link", "ipc:"][..],
+        &["twin", "serve", "--ipc", "x", "--platform", "no-such"][..],
+        &["twin", "serve", "--ipc", "x", "--lockstep", "--realtime"][..],
+    ] {
+        let out = Command::new(amstack())
+            .args(args)
+            .output()
+            .unwrap_or_else(|e| panic!("{e}"));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+    }
+}
