@@ -33,8 +33,9 @@ pub struct Args {
     /// Vehicle id (ua-quad, ua-hexa, fa-hexa, omni-hexa, ee-only, or one added with --vehicle).
     #[arg(long, default_value = "fa-hexa")]
     platform: String,
-    /// Base controller: pid (PID6, or PID4 on under-actuated vehicles) or l1.
-    #[arg(long, default_value = "pid", value_parser = ["pid", "l1"])]
+    /// Controller: pid (PID6, or PID4 on under-actuated vehicles), l1, or mpc (the FA-Hexa's
+    /// whole-body MPC; it flies the end-effector interface, --interface ee).
+    #[arg(long, default_value = "pid", value_parser = ["pid", "l1", "mpc"])]
     controller: String,
     /// Reference to fly.
     #[arg(long, default_value = "hover")]
@@ -91,13 +92,18 @@ fn config(args: &Args) -> Result<TrackConfig> {
         .trajectory
         .parse()
         .map_err(|e| bad_input(format!("--trajectory: {e}")))?;
-    let kind = if args.controller == "l1" {
-        ControllerKind::L1
-    } else {
-        ControllerKind::Pid
+    let kind = match args.controller.as_str() {
+        "l1" => ControllerKind::L1,
+        "mpc" => ControllerKind::Mpc,
+        _ => ControllerKind::Pid,
     };
     let controller = profile(&vehicle, kind)
         .map_err(|e| bad_input(format!("--controller {}: {e}", args.controller)))?;
+    if kind == ControllerKind::Mpc && args.interface != "ee" {
+        return Err(bad_input(
+            "--controller mpc: the whole-body MPC tracks end-effector targets; add --interface ee",
+        ));
+    }
     let disturbances = Disturbances::parse_list(&args.disturbances)
         .map_err(|e| bad_input(format!("--disturbances: {e}")))?;
     let mut twin = TwinConfig {

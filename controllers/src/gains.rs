@@ -386,6 +386,8 @@ impl L1Config {
 /// ```
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "controller", rename_all = "lowercase")]
+// Built once per flight and kept Copy: the MPC's settings make it a few hundred bytes.
+#[allow(clippy::large_enum_variant)]
 pub enum ControllerConfig {
     /// 6-DoF geometric PID.
     Pid6(Pid6Gains),
@@ -393,6 +395,9 @@ pub enum ControllerConfig {
     Pid4(Pid4Gains),
     /// L1 adaptive on the PID baseline.
     L1(L1Config),
+    /// Whole-body NMPC (FA-Hexa, end-effector interface): not a base controller, the flight
+    /// stack builds it as the EE interface ([`crate::mpc::WholeBodyMpc`]).
+    Mpc(crate::mpc::MpcConfig),
 }
 
 impl ControllerConfig {
@@ -410,15 +415,19 @@ impl ControllerConfig {
             Self::Pid6(g) => g.validate(),
             Self::Pid4(g) => g.validate(),
             Self::L1(c) => c.validate(),
+            Self::Mpc(c) => c
+                .validate()
+                .map_err(|e| ConfigError::Unsupported(e.to_string())),
         }
     }
 
-    /// `pid6`, `pid4` or `l1`.
+    /// `pid6`, `pid4`, `l1` or `mpc`.
     pub fn name(&self) -> &'static str {
         match self {
             Self::Pid6(_) => "pid6",
             Self::Pid4(_) => "pid4",
             Self::L1(_) => "l1",
+            Self::Mpc(_) => "mpc",
         }
     }
 }

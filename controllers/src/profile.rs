@@ -15,6 +15,8 @@ pub enum ControllerKind {
     Pid,
     /// L1 adaptive on the PID baseline (fully actuated vehicles and the EE-only oracle).
     L1,
+    /// Whole-body NMPC (FA-Hexa only, end-effector interface).
+    Mpc,
 }
 
 /// The reference profile's controller and gains for `vehicle`:
@@ -25,9 +27,19 @@ pub enum ControllerKind {
 /// | Omni-Hexa | PID6 `_OMNI_PID6_GAINS` | L1 from those |
 /// | UA-Hexa | PID4 `_PID4_GAINS` | — |
 /// | UA-Quad | PID4 `_QUAD_PID4_GAINS` | — |
+///
+/// `mpc` is the reference's FA-Hexa profile (`_MPC_PARAMS`) and is refused for any other
+/// vehicle.
 pub fn profile(vehicle: &Vehicle, kind: ControllerKind) -> Result<ControllerConfig, ConfigError> {
     let omni = vehicle.id == "omni-hexa";
     match (vehicle.actuation, kind) {
+        (_, ControllerKind::Mpc) if vehicle.id == "fa-hexa" => {
+            Ok(ControllerConfig::Mpc(crate::mpc::MpcConfig::fa_hexa()))
+        }
+        (_, ControllerKind::Mpc) => Err(ConfigError::Unsupported(format!(
+            "{}: the whole-body MPC is the FA-Hexa's (a fully actuated base with a 4-joint arm); use pid or l1",
+            vehicle.id
+        ))),
         (Actuation::UnderActuated, ControllerKind::Pid) => {
             Ok(ControllerConfig::Pid4(if vehicle.id == "ua-quad" {
                 Pid4Gains::ua_quad()
@@ -62,5 +74,11 @@ pub fn build(
         ControllerConfig::Pid6(g) => Box::new(Pid6::new(*g, body)),
         ControllerConfig::Pid4(g) => Box::new(Pid4::new(*g, body)),
         ControllerConfig::L1(c) => Box::new(L1Adaptive::new(*c, body)),
+        ControllerConfig::Mpc(_) => {
+            return Err(ConfigError::Unsupported(
+                "mpc is a whole-body interface, not a base controller: the flight stack builds it"
+                    .to_owned(),
+            ));
+        }
     })
 }

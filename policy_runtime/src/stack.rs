@@ -3,7 +3,10 @@
 
 use allocation::{Allocation, AllocationMethod, Allocator, any_rotor_saturated};
 use controllers::ik::{BaseLimits, IkConfig, IkStatus, WholeBodyIk};
-use controllers::{BaseController, BodyParams, ControllerConfig, ControllerStatus, build};
+use controllers::mpc::{MpcStatus, WholeBodyMpc};
+use controllers::{
+    BaseController, BodyParams, ControllerConfig, ControllerStatus, InputHealth, Pid6Gains, build,
+};
 use nalgebra::Isometry3;
 use platform::{ActuatorCommand, Measurement, RigidBodyState, Vehicle, Wrench};
 use serde::Serialize;
@@ -46,6 +49,14 @@ struct EeInterface {
     limits: BaseLimits,
 }
 
+/// The whole-body MPC as the end-effector interface (the `mpc` controller), and the base
+/// limits it keeps.
+#[derive(Debug)]
+struct MpcInterface {
+    controller: WholeBodyMpc,
+    limits: BaseLimits,
+}
+
 /// How thrusts are chosen from the allocation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -78,6 +89,10 @@ pub struct TickRecord {
     /// The IK's status, for an end-effector action through IK.
     #[serde(skip)]
     pub ik: Option<IkStatus>,
+    /// The MPC's report (mode, fallback event, RTI step), for an end-effector action flown
+    /// by the `mpc` controller.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mpc: Option<MpcStatus>,
 }
 
 /// Controller, allocator and the vehicle's command layout, built once.
@@ -98,6 +113,7 @@ pub struct FlightStack {
     /// The vehicle's initial configuration: the targets of joints no action commands.
     initial: Vec<f64>,
     ee: Option<EeInterface>,
+    mpc: Option<MpcInterface>,
     dt_s: f64,
 }
 
@@ -111,6 +127,10 @@ pub struct StackError(pub String);
 
 impl FlightStack {
     /// A stack for `vehicle` with the controller `config`, running every `dt_s` seconds.
+    ///
+    /// With [`ControllerConfig::Mpc`] (FA-Hexa only) end-effector actions are flown by the
+    /// whole-body MPC ([`WholeBodyMpc`], with its own fallback); base + joint actions, which
+    /// the MPC does not take, by PID6 with the reference gains.
     pub fn new(
         vehicle: Vehicle,
         config: &ControllerConfig,
@@ -118,7 +138,18 @@ impl FlightStack {
         limits: ThrustLimits,
         dt_s: f64,
     ) -> Result<Self, StackError> {
-        let controller = build(config, BodyParams::from_vehicle(&vehicle))
+        let (mpc, base_config) = match config {
+            ControllerConfig::Mpc(c) => (
+                Some(MpcInterface {
+                    controller: WholeBodyMpc::new(&vehicle, *c)
+                        .map_err(|e| StackError(format!("mpc: {e}")))?,
+                    limits: BaseLimits::above_ground(),
+                }),
+                ControllerConfig::Pid6(Pid6Gains::am_bench()),
+            ),
+            other => (None, *other),
+        };
+        let controller = build(&base_config, BodyParams::from_vehicle(&vehicle))
             .map_err(|e| StackError(e.to_string()))?;
         let allocator = if vehicle.rotors.is_empty() {
             None
@@ -175,6 +206,7 @@ impl FlightStack {
             posture: vehicle_initial.clone(),
             initial: vehicle_initial,
             ee,
+            mpc,
             dt_s,
         })
     }
@@ -187,6 +219,9 @@ impl FlightStack {
     pub fn set_base_limits(&mut self, limits: BaseLimits) {
         if let Some(ee) = &mut self.ee {
             ee.limits = limits;
+        }
+        if let Some(mpc) = &mut self.mpc {
+            mpc.limits = limits;
         }
     }
 
@@ -224,12 +259,21 @@ impl FlightStack {
             // A seed of the wrong length or non-finite is refused; the IK then keeps its rest seed.
             let _ = ee.ik.reset(&state.pose(), configuration);
         }
+        if let Some(mpc) = &mut self.mpc {
+            mpc.controller.reset(state, configuration);
+        }
+    }
+
+    /// The whole-body MPC, when the stack flies the `mpc` controller.
+    pub fn mpc(&self) -> Option<&WholeBodyMpc> {
+        self.mpc.as_ref().map(|m| &m.controller)
     }
 
     /// One tick of either interface.
     pub fn act(&mut self, measurement: &Measurement, action: &Action) -> TickRecord {
         match action {
             Action::BaseJoint(target) => self.tick(measurement, target),
+            Action::Ee(ee) if self.mpc.is_some() => self.mpc_tick(measurement, ee),
             Action::Ee(ee) => {
                 let (target, status) = self.ee_to_base_joint(ee);
                 let mut record = self.tick(measurement, &target);
@@ -271,11 +315,10 @@ impl FlightStack {
         }
     }
 
-    /// One tick: from the latest measurement and the target, the command to send.
-    pub fn tick(&mut self, measurement: &Measurement, target: &BaseJointTarget) -> TickRecord {
-        // The arm moves the centre of mass: the model-based terms follow the arm's posture,
-        // low-passed so the quasi-static feed-forward does not couple the arm's fast dynamics
-        // (a drive at its effort limit swinging) into the attitude loop.
+    /// The arm moves the centre of mass: the model-based terms follow the arm's posture,
+    /// low-passed so the quasi-static feed-forward does not couple the arm's fast dynamics
+    /// (a drive at its effort limit swinging) into the attitude loop.
+    fn follow_posture(&mut self, measurement: &Measurement) {
         if measurement.joint_positions.len() == self.posture.len()
             && measurement.joint_positions.iter().all(|q| q.is_finite())
         {
@@ -283,12 +326,87 @@ impl FlightStack {
             for (p, q) in self.posture.iter_mut().zip(&measurement.joint_positions) {
                 *p += a * (q - *p);
             }
-            self.controller
-                .set_body(BodyParams::at_configuration(&self.vehicle, &self.posture));
+            let body = BodyParams::at_configuration(&self.vehicle, &self.posture);
+            self.controller.set_body(body);
+            if let Some(mpc) = &mut self.mpc {
+                mpc.controller.set_body(body);
+            }
         }
+    }
+
+    /// One tick of the `mpc` controller toward an EE target.
+    fn mpc_tick(&mut self, measurement: &Measurement, ee: &EeTarget) -> TickRecord {
+        self.follow_posture(measurement);
+        let link = self.link_target(ee);
+        let dt = self.dt_s;
+        let Some(mpc) = &mut self.mpc else {
+            // Only called with an MPC; a bug otherwise: fly the IK path's base controller.
+            let target = BaseJointTarget {
+                world_from_base: measurement.base.pose(),
+                arm_joints: Vec::new(),
+                gripper: ee.gripper,
+            };
+            return self.tick(measurement, &target);
+        };
+        let started = std::time::Instant::now();
+        let clock = move || started.elapsed().as_secs_f64();
+        let command = mpc.controller.update(
+            &measurement.base,
+            &measurement.joint_positions,
+            &link,
+            &mpc.limits,
+            dt,
+            Some(&clock),
+        );
+        let target = BaseJointTarget {
+            world_from_base: command.base_target,
+            arm_joints: command.arm_targets_rad.to_vec(),
+            gripper: ee.gripper,
+        };
+        let status = ControllerStatus {
+            controller: "mpc",
+            position_error_m: link.translation.vector
+                - measurement.world_from_ee.translation.vector,
+            velocity_error_mps: -measurement.base.velocity_in_world_mps,
+            attitude_error: nalgebra::Vector3::zeros(),
+            angular_velocity_error_radps: -measurement.base.angular_velocity_in_body_radps,
+            position_integral: nalgebra::Vector3::zeros(),
+            attitude_integral: nalgebra::Vector3::zeros(),
+            adaptive_force_n: None,
+            adaptive_torque_nm: None,
+            windup_blocked: [false; 6],
+            input: if command.wrench_in_body.is_finite() {
+                InputHealth::Ok
+            } else {
+                InputHealth::NonFiniteState
+            },
+            dt_clamped: false,
+            output: command.wrench_in_body,
+        };
+        let mut record = self.command(measurement, command.wrench_in_body, &target, status);
+        record.mpc = Some(command.status);
+        record
+    }
+
+    /// One tick: from the latest measurement and the target, the command to send.
+    pub fn tick(&mut self, measurement: &Measurement, target: &BaseJointTarget) -> TickRecord {
+        self.follow_posture(measurement);
         let wrench = self
             .controller
             .update(&measurement.base, &target.world_from_base, self.dt_s);
+        let status = self.controller.status();
+        self.command(measurement, wrench, target, status)
+    }
+
+    /// Joint targets and allocation of a requested body wrench; the unallocated part is fed
+    /// back to whoever requested it.
+    fn command(
+        &mut self,
+        measurement: &Measurement,
+        wrench: Wrench,
+        target: &BaseJointTarget,
+        status: ControllerStatus,
+    ) -> TickRecord {
         let mut joint_targets = self.initial.clone();
         for (&dof, &q) in self.arm_dofs.iter().zip(&target.arm_joints) {
             joint_targets[dof] = q;
@@ -347,7 +465,12 @@ impl FlightStack {
                     }
                     if self.limits == ThrustLimits::Enforced {
                         unallocated = a.unallocated;
-                        self.controller.saturation_feedback(&unallocated);
+                        match (&mut self.mpc, status.controller) {
+                            (Some(mpc), "mpc") => {
+                                mpc.controller.saturation_feedback(&unallocated);
+                            }
+                            _ => self.controller.saturation_feedback(&unallocated),
+                        }
                     }
                 } else {
                     // A measured-tilt length mismatch is a construction bug: idle safely.
@@ -367,9 +490,14 @@ impl FlightStack {
             wrench,
             unallocated,
             allocation_saturated,
-            controller: self.controller.status(),
+            controller: status,
             command,
             ik: None,
+            mpc: None,
         }
     }
 }
+
+#[cfg(test)]
+#[path = "stack_mpc_tests.rs"]
+mod mpc_tests;

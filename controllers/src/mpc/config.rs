@@ -158,6 +158,10 @@ pub struct MpcConfig {
     /// Ticks the shifted previous solution is held after a failed solve before the IK-PID
     /// path takes over. Default 12 (0.1 s at 120 Hz).
     pub fallback_hold_ticks: u32,
+    /// Wall-time budget of one RTI step, s: a step that takes longer (by the caller's clock)
+    /// counts as failed and starts the fallback. Default None: the iteration budget
+    /// `qp.max_iterations` alone, so a flight does not depend on the machine's speed.
+    pub solve_budget_s: Option<f64>,
 }
 
 impl Default for MpcConfig {
@@ -180,6 +184,7 @@ impl Default for MpcConfig {
             qp: QpSettings::default(),
             qp_path: QpPath::Riccati,
             fallback_hold_ticks: 12,
+            solve_budget_s: None,
         }
     }
 }
@@ -313,6 +318,9 @@ impl MpcConfig {
             ));
         }
         positive("qp.tolerance", self.qp.tolerance)?;
+        if let Some(b) = self.solve_budget_s {
+            positive("solve_budget_s", b)?;
+        }
         Ok(())
     }
 }

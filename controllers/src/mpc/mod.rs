@@ -11,9 +11,13 @@
 //! - Two QP paths that solve the same [`StructuredQp`]: [`ClarabelQp`] (clarabel on the sparse
 //!   multiple-shooting QP, built once and updated in place) and [`RiccatiIpm`] (a Riccati
 //!   recursion interior-point method written for this stage-wise structure).
+//! - [`WholeBodyMpc`]: the `mpc` controller — output filter, gravity compensation after the
+//!   solve, and the fallback (hold the shifted solution, then IK-PID) reported in
+//!   [`MpcStatus`].
 
 mod clarabel_qp;
 mod config;
+mod controller;
 pub mod model;
 mod qp;
 mod riccati;
@@ -24,6 +28,7 @@ mod tests;
 
 pub use clarabel_qp::ClarabelQp;
 pub use config::{MpcConfig, MpcConfigError, MpcWeights, QpPath, QpSettings};
+pub use controller::{FallbackEvent, MpcCommand, MpcMode, MpcStatus, SolveFailure, WholeBodyMpc};
 pub use model::{EeKinematics, ModelError, MpcModel};
 pub use qp::{
     InputVector, NU, NX, QpSolution, QpSolver, QpStatus, StageConstraints, StateVector,

@@ -256,3 +256,150 @@ fn closed_loop_on_the_model_holds_every_constraint_and_reaches_the_step() {
         x[IX_P]
     );
 }
+
+fn hover_measurement(vehicle: &Vehicle) -> (platform::RigidBodyState, Vec<f64>) {
+    let state = platform::RigidBodyState::at_rest(nalgebra::Isometry3::translation(0.0, 0.0, 1.0));
+    (state, vehicle.initial_configuration())
+}
+
+#[test]
+fn mpc_at_hover_compensates_gravity_and_holds_the_arm() {
+    let vehicle = fa_hexa();
+    let mut mpc =
+        WholeBodyMpc::new(&vehicle, MpcConfig::default()).unwrap_or_else(|e| panic!("{e}"));
+    let (state, q) = hover_measurement(&vehicle);
+    mpc.reset(&state, &q);
+    let target = vehicle.base_from_ee(&q);
+    let target = state.pose() * target;
+    let weight = vehicle.model.total_mass_kg() * platform::GRAVITY_MPS2;
+    for _ in 0..5 {
+        let c = mpc.update(&state, &q, &target, &BaseLimits::above_ground(), DT, None);
+        assert_eq!(c.status.mode, MpcMode::Mpc);
+        assert!(
+            (c.wrench_in_body.force.z - weight).abs() < 1e-3 * weight,
+            "{}",
+            c.wrench_in_body.force
+        );
+        // Zero up to the interior point's barrier (tolerance 1e-7 on complementarity).
+        assert!(
+            c.wrench_in_body.force.xy().norm() < 0.05,
+            "{}",
+            c.wrench_in_body.force
+        );
+        assert!(
+            c.arm_targets_rad.iter().all(|a| a.abs() < 1e-3),
+            "{:?}",
+            c.arm_targets_rad
+        );
+        assert!(c.status.ee_error_m < 1e-9);
+    }
+}
+
+#[test]
+fn failed_solves_hold_the_shifted_solution_then_ik_pid_takes_over_then_mpc_recovers() {
+    let vehicle = fa_hexa();
+    let config = MpcConfig::default();
+    let mut mpc = WholeBodyMpc::new(&vehicle, config).unwrap_or_else(|e| panic!("{e}"));
+    let (state, q) = hover_measurement(&vehicle);
+    mpc.reset(&state, &q);
+    let target =
+        state.pose() * vehicle.base_from_ee(&q) * nalgebra::Isometry3::translation(0.2, 0.0, 0.0);
+    let limits = BaseLimits::above_ground();
+    let first = mpc.update(&state, &q, &target, &limits, DT, None);
+    assert_eq!(
+        (first.status.mode, first.status.event),
+        (MpcMode::Mpc, None)
+    );
+    // A budget of one interior-point iteration cannot be met.
+    let previous = mpc.rti().inputs().to_vec();
+    let h = config.interval_s();
+    mpc.rti_mut().set_qp_settings(QpSettings {
+        max_iterations: 1,
+        ..config.qp
+    });
+    let held = mpc.update(&state, &q, &target, &limits, DT, None);
+    assert_eq!(held.status.mode, MpcMode::Hold);
+    assert_eq!(held.status.event, Some(FallbackEvent::HoldStarted));
+    assert_eq!(held.status.failure, Some(SolveFailure::QpNotSolved));
+    // What is held is the previous solution shifted by one tick.
+    let shifted = previous[0] + (previous[1] - previous[0]) * (DT / h);
+    assert!((mpc.rti().inputs()[0] - shifted).amax() < 1e-12);
+    let force_w = state.world_from_body * held.wrench_in_body.force;
+    let weight = vehicle.model.total_mass_kg() * platform::GRAVITY_MPS2;
+    assert!(
+        (force_w.x - shifted[0]).abs() < 1e-9 && (force_w.z - weight - shifted[2]).abs() < 1e-9
+    );
+    for tick in 2..=config.fallback_hold_ticks {
+        let c = mpc.update(&state, &q, &target, &limits, DT, None);
+        assert_eq!(
+            (c.status.mode, c.status.event),
+            (MpcMode::Hold, None),
+            "tick {tick}"
+        );
+        assert_eq!(c.status.failed_ticks, tick);
+    }
+    let over = mpc.update(&state, &q, &target, &limits, DT, None);
+    assert_eq!(over.status.mode, MpcMode::IkPid);
+    assert_eq!(over.status.event, Some(FallbackEvent::IkPidTookOver));
+    assert!(over.wrench_in_body.is_finite() && over.arm_targets_rad.iter().all(|a| a.is_finite()));
+    let again = mpc.update(&state, &q, &target, &limits, DT, None);
+    assert_eq!(
+        (again.status.mode, again.status.event),
+        (MpcMode::IkPid, None)
+    );
+    mpc.rti_mut().set_qp_settings(config.qp);
+    let back = mpc.update(&state, &q, &target, &limits, DT, None);
+    assert_eq!(back.status.mode, MpcMode::Mpc);
+    assert_eq!(back.status.event, Some(FallbackEvent::MpcRecovered));
+    assert_eq!(back.status.failed_ticks, 0);
+}
+
+#[test]
+fn a_step_over_its_time_budget_counts_as_failed() {
+    let vehicle = fa_hexa();
+    let config = MpcConfig {
+        solve_budget_s: Some(0.005),
+        ..MpcConfig::default()
+    };
+    let mut mpc = WholeBodyMpc::new(&vehicle, config).unwrap_or_else(|e| panic!("{e}"));
+    let (state, q) = hover_measurement(&vehicle);
+    mpc.reset(&state, &q);
+    let target = state.pose() * vehicle.base_from_ee(&q);
+    // A fake clock that advances 10 ms per reading.
+    let now = std::cell::Cell::new(0.0);
+    let clock = || {
+        now.set(now.get() + 0.01);
+        now.get()
+    };
+    let c = mpc.update(
+        &state,
+        &q,
+        &target,
+        &BaseLimits::above_ground(),
+        DT,
+        Some(&clock),
+    );
+    assert_eq!(c.status.failure, Some(SolveFailure::OverBudget));
+    assert_eq!(c.status.mode, MpcMode::Hold);
+    assert!((c.status.solve_time_s.unwrap_or(0.0) - 0.01).abs() < 1e-12);
+}
+
+#[test]
+fn the_mpc_profile_is_the_fa_hexas_only() {
+    use crate::{ControllerConfig, ControllerKind, profile};
+    assert!(matches!(
+        profile(&fa_hexa(), ControllerKind::Mpc),
+        Ok(ControllerConfig::Mpc(_))
+    ));
+    for id in ["ua-hexa", "ua-quad", "omni-hexa", "ee-only"] {
+        let v = Vehicle::builtin(id).unwrap_or_else(|e| panic!("{e}"));
+        let e = profile(&v, ControllerKind::Mpc);
+        assert!(
+            matches!(&e, Err(err) if err.to_string().contains("FA-Hexa")),
+            "{id}: {e:?}"
+        );
+    }
+    let config = ControllerConfig::Mpc(MpcConfig::default());
+    assert_eq!(config.name(), "mpc");
+    assert!(crate::build(&config, crate::BodyParams::from_vehicle(&fa_hexa())).is_err());
+}

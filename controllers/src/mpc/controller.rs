@@ -1,0 +1,450 @@
+//! The `mpc` controller of the FA-Hexa: SQP-RTI every tick, the reference's output filter and
+//! gravity compensation, and a fallback when a solve fails.
+//!
+//! Per tick (AMBENCH_SPEC §2.5):
+//! 1. x̂ = [p, v, rpy of the base quaternion, body rates ω_b, arm joints]; one RTI step toward
+//!    the EE target (the EE command held over the horizon), previous solution shifted by dt.
+//! 2. u = g∘u_opt + (1 − g)∘u_last (g = `output_filter_gain`; no filter on the first tick);
+//!    u_last ← u (without gravity: see `rti`'s conscious differences).
+//! 3. Gravity compensation after the solve: F_w += m g ẑ. The wrench goes to the allocator in
+//!    the body frame, `F_b = Rᵀ F_w`, `τ_b = Rᵀ τ_w + c × Rᵀ(m g ẑ)` — R from the measured
+//!    quaternion (the reference uses an XYZ Euler matrix, equal within its ±0.01 rad tilt), and
+//!    the last term cancels the gravity moment of a centre of mass c off the base origin (as
+//!    the PID controllers do; the reference leaves it to the MPC's feedback). Arm targets are
+//!    the filtered references, clipped to the joint bounds.
+//!
+//! # Fallback
+//!
+//! A solve *fails* when its QP does not reach `Solved` within `qp.max_iterations` (the
+//! deterministic budget) or, when a `solve_budget_s` is set, when the step took longer by the
+//! caller's clock. Then:
+//! - for up to `fallback_hold_ticks` consecutive failed ticks the shifted previous solution
+//!   is held (RTI keeps it when a QP fails: its first input, at the current time, is applied
+//!   through the same filter and gravity compensation) — mode [`MpcMode::Hold`];
+//! - after that, the IK-PID path flies (whole-body IK of the EE target with the vehicle's IK
+//!   preset, PID6 with the reference gains on the IK's base target) — mode [`MpcMode::IkPid`];
+//!   both are reset from the measured state when it takes over;
+//! - the MPC is still solved every tick; the first solve that succeeds hands control back
+//!   (mode [`MpcMode::Mpc`]), with the filter continuing from the last applied command.
+//!
+//! Every change of mode is reported in [`MpcStatus::event`] for that tick.
+
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use platform::{GRAVITY_MPS2, RigidBodyState, Vehicle, Wrench};
+use serde::Serialize;
+
+use crate::controller::{BaseController, BodyParams, guard_dt};
+use crate::gains::Pid6Gains;
+use crate::ik::{BaseLimits, IkConfig, WholeBodyIk};
+use crate::mpc::config::MpcConfig;
+use crate::mpc::model::{IU_F, IU_QREF, IU_TAU, IX_ETA, IX_OMEGA, IX_P, IX_Q, IX_V, NQ};
+use crate::mpc::qp::{InputVector, QpStatus, StateVector};
+use crate::mpc::rti::{MpcError, MpcReference, RtiReport, SqpRti};
+use crate::pid6::Pid6;
+
+/// Who flies the vehicle this tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum MpcMode {
+    /// The MPC's fresh solution.
+    #[default]
+    Mpc,
+    /// The shifted previous MPC solution, after a failed solve.
+    Hold,
+    /// Whole-body IK + PID6, after `fallback_hold_ticks` failed solves.
+    IkPid,
+}
+
+/// A change of mode, reported on the tick it happens.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FallbackEvent {
+    /// A solve failed: holding the shifted previous solution.
+    HoldStarted,
+    /// Too many failed solves: the IK-PID path took over.
+    IkPidTookOver,
+    /// A solve succeeded again: the MPC flies.
+    MpcRecovered,
+}
+
+/// Why a solve counted as failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SolveFailure {
+    /// The QP did not converge (status in the report).
+    QpNotSolved,
+    /// The step exceeded `solve_budget_s`.
+    OverBudget,
+    /// The measured state or the target was not finite (nothing was solved).
+    NonFiniteInput,
+}
+
+/// The controller's report of one tick.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct MpcStatus {
+    /// Who flew this tick.
+    pub mode: MpcMode,
+    /// A change of mode on this tick.
+    pub event: Option<FallbackEvent>,
+    /// Why this tick's solve failed (None: it succeeded).
+    pub failure: Option<SolveFailure>,
+    /// Consecutive failed solves up to this tick.
+    pub failed_ticks: u32,
+    /// The RTI step (None when nothing was solved).
+    pub rti: Option<RtiReport>,
+    /// Time the step took by the caller's clock, s (None without a clock).
+    pub solve_time_s: Option<f64>,
+    /// EE position error at the measured state, m.
+    pub ee_error_m: f64,
+    /// Predicted base position at the end of the horizon, m.
+    pub predicted_terminal_position_m: Vector3<f64>,
+}
+
+/// What the controller commands.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MpcCommand {
+    /// Body wrench for the allocator (gravity included).
+    pub wrench_in_body: Wrench,
+    /// Arm joint position targets, command order, rad.
+    pub arm_targets_rad: [f64; NQ],
+    /// The base pose the flown path aims at (the MPC's terminal prediction, or the IK's base
+    /// target), for logs.
+    pub base_target: Isometry3<f64>,
+    /// The tick's report.
+    pub status: MpcStatus,
+}
+
+/// The FA-Hexa's whole-body MPC with its fallback (see the module documentation).
+#[derive(Debug)]
+pub struct WholeBodyMpc {
+    rti: SqpRti,
+    config: MpcConfig,
+    arm_dofs: Vec<usize>,
+    body: BodyParams,
+    ik: WholeBodyIk,
+    pid: Pid6,
+    u_last: Option<InputVector>,
+    solved_once: bool,
+    failed: u32,
+    mode: MpcMode,
+    status: MpcStatus,
+    last_command: Option<MpcCommand>,
+}
+
+impl WholeBodyMpc {
+    /// The controller of `vehicle` (FA-Hexa) with `config`.
+    pub fn new(vehicle: &Vehicle, config: MpcConfig) -> Result<Self, MpcError> {
+        let rti = SqpRti::new(vehicle, config)?;
+        let ik_config = IkConfig::for_vehicle(&vehicle.id).unwrap_or_default();
+        let ik = WholeBodyIk::new(vehicle, ik_config).map_err(|e| {
+            MpcError::Model(crate::mpc::model::ModelError::Unsupported(format!(
+                "fallback IK: {e}"
+            )))
+        })?;
+        let body = BodyParams::from_vehicle(vehicle);
+        Ok(Self {
+            rti,
+            config,
+            arm_dofs: vehicle.arm_dofs(),
+            body,
+            ik,
+            pid: Pid6::new(Pid6Gains::am_bench(), body),
+            u_last: None,
+            solved_once: false,
+            failed: 0,
+            mode: MpcMode::Mpc,
+            status: MpcStatus {
+                mode: MpcMode::Mpc,
+                event: None,
+                failure: None,
+                failed_ticks: 0,
+                rti: None,
+                solve_time_s: None,
+                ee_error_m: 0.0,
+                predicted_terminal_position_m: Vector3::zeros(),
+            },
+            last_command: None,
+        })
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &MpcConfig {
+        &self.config
+    }
+
+    /// The RTI solver (predictions, QP).
+    pub fn rti(&self) -> &SqpRti {
+        &self.rti
+    }
+
+    /// The RTI solver, mutable (QP settings, path).
+    pub fn rti_mut(&mut self) -> &mut SqpRti {
+        &mut self.rti
+    }
+
+    /// The report of the last tick.
+    pub fn status(&self) -> &MpcStatus {
+        &self.status
+    }
+
+    /// Replaces the mass properties used for gravity compensation and by the fallback PID.
+    pub fn set_body(&mut self, body: BodyParams) {
+        self.body = body;
+        self.pid.set_body(body);
+    }
+
+    /// Clears the solver memory, the filter and the fallback for a new flight from `state`
+    /// with the joints at `configuration` (full configuration vector). The last applied input
+    /// is seeded with zero force and torque and the measured arm (the reference seeds zeros,
+    /// which pulls the arm toward 0 through the rate term).
+    pub fn reset(&mut self, state: &RigidBodyState, configuration: &[f64]) {
+        self.rti.reset();
+        self.u_last = None;
+        self.solved_once = false;
+        self.failed = 0;
+        self.mode = MpcMode::Mpc;
+        self.last_command = None;
+        self.pid.reset(state);
+        let _ = self.ik.reset(&state.pose(), configuration);
+        self.status.event = None;
+        self.status.failure = None;
+        self.status.failed_ticks = 0;
+        self.status.mode = MpcMode::Mpc;
+        self.status.rti = None;
+    }
+
+    /// The MPC state x̂ from a measurement.
+    pub fn state_vector(&self, state: &RigidBodyState, configuration: &[f64]) -> StateVector {
+        let mut x = StateVector::zeros();
+        let (roll, pitch, yaw) = state.world_from_body.euler_angles();
+        for i in 0..3 {
+            x[IX_P + i] = state.position_in_world_m[i];
+            x[IX_V + i] = state.velocity_in_world_mps[i];
+            x[IX_OMEGA + i] = state.angular_velocity_in_body_radps[i];
+        }
+        x[IX_ETA] = roll;
+        x[IX_ETA + 1] = pitch;
+        x[IX_ETA + 2] = yaw;
+        for (j, &d) in self.arm_dofs.iter().enumerate() {
+            x[IX_Q + j] = configuration.get(d).copied().unwrap_or(f64::NAN);
+        }
+        x
+    }
+
+    /// One control tick of `dt` seconds toward `target_world_from_ee` (the `ee_link` pose),
+    /// with the base within `limits`. `clock` (seconds, any epoch) times the solve against
+    /// `solve_budget_s`; pass None for a run that must not depend on wall time.
+    pub fn update(
+        &mut self,
+        state: &RigidBodyState,
+        configuration: &[f64],
+        target_world_from_ee: &Isometry3<f64>,
+        limits: &BaseLimits,
+        dt: f64,
+        clock: Option<&dyn Fn() -> f64>,
+    ) -> MpcCommand {
+        let started = clock.map(|c| c());
+        let previous_mode = self.mode;
+        let x_hat = self.state_vector(state, configuration);
+        let dt_ok = guard_dt(dt);
+        let inputs_finite = x_hat.iter().all(|v| v.is_finite())
+            && crate::desired::is_finite_pose(target_world_from_ee)
+            && limits.is_finite()
+            && dt_ok.is_some();
+        let dt = dt_ok.map_or(crate::controller::DT_MIN_S, |(dt, _)| dt);
+        let mut failure = None;
+        let mut report = None;
+        if inputs_finite {
+            let reference = MpcReference {
+                ee_position_m: target_world_from_ee.translation.vector,
+                ee_rotation: target_world_from_ee.rotation,
+                input_previous: self.u_last.unwrap_or_else(|| self.seed_input(&x_hat)),
+            };
+            let elapsed = if self.solved_once { dt } else { 0.0 };
+            let r = self
+                .rti
+                .step(&x_hat, &reference, limits, elapsed, self.config.qp_path);
+            self.solved_once = true;
+            if r.status != QpStatus::Solved {
+                failure = Some(SolveFailure::QpNotSolved);
+            }
+            report = Some(r);
+        } else {
+            failure = Some(SolveFailure::NonFiniteInput);
+        }
+        let solve_time_s = match (clock, started) {
+            (Some(c), Some(t0)) => Some(c() - t0),
+            _ => None,
+        };
+        if failure.is_none()
+            && let (Some(budget), Some(t)) = (self.config.solve_budget_s, solve_time_s)
+            && t > budget
+        {
+            failure = Some(SolveFailure::OverBudget);
+        }
+        self.failed = if failure.is_some() {
+            self.failed.saturating_add(1)
+        } else {
+            0
+        };
+        self.mode = match failure {
+            None => MpcMode::Mpc,
+            Some(_) if self.failed <= self.config.fallback_hold_ticks => MpcMode::Hold,
+            Some(_) => MpcMode::IkPid,
+        };
+        // A non-finite state cannot be flown by either path: hold the last command.
+        if failure == Some(SolveFailure::NonFiniteInput)
+            && let Some(last) = &self.last_command
+        {
+            let mut command = last.clone();
+            self.status = MpcStatus {
+                mode: self.mode,
+                event: event(previous_mode, self.mode),
+                failure,
+                failed_ticks: self.failed,
+                rti: None,
+                solve_time_s,
+                ..command.status
+            };
+            command.status = self.status;
+            return command;
+        }
+        let mut command = match self.mode {
+            MpcMode::Mpc | MpcMode::Hold => self.mpc_command(state),
+            MpcMode::IkPid => {
+                if previous_mode != MpcMode::IkPid {
+                    self.pid.reset(state);
+                    let _ = self.ik.reset(&state.pose(), configuration);
+                }
+                self.ik_pid_command(state, target_world_from_ee, limits, dt)
+            }
+        };
+        let ee_error_m = if x_hat.iter().all(|v| v.is_finite()) {
+            (self.rti.ee_kinematics(&x_hat).position - target_world_from_ee.translation.vector)
+                .norm()
+        } else {
+            f64::NAN
+        };
+        let terminal = self.rti.states().last().copied().unwrap_or(x_hat);
+        self.status = MpcStatus {
+            mode: self.mode,
+            event: event(previous_mode, self.mode),
+            failure,
+            failed_ticks: self.failed,
+            rti: report,
+            solve_time_s,
+            ee_error_m,
+            predicted_terminal_position_m: Vector3::new(
+                terminal[IX_P],
+                terminal[IX_P + 1],
+                terminal[IX_P + 2],
+            ),
+        };
+        command.status = self.status;
+        self.last_command = Some(command.clone());
+        command
+    }
+
+    /// The last applied input before any: no force or torque, the arm where it is.
+    fn seed_input(&self, x_hat: &StateVector) -> InputVector {
+        let mut u = InputVector::zeros();
+        let (lower, upper) = self.rti.joint_bounds();
+        for j in 0..NQ {
+            u[IU_QREF + j] = x_hat[IX_Q + j].clamp(lower[j], upper[j]);
+        }
+        u
+    }
+
+    /// Filter, gravity compensation and frame change of the RTI iterate's first input.
+    fn mpc_command(&mut self, state: &RigidBodyState) -> MpcCommand {
+        let u_opt = self.rti.inputs()[0];
+        let g = &self.config.output_filter_gain;
+        let u = match self.u_last {
+            None => u_opt,
+            Some(last) => InputVector::from_fn(|i, _| g[i] * u_opt[i] + (1.0 - g[i]) * last[i]),
+        };
+        self.u_last = Some(u);
+        let weight = self.body.mass_kg * GRAVITY_MPS2;
+        let force_w = Vector3::new(u[IU_F], u[IU_F + 1], u[IU_F + 2] + weight);
+        let torque_w = Vector3::new(u[IU_TAU], u[IU_TAU + 1], u[IU_TAU + 2]);
+        let body_from_world = state.world_from_body.inverse();
+        let wrench = Wrench::new(
+            body_from_world * force_w,
+            body_from_world * torque_w
+                + self
+                    .body
+                    .gravity_moment_compensation(&state.world_from_body),
+        );
+        let (lower, upper) = self.rti.joint_bounds();
+        let mut arm = [0.0; NQ];
+        for j in 0..NQ {
+            arm[j] = u[IU_QREF + j].clamp(lower[j], upper[j]);
+        }
+        let terminal = self.rti.states().last().copied().unwrap_or_default();
+        let base_target = Isometry3::from_parts(
+            Vector3::new(terminal[IX_P], terminal[IX_P + 1], terminal[IX_P + 2]).into(),
+            UnitQuaternion::from_euler_angles(
+                terminal[IX_ETA],
+                terminal[IX_ETA + 1],
+                terminal[IX_ETA + 2],
+            ),
+        );
+        MpcCommand {
+            wrench_in_body: wrench,
+            arm_targets_rad: arm,
+            base_target,
+            status: self.status,
+        }
+    }
+
+    /// The IK-PID path; keeps the filter's memory on the command it flies.
+    fn ik_pid_command(
+        &mut self,
+        state: &RigidBodyState,
+        target: &Isometry3<f64>,
+        limits: &BaseLimits,
+        dt: f64,
+    ) -> MpcCommand {
+        let solution = self.ik.solve(target, limits);
+        let wrench = self.pid.update(state, &solution.world_from_base, dt);
+        let mut arm = [0.0; NQ];
+        for (a, q) in arm.iter_mut().zip(&solution.arm_joints) {
+            *a = *q;
+        }
+        let force_w = state.world_from_body * wrench.force;
+        let torque_w = state.world_from_body * wrench.torque;
+        let weight = self.body.mass_kg * GRAVITY_MPS2;
+        let mut u = InputVector::zeros();
+        for i in 0..3 {
+            u[IU_F + i] = force_w[i];
+            u[IU_TAU + i] = torque_w[i];
+        }
+        u[IU_F + 2] -= weight;
+        for j in 0..NQ {
+            u[IU_QREF + j] = arm[j];
+        }
+        self.u_last = Some(u);
+        MpcCommand {
+            wrench_in_body: wrench,
+            arm_targets_rad: arm,
+            base_target: solution.world_from_base,
+            status: self.status,
+        }
+    }
+
+    /// Forwards the allocator's unallocated wrench to the fallback PID (its anti-windup).
+    pub fn saturation_feedback(&mut self, unallocated_in_body: &Wrench) {
+        if self.mode == MpcMode::IkPid {
+            self.pid.saturation_feedback(unallocated_in_body);
+        }
+    }
+}
+
+fn event(previous: MpcMode, now: MpcMode) -> Option<FallbackEvent> {
+    match (previous, now) {
+        (a, b) if a == b => None,
+        (_, MpcMode::Hold) => Some(FallbackEvent::HoldStarted),
+        (_, MpcMode::IkPid) => Some(FallbackEvent::IkPidTookOver),
+        (_, MpcMode::Mpc) => Some(FallbackEvent::MpcRecovered),
+    }
+}
