@@ -5,6 +5,7 @@
 
 mod cli_error;
 mod fly;
+mod mpc_bench;
 mod output;
 mod platforms;
 mod track;
@@ -45,6 +46,9 @@ enum Command {
     Fly(Box<fly::FlyArgs>),
     /// The twin on its own: `amstack twin serve` offers it to a flight process over iceoryx2.
     Twin(twin_serve::TwinArgs),
+    /// Solve time of the whole-body MPC per QP path on its standard scenario (FA-Hexa, EE step
+    /// near a wall): median/p90/p99/max per RTI step, QP iterations, cost, violation.
+    MpcBench(mpc_bench::Args),
 }
 
 fn main() -> ExitCode {
@@ -69,6 +73,7 @@ fn main() -> ExitCode {
         Command::Track(args) => track::run(&args),
         Command::Fly(args) => fly::run(&args),
         Command::Twin(args) => twin_serve::run(&args),
+        Command::MpcBench(args) => mpc_bench::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -262,3 +262,61 @@ fn ctrl_c_stops_a_flight_and_leaves_a_complete_log() {
     assert!(recording.complete, "the summary was written");
     assert!(!recording.messages.is_empty());
 }
+
+#[test]
+fn mpc_bench_reports_both_qp_paths_and_refuses_bad_input() {
+    let dir = match tempfile::tempdir() {
+        Ok(d) => d,
+        Err(e) => panic!("{e}"),
+    };
+    let json = dir.path().join("mpc.json");
+    let json_arg = json.to_string_lossy().into_owned();
+    let out = amstack(&["mpc-bench", "--iterations", "3", "--json", &json_arg]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{e}"));
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+    for path in ["riccati", "clarabel"] {
+        let p = &v["paths"][path];
+        for key in [
+            "solve_ms_median",
+            "solve_ms_p99",
+            "solve_ms_max",
+            "qp_iterations_median",
+            "max_constraint_violation",
+        ] {
+            assert!(
+                p[key].as_f64().is_some_and(f64::is_finite),
+                "{path}.{key}: {p}"
+            );
+        }
+        assert_eq!(p["failed_solves"], 0, "{path}");
+    }
+    assert_bad_input(
+        &amstack(&["mpc-bench", "--iterations", "0"]),
+        &["--iterations"],
+    );
+    assert_bad_input(
+        &amstack(&["mpc-bench", "--iterations", "many"]),
+        &["--iterations"],
+    );
+}
+
+#[test]
+fn track_with_mpc_is_refused_off_the_fa_hexa_and_off_the_ee_interface() {
+    assert_bad_input(
+        &amstack(&[
+            "track",
+            "--controller",
+            "mpc",
+            "--platform",
+            "ua-hexa",
+            "--interface",
+            "ee",
+        ]),
+        &["--controller mpc", "FA-Hexa"],
+    );
+    assert_bad_input(
+        &amstack(&["track", "--controller", "mpc", "--platform", "fa-hexa"]),
+        &["--interface ee"],
+    );
+}

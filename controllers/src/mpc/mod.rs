@@ -22,6 +22,7 @@ pub mod model;
 mod qp;
 mod riccati;
 mod rti;
+pub mod scenario;
 
 #[cfg(test)]
 mod tests;

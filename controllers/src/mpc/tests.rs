@@ -24,29 +24,6 @@ fn fa_hexa() -> Vehicle {
     Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("fa-hexa is built in: {e}"))
 }
 
-/// Hover at (0, 0, 1) with the arm at its initial posture.
-fn hover_state(vehicle: &Vehicle) -> StateVector {
-    let mut x = StateVector::zeros();
-    x[IX_P + 2] = 1.0;
-    let q = vehicle.initial_configuration();
-    for (j, &d) in vehicle.arm_dofs().iter().enumerate() {
-        x[IX_Q + j] = q[d];
-    }
-    x
-}
-
-/// The standard scenario: a 0.3 m EE step along x toward a wall whose face is at x = 1.15 m,
-/// so the base (margin 0.85 m) may not pass x = 0.3 m: it ends against its bound.
-fn step_reference(rti: &mut SqpRti, x: &StateVector) -> (MpcReference, BaseLimits) {
-    let ee = rti.ee_kinematics(x);
-    let reference = MpcReference {
-        ee_position_m: ee.position + Vector3::new(0.3, 0.0, 0.0),
-        ee_rotation: UnitQuaternion::from_rotation_matrix(&ee.rotation),
-        input_previous: InputVector::zeros(),
-    };
-    (reference, BaseLimits::in_front_of_face_x(1.15, 0.85))
-}
-
 #[test]
 fn rk4_sensitivities_match_finite_differences() {
     let model = MpcModel::new(&fa_hexa(), 12.0).unwrap_or_else(|e| panic!("model: {e}"));
@@ -125,27 +102,21 @@ fn only_the_fa_hexa_fits_the_ocp() {
     assert!(SqpRti::new(&fa_hexa(), MpcConfig::default()).is_ok());
 }
 
-/// Flies the standard scenario on the prediction model itself for `ticks`, calling `each`
-/// after every RTI step.
+/// Flies the standard scenario (`scenario`) on the prediction model for `ticks`, calling
+/// `each` after every RTI step; returns the final plant state.
 fn nominal_closed_loop(
     ticks: usize,
     mut each: impl FnMut(usize, &mut SqpRti, &RtiReport),
 ) -> StateVector {
-    let vehicle = fa_hexa();
-    let mut rti =
-        SqpRti::new(&vehicle, MpcConfig::default()).unwrap_or_else(|e| panic!("mpc: {e}"));
-    let mut x = hover_state(&vehicle);
-    let (mut reference, limits) = step_reference(&mut rti, &x);
+    let mut run = scenario::WallStepScenario::new(&fa_hexa(), MpcConfig::default())
+        .unwrap_or_else(|e| panic!("mpc: {e}"));
     for tick in 0..ticks {
-        let elapsed = if tick == 0 { 0.0 } else { DT };
-        let report = rti.step(&x, &reference, &limits, elapsed, QpPath::Riccati);
-        each(tick, &mut rti, &report);
-        let u = rti.inputs()[0];
-        reference.input_previous = u;
-        let (next, _, _) = rti.model().rk4(&x, &u, DT);
-        x = next;
+        run.prepare();
+        let report = run.feedback(QpPath::Riccati);
+        each(tick, run.rti_mut(), &report);
+        run.advance();
     }
-    x
+    *run.state()
 }
 
 #[test]
