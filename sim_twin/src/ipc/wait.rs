@@ -1,6 +1,11 @@
-//! Waiting for the other process: busy-poll first (a round trip costs microseconds), then
-//! yield the core, then sleep, so a side that waits long does not starve the other on a
-//! small machine.
+//! Waiting for the other process: busy-poll a few microseconds, then poll yielding the core
+//! between polls, then sleep between polls, so a side that waits long does not starve the
+//! other on a small machine.
+//!
+//! The pure spin is kept short on purpose: when the scheduler puts both processes on one
+//! core, a spinning waiter keeps the other from running for the whole spin (a 50 µs spin
+//! made every lockstep tick ~100 µs slower in that case); a yield hands the core over at
+//! once and costs about a microsecond when the other process runs elsewhere.
 
 use std::time::{Duration, Instant};
 
@@ -8,7 +13,7 @@ use std::time::{Duration, Instant};
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Waiter {
     started: Instant,
-    /// Pure spinning up to here (default 50 µs).
+    /// Pure spinning up to here (default 5 µs).
     pub spin: Duration,
     /// Yielding the core up to here (default 2 ms), then sleeping `sleep` per poll.
     pub yield_until: Duration,
@@ -21,7 +26,7 @@ impl Waiter {
     pub fn start() -> Self {
         Self {
             started: Instant::now(),
-            spin: Duration::from_micros(50),
+            spin: Duration::from_micros(5),
             yield_until: Duration::from_millis(2),
             sleep: Duration::from_micros(50),
         }
