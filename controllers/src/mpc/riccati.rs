@@ -47,10 +47,14 @@ const INITIAL_MULTIPLIER: f64 = 1.0;
 const POLISH_PENALTY: f64 = 1e8;
 /// Method-of-multipliers steps of the polish.
 const POLISH_STEPS: usize = 4;
+/// Newton solves are refined only when the tolerance is below this (the recursion's round-off
+/// matters only for very tight solves; the real-time default 1e-7 never needs it).
+const REFINE_BELOW_TOLERANCE: f64 = 1e-9;
 /// Most iterative-refinement steps per Newton solve.
 const REFINEMENT_STEPS: usize = 2;
-/// A Newton solve whose residual is below this fraction of its right-hand side is not refined.
-const REFINEMENT_THRESHOLD: f64 = 1e-13;
+/// A Newton solve whose residual is below this fraction of (tolerance × its right-hand side) is
+/// not refined: refinement matters only for tight tolerances, late in a solve.
+const REFINEMENT_THRESHOLD: f64 = 1e-2;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum RowKind {
@@ -175,12 +179,16 @@ pub struct RiccatiIpm {
     rhs_u: Vec<InputVector>,
     p_mat: Vec<StateMatrix>,
     p_vec: Vec<StateVector>,
+    /// V = L⁻¹S̄ per stage (the gain is K = −L⁻ᵀV).
     gain: Vec<InputStateMatrix>,
     chol: Vec<InputMatrix>,
     q_aug: Vec<StateMatrix>,
     r_aug: Vec<InputMatrix>,
     res_x: Vec<StateVector>,
     res_u: Vec<InputVector>,
+    keep_dx: Vec<StateVector>,
+    keep_du: Vec<InputVector>,
+    keep_y: Vec<StateVector>,
     dx: Vec<StateVector>,
     du: Vec<InputVector>,
 }
@@ -217,6 +225,9 @@ impl RiccatiIpm {
             r_aug: Vec::new(),
             res_x: Vec::new(),
             res_u: Vec::new(),
+            keep_dx: Vec::new(),
+            keep_du: Vec::new(),
+            keep_y: Vec::new(),
             dx: Vec::new(),
             du: Vec::new(),
         }
@@ -328,6 +339,9 @@ impl RiccatiIpm {
         self.r_aug.resize(n, InputMatrix::zeros());
         resize_x(&mut self.res_x, n + 1);
         resize_u(&mut self.res_u, n);
+        resize_x(&mut self.keep_dx, n + 1);
+        resize_x(&mut self.keep_y, n + 1);
+        resize_u(&mut self.keep_du, n);
     }
 
     /// The value of row `r` of stage `k` at (x, u).
@@ -396,30 +410,35 @@ impl RiccatiIpm {
             self.b.transpose_multiply(&pb, &mut btpb);
             self.b.transpose_multiply(&pa, &mut btpa);
             self.a.transpose_multiply(&pa, &mut atpa);
-            let mut q_tilde = qp.q[k];
-            let mut r_tilde = qp.r[k];
-            self.augment(qp, k, &mut q_tilde, Some(&mut r_tilde));
-            self.q_aug[k] = q_tilde;
-            self.r_aug[k] = r_tilde;
-            let r_bar = r_tilde + btpb;
+            // Q̄ = Q̃ + AᵀPA and R̄ = R̃ + BᵀPB, built in place (Q̃, R̃ kept for refinement).
+            let mut r_bar = qp.r[k];
+            let mut q_bar = qp.q[k];
+            self.augment(qp, k, &mut q_bar, Some(&mut r_bar));
+            if self.settings.tolerance < REFINE_BELOW_TOLERANCE {
+                self.q_aug[k] = q_bar;
+                self.r_aug[k] = r_bar;
+            }
+            r_bar += btpb;
+            q_bar += atpa;
             let mut v = qp.s[k] + btpa;
-            let q_bar = q_tilde + atpa;
-            let Some(chol) = r_bar.cholesky() else {
+            let Some(l) = cholesky(&r_bar) else {
                 return false;
             };
-            let l = chol.l();
-            // V = L⁻¹S̄, P = Q̄ − VᵀV, K = −L⁻ᵀV.
-            if !l.solve_lower_triangular_mut(&mut v) {
-                return false;
+            // V = L⁻¹S̄ and P = Q̄ − VᵀV; the gain K = −L⁻ᵀV is applied through V and L.
+            forward_substitute_columns(&l, &mut v);
+            // P = Q̄ − VᵀV, computed on the upper triangle and mirrored (exactly symmetric).
+            let p = &mut self.p_mat[k];
+            for j in 0..NX {
+                for i in 0..=j {
+                    let mut acc = 0.5 * (q_bar[(i, j)] + q_bar[(j, i)]);
+                    for r in 0..NU {
+                        acc -= v[(r, i)] * v[(r, j)];
+                    }
+                    p[(i, j)] = acc;
+                    p[(j, i)] = acc;
+                }
             }
-            let mut p = q_bar - v.transpose() * v;
-            p = (p + p.transpose()) * 0.5;
-            self.p_mat[k] = p;
-            let mut gain = v;
-            if !l.tr_solve_lower_triangular_mut(&mut gain) {
-                return false;
-            }
-            self.gain[k] = -gain;
+            self.gain[k] = v;
             self.chol[k] = l;
         }
         true
@@ -455,7 +474,12 @@ impl RiccatiIpm {
     /// some λ/s are huge, late in a tight solve).
     fn back_solve(&mut self, qp: &StructuredQp) {
         self.sweep(qp);
-        for _ in 0..REFINEMENT_STEPS {
+        let steps = if self.settings.tolerance < REFINE_BELOW_TOLERANCE {
+            REFINEMENT_STEPS
+        } else {
+            0
+        };
+        for _ in 0..steps {
             let n = qp.intervals;
             let mut worst: f64 = 0.0;
             let mut scale: f64 = 0.0;
@@ -483,21 +507,23 @@ impl RiccatiIpm {
                 }
                 self.res_x[k] = rx;
             }
-            if worst <= REFINEMENT_THRESHOLD * scale.max(1.0) {
+            if worst <= REFINEMENT_THRESHOLD * self.settings.tolerance * scale.max(1.0) {
                 break;
             }
             // The correction solves the same system with the residual as linear term.
-            let (dx, du, y) = (self.dx.clone(), self.du.clone(), self.y_hat.clone());
+            std::mem::swap(&mut self.dx, &mut self.keep_dx);
+            std::mem::swap(&mut self.du, &mut self.keep_du);
+            std::mem::swap(&mut self.y_hat, &mut self.keep_y);
             std::mem::swap(&mut self.rhs_x, &mut self.res_x);
             std::mem::swap(&mut self.rhs_u, &mut self.res_u);
             self.sweep(qp);
             std::mem::swap(&mut self.rhs_x, &mut self.res_x);
             std::mem::swap(&mut self.rhs_u, &mut self.res_u);
             for k in 0..=n {
-                self.dx[k] += dx[k];
-                self.y_hat[k] += y[k];
+                self.dx[k] += self.keep_dx[k];
+                self.y_hat[k] += self.keep_y[k];
                 if k < n {
-                    self.du[k] += du[k];
+                    self.du[k] += self.keep_du[k];
                 }
             }
         }
@@ -509,28 +535,33 @@ impl RiccatiIpm {
         self.p_vec[n] = self.rhs_x[n];
         let mut r_bar = InputVector::zeros();
         let mut q_bar = StateVector::zeros();
-        // The feed-forward terms k_k, kept in du until the forward sweep.
+        // w_k = L⁻¹r̄_k, kept in du until the forward sweep: k_k = −L⁻ᵀw_k, p_k = q̄ − Vᵀw_k.
         for k in (0..n).rev() {
             self.b.transpose_vector(&self.p_vec[k + 1], &mut r_bar);
             r_bar += self.rhs_u[k];
             self.a.transpose_vector(&self.p_vec[k + 1], &mut q_bar);
             q_bar += self.rhs_x[k];
-            let l = &self.chol[k];
-            let mut ff = r_bar;
-            l.solve_lower_triangular_mut(&mut ff);
-            l.tr_solve_lower_triangular_mut(&mut ff);
-            self.du[k] = -ff;
-            self.p_vec[k] = q_bar + self.gain[k].transpose() * r_bar;
+            forward_substitute(&self.chol[k], &mut r_bar);
+            self.du[k] = r_bar;
+            let mut p = q_bar;
+            p.gemv_tr(-1.0, &self.gain[k], &r_bar, 1.0);
+            self.p_vec[k] = p;
         }
         self.dx[0] = StateVector::zeros();
         for k in 0..n {
-            let du = self.gain[k] * self.dx[k] + self.du[k];
+            // du = K dx + k = −L⁻ᵀ(V dx + w).
+            let mut t = self.du[k];
+            t.gemv(1.0, &self.gain[k], &self.dx[k], 1.0);
+            backward_substitute(&self.chol[k], &mut t);
+            let du = -t;
             self.du[k] = du;
             let mut next = StateVector::zeros();
             self.a.multiply_add(&self.dx[k], &mut next);
             self.b.multiply_add(&du, &mut next);
             self.dx[k + 1] = next;
-            self.y_hat[k + 1] = self.p_mat[k + 1] * next + self.p_vec[k + 1];
+            let mut y = self.p_vec[k + 1];
+            y.gemv(1.0, &self.p_mat[k + 1], &next, 1.0);
+            self.y_hat[k + 1] = y;
         }
     }
 
@@ -851,6 +882,65 @@ impl QpSolver for RiccatiIpm {
 
     fn name(&self) -> &'static str {
         "riccati"
+    }
+}
+
+/// Lower Cholesky factor of a symmetric positive definite matrix (None if it is not).
+fn cholesky(m: &InputMatrix) -> Option<InputMatrix> {
+    let mut l = InputMatrix::zeros();
+    for j in 0..NU {
+        let mut d = m[(j, j)];
+        for k in 0..j {
+            d -= l[(j, k)] * l[(j, k)];
+        }
+        if !(d > 0.0 && d.is_finite()) {
+            return None;
+        }
+        let d = d.sqrt();
+        l[(j, j)] = d;
+        for i in (j + 1)..NU {
+            let mut v = m[(i, j)];
+            for k in 0..j {
+                v -= l[(i, k)] * l[(j, k)];
+            }
+            l[(i, j)] = v / d;
+        }
+    }
+    Some(l)
+}
+
+/// v ← L⁻¹v.
+fn forward_substitute(l: &InputMatrix, v: &mut InputVector) {
+    for i in 0..NU {
+        let mut x = v[i];
+        for k in 0..i {
+            x -= l[(i, k)] * v[k];
+        }
+        v[i] = x / l[(i, i)];
+    }
+}
+
+/// v ← L⁻ᵀv.
+fn backward_substitute(l: &InputMatrix, v: &mut InputVector) {
+    for i in (0..NU).rev() {
+        let mut x = v[i];
+        for k in (i + 1)..NU {
+            x -= l[(k, i)] * v[k];
+        }
+        v[i] = x / l[(i, i)];
+    }
+}
+
+/// M ← L⁻¹M, column by column.
+fn forward_substitute_columns(l: &InputMatrix, m: &mut InputStateMatrix) {
+    for j in 0..NX {
+        for i in 0..NU {
+            let mut x = m[(i, j)];
+            for k in 0..i {
+                x -= l[(i, k)] * m[(k, j)];
+            }
+            m[(i, j)] = x / l[(i, i)];
+        }
     }
 }
 
