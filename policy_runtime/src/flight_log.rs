@@ -116,6 +116,43 @@ pub struct ControllerStatus {
     pub input: String,
 }
 
+/// The whole-body MPC's report of one tick (flights with `--controller mpc`): who flew, the
+/// fallback's events, and the RTI step.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct MpcStatus {
+    /// `mpc`, `hold` (shifted previous solution) or `ik_pid` (the fallback path).
+    pub mode: String,
+    /// `hold_started`, `ik_pid_took_over`, `mpc_recovered`, or null.
+    pub event: Option<String>,
+    /// Why this tick's solve failed: `qp_not_solved`, `over_budget`, `non_finite_input`, or
+    /// null.
+    pub failure: Option<String>,
+    /// Consecutive failed solves.
+    pub failed_ticks: u32,
+    /// QP outcome (`solved`, `max_iterations`, `infeasible`, `numerical_failure`), or null.
+    pub qp_status: Option<String>,
+    /// QP interior-point iterations.
+    pub qp_iterations: u32,
+    /// NLS cost of the solution.
+    pub cost: f64,
+    /// Largest violation of the OCP's inequalities at the solution's knots.
+    pub max_constraint_violation: f64,
+    /// Wall time of the RTI step, ms.
+    pub solve_time_ms: Option<f64>,
+    /// EE position error at the measured state, m.
+    pub ee_error_m: f64,
+    /// Predicted base position at the end of the horizon, world, m.
+    pub predicted_terminal_position_m: [f64; 3],
+}
+
+/// A serde enum's name as a string.
+fn name_of<T: Serialize>(value: &T) -> String {
+    serde_json::to_value(value)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_owned))
+        .unwrap_or_default()
+}
+
 macro_rules! schema_names {
     ($($t:ident),*) => {$(impl SchemaName for $t { const SCHEMA_NAME: &'static str = concat!("amstack.", stringify!($t)); })*};
 }
@@ -125,7 +162,8 @@ schema_names!(
     Rotors,
     Joints,
     Disturbances,
-    ControllerStatus
+    ControllerStatus,
+    MpcStatus
 );
 
 /// The open channels of one flight log.
@@ -143,6 +181,8 @@ pub struct FlightLog {
     joints: Channel<Joints>,
     disturbances: Channel<Disturbances>,
     status: Channel<ControllerStatus>,
+    /// Opened on the first tick that carries an MPC report.
+    mpc: Option<Channel<MpcStatus>>,
     joint_names: Vec<String>,
     limits: (f64, f64),
 }
@@ -166,6 +206,7 @@ impl FlightLog {
             joints: recorder.channel("/joints")?,
             disturbances: recorder.channel("/disturbances")?,
             status: recorder.channel("/controller/status")?,
+            mpc: None,
             joint_names: (0..vehicle.model.dof())
                 .map(|d| vehicle.model.dof_joint(d).name.clone())
                 .collect(),
@@ -260,6 +301,29 @@ impl FlightLog {
                     .unwrap_or_default(),
             },
         )?;
+        if let Some(status) = &record.mpc {
+            let channel = match self.mpc.take() {
+                Some(c) => c,
+                None => self.recorder.channel("/mpc/status")?,
+            };
+            let rti = status.rti.as_ref();
+            let message = MpcStatus {
+                mode: name_of(&status.mode),
+                event: status.event.as_ref().map(name_of),
+                failure: status.failure.as_ref().map(name_of),
+                failed_ticks: status.failed_ticks,
+                qp_status: rti.map(|r| name_of(&r.status)),
+                qp_iterations: rti.map_or(0, |r| r.qp_iterations),
+                cost: rti.map_or(f64::NAN, |r| r.cost),
+                max_constraint_violation: rti.map_or(f64::NAN, |r| r.max_constraint_violation),
+                solve_time_ms: status.solve_time_s.map(|s| s * 1e3),
+                ee_error_m: status.ee_error_m,
+                predicted_terminal_position_m: v3(&status.predicted_terminal_position_m),
+            };
+            let logged = self.recorder.log(&channel, t, &message);
+            self.mpc = Some(channel);
+            logged?;
+        }
         Ok(())
     }
 

@@ -83,3 +83,40 @@ fn mpc_is_refused_for_other_vehicles() {
         assert!(stack.is_err(), "{id}");
     }
 }
+
+#[test]
+fn an_mpc_flight_logs_the_mpc_status_every_tick() {
+    use crate::record::Recording;
+    use crate::track::{Interface, TrackConfig, run_track};
+    use crate::trajectory::Trajectory;
+    let vehicle = fa_hexa();
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let path = dir.path().join("mpc.mcap");
+    let config = TrackConfig {
+        controller: profile(&vehicle, ControllerKind::Mpc).unwrap_or_else(|e| panic!("{e}")),
+        vehicle,
+        trajectory: Trajectory::Hover,
+        interface: Interface::Ee,
+        duration_s: 0.5,
+        settle_s: 0.0,
+        twin: TwinConfig::default(),
+        mcap: Some(path.clone()),
+    };
+    let result = run_track(&config, |_| std::ops::ControlFlow::Continue(()))
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(result.controller, "mpc");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{e}"));
+    let recording = Recording::from_bytes(&bytes).unwrap_or_else(|e| panic!("{e}"));
+    let counts = recording.message_counts();
+    assert_eq!(counts.get("/mpc/status"), Some(&result.ticks));
+    let first = recording
+        .messages
+        .iter()
+        .find(|m| m.topic == "/mpc/status")
+        .unwrap_or_else(|| panic!("no /mpc/status"));
+    let v: serde_json::Value =
+        serde_json::from_slice(&first.data).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(v["mode"], "mpc");
+    assert_eq!(v["qp_status"], "solved");
+    assert!(v["solve_time_ms"].as_f64().is_some_and(|t| t > 0.0));
+}
