@@ -18,8 +18,8 @@ use platform::{ActuatorCommand, Measurement, Vehicle};
 use sim_twin::TwinConfig;
 use sim_twin::ipc::{
     COMMAND_END_OF_SESSION, CommandMsg, CommandService, Hello, ImuMsg, Ipc, IpcError,
-    MeasurementMsg, MeasurementService, Mode, Offer, TooLarge, Waiter, Welcome,
-    cleanup_dead_nodes_now, command_service, get_str, handshake_service, join_id,
+    MEASUREMENT_SESSION_FAILED, MeasurementMsg, MeasurementService, Mode, Offer, TooLarge, Waiter,
+    Welcome, cleanup_dead_nodes_now, command_service, get_str, handshake_service, join_id,
     measurement_service, node, node_alive, split_id,
 };
 
@@ -88,6 +88,16 @@ pub enum IpcLinkError {
         deadline_ms: u64,
         /// The twin's node was found dead (rather than the deadline passing).
         process_gone: bool,
+    },
+    /// The twin could not step (its simulation diverged, say) and ended the session.
+    #[error(
+        "the twin on '{service}' failed at t = {at_s:.3} s and ended the session (its log says why)"
+    )]
+    TwinFailed {
+        /// Service name.
+        service: String,
+        /// Simulated time of the last good step, s.
+        at_s: f64,
     },
     /// iceoryx2 failed.
     #[error(transparent)]
@@ -259,6 +269,12 @@ impl IpcLink {
                 .map_err(|e| IpcError::new("receiving a measurement", e))?
             {
                 let m = sample.payload();
+                if m.session == self.session && m.flags & MEASUREMENT_SESSION_FAILED != 0 {
+                    return Err(IpcLinkError::TwinFailed {
+                        service: self.config.service.clone(),
+                        at_s: m.time_s,
+                    });
+                }
                 if m.session == self.session && after.is_none_or(|t| m.tick > t) {
                     self.latest = *m;
                     found = true;

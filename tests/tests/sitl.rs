@@ -516,3 +516,59 @@ fn bad_link_and_serve_flags_are_bad_input() {
         assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
     }
 }
+
+#[test]
+fn a_command_the_twin_refuses_ends_the_session_and_the_twin_serves_on() {
+    use policy_runtime::{IpcLink, IpcLinkConfig, IpcLinkError, Link, LinkError};
+    let mut sitl = Sitl::new();
+    let svc = service("refused-command");
+    let twin = sitl.twin(&svc, &["--sessions", "2"]);
+    let vehicle = platform::Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"));
+    let config = sim_twin::TwinConfig::default();
+    let connect = || {
+        let link = IpcLinkConfig {
+            answer_timeout: Duration::from_secs(10),
+            ..IpcLinkConfig::new(svc.clone())
+        };
+        IpcLink::connect(&vehicle, &config, link).unwrap_or_else(|e| panic!("{e}"))
+    };
+    let mut link = connect();
+    let start = link.receive().unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(start.time_s, 0.0);
+    // A non-finite thrust: the twin refuses to step, says so and ends the session.
+    let bad = platform::ActuatorCommand {
+        rotor_thrusts_n: vec![f64::NAN; vehicle.rotors.len()],
+        joint_targets: vehicle.initial_configuration(),
+        direct_wrench_in_body: None,
+    };
+    link.send(&bad).unwrap_or_else(|e| panic!("{e}"));
+    let refused = link.receive();
+    assert!(
+        matches!(
+            refused,
+            Err(LinkError::Ipc(IpcLinkError::TwinFailed { .. }))
+        ),
+        "{refused:?}"
+    );
+    sitl.procs[twin].wait_for("the twin failed");
+    drop(link);
+    // The twin serves on: a new session steps from the reset state.
+    let mut link = connect();
+    let idle = platform::ActuatorCommand {
+        rotor_thrusts_n: vec![0.0; vehicle.rotors.len()],
+        ..bad
+    };
+    link.send(&idle).unwrap_or_else(|e| panic!("{e}"));
+    let after = link.receive().unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        (after.time_s - config.control_dt_s()).abs() < 1e-12,
+        "{}",
+        after.time_s
+    );
+    drop(link);
+    assert!(
+        sitl.procs[twin].wait().success(),
+        "{}",
+        sitl.procs[twin].stderr()
+    );
+}

@@ -40,6 +40,9 @@ pub const COMMAND_HAS_DIRECT_WRENCH: u32 = 2;
 pub const MEASUREMENT_HOLDING: u32 = 1;
 /// [`MeasurementMsg::flags`]: the failsafe is applied.
 pub const MEASUREMENT_FAILSAFE: u32 = 2;
+/// [`MeasurementMsg::flags`]: the twin could not step (a diverged simulation, a bad command);
+/// the session is over and the data are those of the last good step.
+pub const MEASUREMENT_SESSION_FAILED: u32 = 4;
 
 /// Role of a joint in the configuration order ([`Welcome::joint_roles`]).
 pub mod joint_role {

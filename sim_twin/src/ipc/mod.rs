@@ -56,8 +56,8 @@ pub use handshake::{Offer, check_hello, config_hash, config_json, vehicle_hash};
 pub use messages::{
     COMMAND_END_OF_SESSION, COMMAND_HAS_DIRECT_WRENCH, CommandMsg, Hello, ImuMsg, MAX_CONFIG_BYTES,
     MAX_ID_BYTES, MAX_JOINTS, MAX_REASON_BYTES, MAX_ROTORS, MEASUREMENT_FAILSAFE,
-    MEASUREMENT_HOLDING, MESSAGE_VERSION, MeasurementMsg, RotorMsg, TooLarge, Welcome, get_str,
-    join_id, joint_role, put_str, split_id,
+    MEASUREMENT_HOLDING, MEASUREMENT_SESSION_FAILED, MESSAGE_VERSION, MeasurementMsg, RotorMsg,
+    TooLarge, Welcome, get_str, join_id, joint_role, put_str, split_id,
 };
 pub use server::{Failsafe, Mode, ServeConfig, ServeError, ServeEvent, ServeSummary, TwinServer};
 pub use wait::Waiter;

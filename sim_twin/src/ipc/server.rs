@@ -14,7 +14,8 @@ use platform::{ActuatorCommand, GRAVITY_MPS2, Measurement, Vehicle};
 use super::handshake::{Offer, check_hello};
 use super::messages::{
     COMMAND_END_OF_SESSION, CommandMsg, Hello, ImuMsg, MEASUREMENT_FAILSAFE, MEASUREMENT_HOLDING,
-    MeasurementMsg, TooLarge, Welcome, join_id, joint_role, put_str, split_id,
+    MEASUREMENT_SESSION_FAILED, MeasurementMsg, TooLarge, Welcome, join_id, joint_role, put_str,
+    split_id,
 };
 use super::wait::Waiter;
 use super::{
@@ -178,6 +179,15 @@ pub enum ServeEvent {
         /// Base height, m.
         z_m: f64,
     },
+    /// The twin could not step; the session ended.
+    SessionFailed {
+        /// Session id.
+        session: u64,
+        /// Simulated time, s.
+        at_s: f64,
+        /// The twin's error.
+        error: String,
+    },
     /// The twin stopped running after the failsafe.
     FailsafeSettled {
         /// Session id.
@@ -246,6 +256,14 @@ impl fmt::Display for ServeEvent {
                 match failsafe {
                     Failsafe::Disarm => "disarm (rotors 0 N, joints held)",
                 }
+            ),
+            Self::SessionFailed {
+                session,
+                at_s,
+                error,
+            } => write!(
+                f,
+                "session {session:x}: the twin failed at t = {at_s:.3} s ({error}); session ended"
             ),
             Self::FailsafeSettled {
                 session,
@@ -620,7 +638,13 @@ impl TwinServer {
         if let Some(msg) = command {
             let arrived = Instant::now();
             let command = msg.to_command();
-            self.observed = self.twin.step(&command)?;
+            match self.twin.step(&command) {
+                Ok(m) => self.observed = m,
+                Err(e) => {
+                    self.fail_session(&e, on_event)?;
+                    return Ok(true);
+                }
+            }
             if let Some(s) = &mut self.session {
                 s.tick += 1;
                 s.held = command;
@@ -659,7 +683,7 @@ impl TwinServer {
         }
         let due = s.next_step.is_some_and(|t| now >= t);
         if due {
-            self.step_on_clock(now, period, None)?;
+            self.step_on_clock(now, period, None, on_event)?;
             return Ok(true);
         }
         self.check_flight(self.config.hold, on_event);
@@ -734,7 +758,7 @@ impl TwinServer {
         } else {
             MEASUREMENT_HOLDING
         };
-        self.step_on_clock(now, period, Some(flags))?;
+        self.step_on_clock(now, period, Some(flags), on_event)?;
         if let Some(at) = failsafe_at_s
             && self.twin.time_s() - at >= self.config.after_failsafe_s
         {
@@ -760,6 +784,7 @@ impl TwinServer {
         now: Instant,
         period: Duration,
         flags: Option<u32>,
+        on_event: &mut impl FnMut(&ServeEvent),
     ) -> Result<(), ServeError> {
         let Some(s) = &mut self.session else {
             return Ok(());
@@ -770,16 +795,33 @@ impl TwinServer {
         s.tick += 1;
         match self.twin.step(&command) {
             Ok(m) => self.observed = m,
-            // The failsafe may well end in a crash the physics cannot take: stop there.
-            Err(TwinError::Diverged(_)) if flags.is_some() => {
-                self.session = None;
-                self.summary.sessions += 1;
-                self.phase = Phase::Idle;
-                return Ok(());
-            }
-            Err(e) => return Err(e.into()),
+            Err(e) => return self.fail_session(&e, on_event),
         }
         self.publish_with(now, flags.unwrap_or(0))
+    }
+
+    /// The twin refused to step (a diverged simulation, a bad command): the flight process
+    /// is told with a last measurement flagged [`MEASUREMENT_SESSION_FAILED`], the session
+    /// ends, and the server goes on serving.
+    fn fail_session(
+        &mut self,
+        error: &TwinError,
+        on_event: &mut impl FnMut(&ServeEvent),
+    ) -> Result<(), ServeError> {
+        if let Some(s) = &mut self.session {
+            s.tick += 1;
+        }
+        self.publish_with(Instant::now(), MEASUREMENT_SESSION_FAILED)?;
+        if let Some(s) = self.session.take() {
+            on_event(&ServeEvent::SessionFailed {
+                session: s.id,
+                at_s: self.twin.time_s(),
+                error: error.to_string(),
+            });
+        }
+        self.summary.sessions += 1;
+        self.phase = Phase::Idle;
+        Ok(())
     }
 
     fn publish(&mut self, started: Instant) -> Result<(), ServeError> {
