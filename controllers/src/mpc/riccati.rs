@@ -33,8 +33,8 @@ use nalgebra::SMatrix;
 
 use crate::mpc::config::QpSettings;
 use crate::mpc::qp::{
-    InputMatrix, InputStateMatrix, InputVector, NU, NX, QpSolution, QpSolver, QpStatus,
-    StateInputMatrix, StateMatrix, StateVector, StructuredQp,
+    InputMatrix, InputVector, NU, NX, QpSolution, QpSolver, QpStatus, StateInputMatrix,
+    StateMatrix, StateVector, StructuredQp,
 };
 
 /// Fraction of the step to the boundary taken.
@@ -48,7 +48,7 @@ const POLISH_PENALTY: f64 = 1e8;
 /// Method-of-multipliers steps of the polish.
 const POLISH_STEPS: usize = 4;
 /// Newton solves are refined only when the tolerance is below this (the recursion's round-off
-/// matters only for very tight solves; the real-time default 1e-7 never needs it).
+/// matters only for very tight solves; the real-time default, 1e-7, never needs it).
 const REFINE_BELOW_TOLERANCE: f64 = 1e-9;
 /// Most iterative-refinement steps per Newton solve.
 const REFINEMENT_STEPS: usize = 2;
@@ -91,35 +91,16 @@ impl SparseColumns {
         }
     }
 
-    /// out = M · self (M is R × R).
-    fn right_multiply<const R: usize, const C: usize>(
-        &self,
-        m: &SMatrix<f64, R, R>,
-        out: &mut SMatrix<f64, R, C>,
-    ) {
-        out.fill(0.0);
+    /// out = M · self with M of `rows` rows, column-major slices (out is rows × columns).
+    fn right_multiply_slices(&self, m: &[f64], rows: usize, out: &mut [f64]) {
         for (j, col) in self.columns.iter().enumerate() {
+            let dst = &mut out[j * rows..(j + 1) * rows];
+            dst.fill(0.0);
             for &(i, a) in col {
-                let src = m.column(i);
-                let mut dst = out.column_mut(j);
-                dst.axpy(a, &src, 1.0);
-            }
-        }
-    }
-
-    /// out = selfᵀ · X (X is R × K, self is R × C).
-    fn transpose_multiply<const R: usize, const C: usize, const K: usize>(
-        &self,
-        x: &SMatrix<f64, R, K>,
-        out: &mut SMatrix<f64, C, K>,
-    ) {
-        for (j, col) in self.columns.iter().enumerate() {
-            for c in 0..K {
-                let mut acc = 0.0;
-                for &(i, a) in col {
-                    acc += a * x[(i, c)];
+                let src = &m[i * rows..(i + 1) * rows];
+                for (d, s) in dst.iter_mut().zip(src) {
+                    *d += a * s;
                 }
-                out[(j, c)] = acc;
             }
         }
     }
@@ -179,8 +160,8 @@ pub struct RiccatiIpm {
     rhs_u: Vec<InputVector>,
     p_mat: Vec<StateMatrix>,
     p_vec: Vec<StateVector>,
-    /// V = L⁻¹S̄ per stage (the gain is K = −L⁻ᵀV).
-    gain: Vec<InputStateMatrix>,
+    /// Vᵀ per stage, V = L⁻¹S̄ (the gain is K = −L⁻ᵀV).
+    gain: Vec<StateInputMatrix>,
     chol: Vec<InputMatrix>,
     q_aug: Vec<StateMatrix>,
     r_aug: Vec<InputMatrix>,
@@ -330,7 +311,7 @@ impl RiccatiIpm {
         self.p_mat.clear();
         self.p_mat.resize(n + 1, StateMatrix::zeros());
         self.gain.clear();
-        self.gain.resize(n, InputStateMatrix::zeros());
+        self.gain.resize(n, StateInputMatrix::zeros());
         self.chol.clear();
         self.chol.resize(n, InputMatrix::zeros());
         self.q_aug.clear();
@@ -399,17 +380,23 @@ impl RiccatiIpm {
         self.p_mat[n] = q_tilde;
         self.q_aug[n] = q_tilde;
         let mut pa = StateMatrix::zeros();
-        let mut pb = StateInputMatrix::zeros();
-        let mut btpb = InputMatrix::zeros();
-        let mut btpa = InputStateMatrix::zeros();
+        let mut atp = StateMatrix::zeros();
         let mut atpa = StateMatrix::zeros();
+        let mut pb = StateInputMatrix::zeros();
+        let mut atpb = StateInputMatrix::zeros();
         for k in (0..n).rev() {
+            // Every product is a sum of scaled columns (contiguous, so it vectorises):
+            // PA, AᵀP = (PA)ᵀ, AᵀPA = (AᵀP)A, PB, AᵀPB = (AᵀP)B; BᵀPB from PB.
             let p_next = &self.p_mat[k + 1];
-            self.a.right_multiply(p_next, &mut pa);
-            self.b.right_multiply(p_next, &mut pb);
-            self.b.transpose_multiply(&pb, &mut btpb);
-            self.b.transpose_multiply(&pa, &mut btpa);
-            self.a.transpose_multiply(&pa, &mut atpa);
+            self.a
+                .right_multiply_slices(p_next.as_slice(), NX, pa.as_mut_slice());
+            pa.transpose_to(&mut atp);
+            self.a
+                .right_multiply_slices(atp.as_slice(), NX, atpa.as_mut_slice());
+            self.b
+                .right_multiply_slices(p_next.as_slice(), NX, pb.as_mut_slice());
+            self.b
+                .right_multiply_slices(atp.as_slice(), NX, atpb.as_mut_slice());
             // Q̄ = Q̃ + AᵀPA and R̄ = R̃ + BᵀPB, built in place (Q̃, R̃ kept for refinement).
             let mut r_bar = qp.r[k];
             let mut q_bar = qp.q[k];
@@ -418,27 +405,64 @@ impl RiccatiIpm {
                 self.q_aug[k] = q_bar;
                 self.r_aug[k] = r_bar;
             }
-            r_bar += btpb;
+            for (c, col) in self.b.columns.iter().enumerate() {
+                for d in 0..NU {
+                    let mut acc = 0.0;
+                    for &(i, b) in col {
+                        acc += b * pb[(i, d)];
+                    }
+                    r_bar[(c, d)] += acc;
+                }
+            }
             q_bar += atpa;
-            let mut v = qp.s[k] + btpa;
             let Some(l) = cholesky(&r_bar) else {
                 return false;
             };
-            // V = L⁻¹S̄ and P = Q̄ − VᵀV; the gain K = −L⁻ᵀV is applied through V and L.
-            forward_substitute_columns(&l, &mut v);
-            // P = Q̄ − VᵀV, computed on the upper triangle and mirrored (exactly symmetric).
-            let p = &mut self.p_mat[k];
-            for j in 0..NX {
-                for i in 0..=j {
-                    let mut acc = 0.5 * (q_bar[(i, j)] + q_bar[(j, i)]);
-                    for r in 0..NU {
-                        acc -= v[(r, i)] * v[(r, j)];
+            // Vᵀ = S̄ᵀL⁻ᵀ (V = L⁻¹S̄), column by column; P = Q̄ − VᵀV. The gain K = −L⁻ᵀV
+            // is applied through Vᵀ and L.
+            let vt = &mut self.gain[k];
+            *vt = qp.s[k].transpose() + atpb;
+            {
+                let v = vt.as_mut_slice();
+                for i in 0..NU {
+                    let (done, rest) = v.split_at_mut(i * NX);
+                    let col = &mut rest[..NX];
+                    for kk in 0..i {
+                        let lik = l[(i, kk)];
+                        let src = &done[kk * NX..(kk + 1) * NX];
+                        for (d, s) in col.iter_mut().zip(src) {
+                            *d -= lik * s;
+                        }
                     }
-                    p[(i, j)] = acc;
-                    p[(j, i)] = acc;
+                    let inv = 1.0 / l[(i, i)];
+                    for d in col.iter_mut() {
+                        *d *= inv;
+                    }
                 }
             }
-            self.gain[k] = v;
+            let p = &mut self.p_mat[k];
+            {
+                let v = vt.as_slice();
+                let q = q_bar.as_slice();
+                let out = p.as_mut_slice();
+                for j in 0..NX {
+                    let dst = &mut out[j * NX..(j + 1) * NX];
+                    dst.copy_from_slice(&q[j * NX..(j + 1) * NX]);
+                    for r in 0..NU {
+                        let vjr = v[r * NX + j];
+                        let src = &v[r * NX..(r + 1) * NX];
+                        for (d, s) in dst.iter_mut().zip(src) {
+                            *d -= vjr * s;
+                        }
+                    }
+                }
+            }
+            // Exactly symmetric: the upper triangle mirrored.
+            for j in 0..NX {
+                for i in 0..j {
+                    p[(j, i)] = p[(i, j)];
+                }
+            }
             self.chol[k] = l;
         }
         true
@@ -544,14 +568,14 @@ impl RiccatiIpm {
             forward_substitute(&self.chol[k], &mut r_bar);
             self.du[k] = r_bar;
             let mut p = q_bar;
-            p.gemv_tr(-1.0, &self.gain[k], &r_bar, 1.0);
+            p.gemv(-1.0, &self.gain[k], &r_bar, 1.0);
             self.p_vec[k] = p;
         }
         self.dx[0] = StateVector::zeros();
         for k in 0..n {
             // du = K dx + k = −L⁻ᵀ(V dx + w).
             let mut t = self.du[k];
-            t.gemv(1.0, &self.gain[k], &self.dx[k], 1.0);
+            t.gemv_tr(1.0, &self.gain[k], &self.dx[k], 1.0);
             backward_substitute(&self.chol[k], &mut t);
             let du = -t;
             self.du[k] = du;
@@ -928,19 +952,6 @@ fn backward_substitute(l: &InputMatrix, v: &mut InputVector) {
             x -= l[(k, i)] * v[k];
         }
         v[i] = x / l[(i, i)];
-    }
-}
-
-/// M ← L⁻¹M, column by column.
-fn forward_substitute_columns(l: &InputMatrix, m: &mut InputStateMatrix) {
-    for j in 0..NX {
-        for i in 0..NU {
-            let mut x = m[(i, j)];
-            for k in 0..i {
-                x -= l[(i, k)] * m[(k, j)];
-            }
-            m[(i, j)] = x / l[(i, i)];
-        }
     }
 }
 
