@@ -43,6 +43,9 @@ const STEP_TO_BOUNDARY: f64 = 0.995;
 const INITIAL_SLACK_MIN: f64 = 1e-1;
 /// Initial multipliers.
 const INITIAL_MULTIPLIER: f64 = 1.0;
+/// A solve whose recursion breaks down from an iterate within this tolerance is handed to the
+/// polish (when enabled), which decides it.
+const POLISH_RESCUE_TOLERANCE: f64 = 1e-8;
 /// Polish penalty, relative to the largest input Hessian entry.
 const POLISH_PENALTY: f64 = 1e8;
 /// Method-of-multipliers steps of the polish.
@@ -791,6 +794,9 @@ impl QpSolver for RiccatiIpm {
             .fold(1.0, f64::max);
         let mut status = QpStatus::MaxIterations;
         let mut iterations = 0;
+        // Whether the last good iterate was near enough the solution for the polish to find
+        // its active set (a factorisation that breaks down late in a very tight solve).
+        let mut near_solution = false;
         loop {
             // Residuals at the iterate.
             self.cost_gradient(qp, &out.x, &out.u);
@@ -822,6 +828,9 @@ impl QpSolver for RiccatiIpm {
                 status = QpStatus::Solved;
                 break;
             }
+            near_solution = stationarity <= POLISH_RESCUE_TOLERANCE * gradient_scale
+                && r_ineq_max <= POLISH_RESCUE_TOLERANCE
+                && mu <= POLISH_RESCUE_TOLERANCE;
             if iterations >= self.settings.max_iterations {
                 break;
             }
@@ -886,6 +895,15 @@ impl QpSolver for RiccatiIpm {
         }
         if status == QpStatus::Solved && self.settings.polish {
             self.polish(qp, out);
+        } else if status == QpStatus::NumericalFailure
+            && self.settings.polish
+            && near_solution
+            && self.polish(qp, out)
+        {
+            // The recursion broke down (λ/s beyond what it can resolve) after the iterate had
+            // found the active set; the polish solved that equality-constrained QP and its
+            // point is feasible, with non-negative multipliers and no worse objective.
+            status = QpStatus::Solved;
         }
         out.iterations = iterations;
         out.status = status;
