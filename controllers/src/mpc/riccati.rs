@@ -173,6 +173,8 @@ pub struct RiccatiIpm {
     keep_dx: Vec<StateVector>,
     keep_du: Vec<InputVector>,
     keep_y: Vec<StateVector>,
+    /// Whether a sweep computes the costates ŷ (not needed for the predictor).
+    costates: bool,
     dx: Vec<StateVector>,
     du: Vec<InputVector>,
 }
@@ -212,6 +214,7 @@ impl RiccatiIpm {
             keep_dx: Vec::new(),
             keep_du: Vec::new(),
             keep_y: Vec::new(),
+            costates: true,
             dx: Vec::new(),
             du: Vec::new(),
         }
@@ -500,6 +503,7 @@ impl RiccatiIpm {
     /// refines the solution against the unfactored system (the recursion loses digits once
     /// some λ/s are huge, late in a tight solve).
     fn back_solve(&mut self, qp: &StructuredQp) {
+        self.costates = true;
         self.sweep(qp);
         let steps = if self.settings.tolerance < REFINE_BELOW_TOLERANCE {
             REFINEMENT_STEPS
@@ -586,9 +590,11 @@ impl RiccatiIpm {
             self.a.multiply_add(&self.dx[k], &mut next);
             self.b.multiply_add(&du, &mut next);
             self.dx[k + 1] = next;
-            let mut y = self.p_vec[k + 1];
-            y.gemv(1.0, &self.p_mat[k + 1], &next, 1.0);
-            self.y_hat[k + 1] = y;
+            if self.costates {
+                let mut y = self.p_vec[k + 1];
+                y.gemv(1.0, &self.p_mat[k + 1], &next, 1.0);
+                self.y_hat[k + 1] = y;
+            }
         }
     }
 
@@ -847,7 +853,9 @@ impl QpSolver for RiccatiIpm {
                 self.coef[i] = self.w[i] * self.r_ineq[i];
             }
             self.newton_rhs(qp);
-            self.back_solve(qp);
+            // The predictor's direction only sets the centring: no costates, no refinement.
+            self.costates = false;
+            self.sweep(qp);
             self.recover(qp, None);
             let alpha_aff = self.max_step();
             let mu_aff = if m > 0 {
