@@ -141,8 +141,16 @@ impl FlightStack {
         let (mpc, base_config) = match config {
             ControllerConfig::Mpc(c) => (
                 Some(MpcInterface {
-                    controller: WholeBodyMpc::new(&vehicle, *c)
-                        .map_err(|e| StackError(format!("mpc: {e}")))?,
+                    // Ideal rotors have no limits for the MPC's saturation fallback to protect.
+                    controller: WholeBodyMpc::new(
+                        &vehicle,
+                        controllers::mpc::MpcConfig {
+                            rotor_saturation_fallback: c.rotor_saturation_fallback
+                                && limits == ThrustLimits::Enforced,
+                            ..*c
+                        },
+                    )
+                    .map_err(|e| StackError(format!("mpc: {e}")))?,
                     limits: BaseLimits::above_ground(),
                 }),
                 ControllerConfig::Pid6(Pid6Gains::am_bench()),

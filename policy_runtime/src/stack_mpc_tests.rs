@@ -1,7 +1,7 @@
 //! The `mpc` controller flying the FA-Hexa in the twin through the flight stack.
 
 use controllers::mpc::{
-    ClarabelQp, MpcMode, QpSettings, QpSolution, QpSolver, QpStatus, RiccatiIpm,
+    ClarabelQp, FallbackEvent, MpcMode, QpSettings, QpSolution, QpSolver, QpStatus, RiccatiIpm,
 };
 use controllers::{ControllerConfig, ControllerKind, profile};
 use nalgebra::Translation3;
@@ -42,7 +42,7 @@ fn mpc_settles_a_30cm_ee_step_in_the_twin() {
     stack.reset_at(&m.base, &m.joint_positions);
     let start = m.world_from_ee;
     let goal = Translation3::new(STEP_M, 0.0, 0.0) * start;
-    let ticks = (4.0 / dt).round() as usize;
+    let ticks = (5.0 / dt).round() as usize;
     let mut worst_tilt: f64 = 0.0;
     let mut recorded = Vec::new();
     for k in 0..ticks {
@@ -109,6 +109,57 @@ fn mpc_settles_a_30cm_ee_step_in_the_twin() {
         let diff = a.max_difference(&b);
         assert!(diff < 1e-6, "QP {i}: the paths differ by {diff}");
     }
+}
+
+#[test]
+fn with_thrust_limits_a_wrench_the_rotors_cannot_deliver_hands_over_to_ik_pid() {
+    let vehicle = fa_hexa();
+    let config = profile(&vehicle, ControllerKind::Mpc).unwrap_or_else(|e| panic!("{e}"));
+    let mut twin_config = TwinConfig::default();
+    twin_config.disturbances.saturation = true;
+    let dt = twin_config.control_dt_s();
+    let mut stack = FlightStack::new(
+        vehicle.clone(),
+        &config,
+        AllocationMethod::PseudoInverse,
+        ThrustLimits::Enforced,
+        dt,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let twin = Twin::new(vehicle, twin_config).unwrap_or_else(|e| panic!("{e}"));
+    let mut link = TwinLink::new(twin);
+    let mut m = link.receive().unwrap_or_else(|e| panic!("{e}"));
+    stack.reset_at(&m.base, &m.joint_positions);
+    let start = m.world_from_ee;
+    let goal = Translation3::new(STEP_M, 0.0, 0.0) * start;
+    let mut worst_tilt: f64 = 0.0;
+    let (mut mpc_ticks, mut takeovers) = (0, 0);
+    for k in 0..(5.0 / dt).round() as usize {
+        let target = if k as f64 * dt < 0.5 { start } else { goal };
+        let record = stack.act(
+            &m,
+            &Action::Ee(EeTarget {
+                world_from_ee_command: target,
+                gripper: -1.0,
+            }),
+        );
+        let status = record
+            .mpc
+            .unwrap_or_else(|| panic!("tick {k}: no MPC status"));
+        mpc_ticks += usize::from(status.mode == MpcMode::Mpc);
+        takeovers += usize::from(status.event == Some(FallbackEvent::IkPidTookOver));
+        link.send(&record.command).unwrap_or_else(|e| panic!("{e}"));
+        m = link.receive().unwrap_or_else(|e| panic!("{e}"));
+        let (roll, pitch, _) = m.base.world_from_body.euler_angles();
+        worst_tilt = worst_tilt.max(roll.abs()).max(pitch.abs());
+    }
+    let error = (m.world_from_ee.translation.vector - goal.translation.vector).norm();
+    // Without the fallback this flight flips the vehicle (the MPC's tilt bounds ask for
+    // torques beyond the rotors while the arm swings); with it the step completes.
+    assert!(takeovers >= 1, "the IK-PID path never took over");
+    assert!(mpc_ticks > 0, "the MPC never flew");
+    assert!(worst_tilt < 0.3, "largest tilt {worst_tilt} rad");
+    assert!(error < SETTLED_EE_ERROR_M, "final EE error {error} m");
 }
 
 #[test]

@@ -184,6 +184,10 @@ impl ClarabelQp {
                     out.push(-c.input_lower[j]);
                     out.push(c.input_upper[j]);
                 }
+                for j in 0..c.input_general.len() {
+                    out.push(-c.input_general_lower[j]);
+                    out.push(c.input_general_upper[j]);
+                }
             }
             if k > 0 {
                 for j in 0..c.general.len() {
@@ -220,7 +224,7 @@ impl ClarabelQp {
                 ineq_rows += 2 * (c.state_indices.len() + c.general.len());
             }
             if k < n {
-                ineq_rows += 2 * c.input_indices.len();
+                ineq_rows += 2 * (c.input_indices.len() + c.input_general.len());
             }
         }
         let mut a = CscBuilder::new(eq_rows + ineq_rows, vars);
@@ -257,6 +261,14 @@ impl ClarabelQp {
                 for &i in &c.input_indices {
                     a.push(row, u_col(k) + i, -1.0, None);
                     a.push(row + 1, u_col(k) + i, 1.0, None);
+                    row += 2;
+                }
+                for e in &c.input_general {
+                    for j in 0..NU {
+                        a.push(row, u_col(k) + j, -e[j], Some(tag));
+                        a.push(row + 1, u_col(k) + j, e[j], Some(tag + 1));
+                        tag += 2;
+                    }
                     row += 2;
                 }
             }
@@ -299,8 +311,19 @@ impl ClarabelQp {
         Self::p_values(qp, &mut built.p_values);
         Self::q_vector(qp, &mut built.q);
         Self::b_vector(qp, &mut built.b);
+        // Tags were given in build order: per stage, input rows (k < N) then state rows (k > 0).
+        let n = qp.intervals;
         let mut t = 0;
         for (k, c) in qp.constraints.iter().enumerate() {
+            if k < n {
+                for e in &c.input_general {
+                    for j in 0..NU {
+                        built.a_values[built.general_positions[t]] = -e[j];
+                        built.a_values[built.general_positions[t + 1]] = e[j];
+                        t += 2;
+                    }
+                }
+            }
             if k == 0 {
                 continue;
             }

@@ -155,6 +155,18 @@ pub struct MpcConfig {
     pub qp: QpSettings,
     /// Which QP path the controller uses. Default `riccati`.
     pub qp_path: QpPath,
+    /// Share of each rotor's thrust margin around hover that the MPC's force may use: six
+    /// linear input rows per stage keep the thrust the force alone allocates to each rotor
+    /// within that share (`model::RotorEnvelope`); the rest is left to the torque, which stays
+    /// unbounded as in the reference (the ±0.01 rad tilt bounds need all the authority there
+    /// is after a disturbance, or the QP becomes infeasible). Default 0.6. None: the force is
+    /// unbounded too, as in the reference (limited only by its small weight: a 1 m step then
+    /// asks for ~270 N and, with thrust limits, flips the vehicle).
+    pub rotor_margin_for_force: Option<f64>,
+    /// Whether a solution whose wrench would take a rotor beyond its limits hands over to the
+    /// IK-PID path at once (for rotors with enforced thrust limits; with ideal, unbounded
+    /// rotors there is nothing to protect). Default true.
+    pub rotor_saturation_fallback: bool,
     /// Ticks the shifted previous solution is held after a failed solve before the IK-PID
     /// path takes over. Default 12 (0.1 s at 120 Hz).
     pub fallback_hold_ticks: u32,
@@ -183,6 +195,8 @@ impl Default for MpcConfig {
             recovery_time_constant_s: 0.2,
             qp: QpSettings::default(),
             qp_path: QpPath::Riccati,
+            rotor_margin_for_force: Some(0.6),
+            rotor_saturation_fallback: true,
             fallback_hold_ticks: 12,
             solve_budget_s: None,
         }
@@ -318,6 +332,15 @@ impl MpcConfig {
             ));
         }
         positive("qp.tolerance", self.qp.tolerance)?;
+        if let Some(f) = self.rotor_margin_for_force
+            && !(f.is_finite() && f > 0.0 && f <= 1.0)
+        {
+            return Err(invalid(
+                "rotor_margin_for_force",
+                f,
+                "must be within (0, 1]",
+            ));
+        }
         if let Some(b) = self.solve_budget_s {
             positive("solve_budget_s", b)?;
         }

@@ -24,8 +24,13 @@
 //! - after that, the IK-PID path flies (whole-body IK of the EE target with the vehicle's IK
 //!   preset, PID6 with the reference gains on the IK's base target) — mode [`MpcMode::IkPid`];
 //!   both are reset from the measured state when it takes over;
-//! - the MPC is still solved every tick; the first solve that succeeds hands control back
-//!   (mode [`MpcMode::Mpc`]), with the filter continuing from the last applied command.
+//! - a solution whose wrench the rotors cannot deliver (allocated linearly around hover, a
+//!   rotor beyond its limits by more than [`ROTOR_LIMIT_TOLERANCE_N`]) is not flown: the
+//!   IK-PID path takes over at once ([`SolveFailure::RotorSaturation`]) — holding the previous
+//!   solution would ask for the same impossible wrench;
+//! - the MPC is still solved every tick; the first solve that succeeds (after at least
+//!   `fallback_hold_ticks` ticks of IK-PID, so the two paths do not chatter) hands control
+//!   back (mode [`MpcMode::Mpc`]), with the filter continuing from the last applied command.
 //!
 //! Every change of mode is reported in [`MpcStatus::event`] for that tick.
 
@@ -37,10 +42,17 @@ use crate::controller::{BaseController, BodyParams, guard_dt};
 use crate::gains::Pid6Gains;
 use crate::ik::{BaseLimits, IkConfig, WholeBodyIk};
 use crate::mpc::config::MpcConfig;
-use crate::mpc::model::{IU_F, IU_QREF, IU_TAU, IX_ETA, IX_OMEGA, IX_P, IX_Q, IX_V, NQ};
+use crate::mpc::model::{
+    IU_F, IU_QREF, IU_TAU, IX_ETA, IX_OMEGA, IX_P, IX_Q, IX_V, NQ, RotorEnvelope,
+};
 use crate::mpc::qp::{InputVector, QpStatus, StateVector};
 use crate::mpc::rti::{MpcError, MpcReference, RtiReport, SqpRti};
 use crate::pid6::Pid6;
+
+/// How far past a rotor limit the linearised allocation of an MPC wrench may go before the
+/// solution counts as one the rotors cannot deliver, N (the hover linearisation ignores the
+/// arm's posture).
+pub const ROTOR_LIMIT_TOLERANCE_N: f64 = 1.0;
 
 /// Who flies the vehicle this tick.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
@@ -77,6 +89,9 @@ pub enum SolveFailure {
     OverBudget,
     /// The measured state or the target was not finite (nothing was solved).
     NonFiniteInput,
+    /// The MPC's wrench would take a rotor beyond its thrust limits (linearised allocation
+    /// around hover): the IK-PID path takes over at once.
+    RotorSaturation,
 }
 
 /// The controller's report of one tick.
@@ -124,6 +139,9 @@ pub struct WholeBodyMpc {
     ik: WholeBodyIk,
     pid: Pid6,
     u_last: Option<InputVector>,
+    envelope: Option<RotorEnvelope>,
+    /// Ticks flown by the IK-PID path since it took over.
+    ik_pid_ticks: u32,
     solved_once: bool,
     failed: u32,
     mode: MpcMode,
@@ -150,6 +168,8 @@ impl WholeBodyMpc {
             ik,
             pid: Pid6::new(Pid6Gains::am_bench(), body),
             u_last: None,
+            envelope: RotorEnvelope::of(vehicle),
+            ik_pid_ticks: 0,
             solved_once: false,
             failed: 0,
             mode: MpcMode::Mpc,
@@ -202,6 +222,7 @@ impl WholeBodyMpc {
         self.u_last = None;
         self.solved_once = false;
         self.failed = 0;
+        self.ik_pid_ticks = 0;
         self.mode = MpcMode::Mpc;
         self.last_command = None;
         self.pid.reset(state);
@@ -282,15 +303,36 @@ impl WholeBodyMpc {
         {
             failure = Some(SolveFailure::OverBudget);
         }
+        // A solution the rotors cannot deliver is not flown; after such a takeover the IK-PID
+        // path flies at least `fallback_hold_ticks` ticks (no chattering between the two).
+        if failure.is_none() && self.config.rotor_saturation_fallback && self.would_saturate(state)
+        {
+            failure = Some(SolveFailure::RotorSaturation);
+        }
+        let settling =
+            previous_mode == MpcMode::IkPid && self.ik_pid_ticks < self.config.fallback_hold_ticks;
         self.failed = if failure.is_some() {
             self.failed.saturating_add(1)
         } else {
             0
         };
         self.mode = match failure {
+            None if settling => MpcMode::IkPid,
             None => MpcMode::Mpc,
+            Some(SolveFailure::RotorSaturation) => MpcMode::IkPid,
+            // Once the IK-PID path flies, a failed solve keeps it flying.
+            Some(_) if previous_mode == MpcMode::IkPid => MpcMode::IkPid,
             Some(_) if self.failed <= self.config.fallback_hold_ticks => MpcMode::Hold,
             Some(_) => MpcMode::IkPid,
+        };
+        self.ik_pid_ticks = if self.mode == MpcMode::IkPid {
+            if previous_mode == MpcMode::IkPid {
+                self.ik_pid_ticks.saturating_add(1)
+            } else {
+                0
+            }
+        } else {
+            0
         };
         // A non-finite state cannot be flown by either path: hold the last command.
         if failure == Some(SolveFailure::NonFiniteInput)
@@ -355,14 +397,44 @@ impl WholeBodyMpc {
         u
     }
 
-    /// Filter, gravity compensation and frame change of the RTI iterate's first input.
-    fn mpc_command(&mut self, state: &RigidBodyState) -> MpcCommand {
+    /// The input the MPC path would apply this tick: the iterate's first input through the
+    /// output filter.
+    fn filtered_input(&self) -> InputVector {
         let u_opt = self.rti.inputs()[0];
         let g = &self.config.output_filter_gain;
-        let u = match self.u_last {
+        match self.u_last {
             None => u_opt,
             Some(last) => InputVector::from_fn(|i, _| g[i] * u_opt[i] + (1.0 - g[i]) * last[i]),
+        }
+    }
+
+    /// Whether the filtered input would take a rotor beyond its limits (by more than
+    /// `ROTOR_LIMIT_TOLERANCE_N`), allocated linearly around hover at the measured attitude.
+    fn would_saturate(&self, state: &RigidBodyState) -> bool {
+        let Some(envelope) = &self.envelope else {
+            return false;
         };
+        let u = self.filtered_input();
+        let body_from_world = state.world_from_body.inverse();
+        let force = body_from_world * Vector3::new(u[IU_F], u[IU_F + 1], u[IU_F + 2]);
+        let torque = body_from_world * Vector3::new(u[IU_TAU], u[IU_TAU + 1], u[IU_TAU + 2]);
+        envelope
+            .allocation_rows
+            .iter()
+            .zip(&envelope.hover_thrust_n)
+            .any(|(row, hover)| {
+                let thrust = hover
+                    + (0..3)
+                        .map(|i| row[i] * force[i] + row[3 + i] * torque[i])
+                        .sum::<f64>();
+                thrust < envelope.thrust_min_n - ROTOR_LIMIT_TOLERANCE_N
+                    || thrust > envelope.thrust_max_n + ROTOR_LIMIT_TOLERANCE_N
+            })
+    }
+
+    /// Filter, gravity compensation and frame change of the RTI iterate's first input.
+    fn mpc_command(&mut self, state: &RigidBodyState) -> MpcCommand {
+        let u = self.filtered_input();
         self.u_last = Some(u);
         let weight = self.body.mass_kg * GRAVITY_MPS2;
         let force_w = Vector3::new(u[IU_F], u[IU_F + 1], u[IU_F + 2] + weight);

@@ -262,6 +262,101 @@ impl MpcModel {
     }
 }
 
+/// The rotors' thrust envelope around hover, for bounding the MPC's force and torque.
+///
+/// With A the effectiveness matrix (columns `[d_i; r_i × d_i + s_i k_f d_i]`, base frame) at
+/// the initial configuration and `T_h = A⁺ w_hover` the hover thrusts (weight and the gravity
+/// moment of the centre of mass), a body wrench change δw is allocated as
+/// `T = T_h + A⁺ δw`. Bounding the change the force alone asks of each rotor to a share φ of
+/// its margin, `−φ(T_h,i − T_min) ≤ (A⁺_F R_bᵀ F_w)_i ≤ φ(T_max − T_h,i)`, leaves 1 − φ of every
+/// margin to the torque: six linear rows on the MPC's input.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RotorEnvelope {
+    /// Rows of A⁺ (one per rotor): force part then torque part, base frame.
+    pub allocation_rows: Vec<[f64; 6]>,
+    /// Hover thrust of each rotor, N.
+    pub hover_thrust_n: Vec<f64>,
+    /// Lowest rotor thrust, N.
+    pub thrust_min_n: f64,
+    /// Highest rotor thrust, N.
+    pub thrust_max_n: f64,
+}
+
+impl RotorEnvelope {
+    /// The envelope of `vehicle` (None without rotors, if the rotors cannot produce every
+    /// wrench, or if hover leaves a rotor without margin).
+    pub fn of(vehicle: &Vehicle) -> Option<Self> {
+        let rotors = &vehicle.rotors;
+        let n = rotors.len();
+        if n == 0 {
+            return None;
+        }
+        let mut a = nalgebra::DMatrix::<f64>::zeros(6, n);
+        for (j, r) in rotors.rotors.iter().enumerate() {
+            let d = r.axis_in_base.into_inner();
+            let tau =
+                r.position_in_base.cross(&d) + d * (r.spin.sign() * rotors.reaction_torque_ratio_m);
+            for i in 0..3 {
+                a[(i, j)] = d[i];
+                a[(3 + i, j)] = tau[i];
+            }
+        }
+        let svd = a.svd(true, true);
+        if svd.rank(1e-9) < 6 {
+            return None;
+        }
+        let a_pinv = svd.pseudo_inverse(1e-12).ok()?;
+        let body = BodyParams::from_vehicle(vehicle);
+        let weight = Vector3::new(0.0, 0.0, body.mass_kg * platform::GRAVITY_MPS2);
+        let moment = body.com_in_body_m.cross(&weight);
+        let hover = nalgebra::DVector::from_column_slice(&[
+            0.0, 0.0, weight.z, moment.x, moment.y, moment.z,
+        ]);
+        let thrust = &a_pinv * hover;
+        if thrust
+            .iter()
+            .any(|t| *t <= rotors.thrust_min_n || *t >= rotors.thrust_max_n)
+        {
+            return None;
+        }
+        Some(Self {
+            allocation_rows: (0..n)
+                .map(|j| std::array::from_fn(|i| a_pinv[(j, i)]))
+                .collect(),
+            hover_thrust_n: thrust.iter().copied().collect(),
+            thrust_min_n: rotors.thrust_min_n,
+            thrust_max_n: rotors.thrust_max_n,
+        })
+    }
+
+    /// The input rows `e_i` (over the force part of u) and bounds of each rotor for base
+    /// attitude `world_from_base` and margin share `fraction`: `lower_i ≤ e_iᵀu ≤ upper_i`
+    /// bounds the thrust change the force alone asks of rotor i.
+    pub fn input_rows(
+        &self,
+        world_from_base: &Rotation3<f64>,
+        fraction: f64,
+    ) -> impl Iterator<Item = (InputVector, f64, f64)> + '_ {
+        let r = *world_from_base;
+        self.allocation_rows
+            .iter()
+            .zip(&self.hover_thrust_n)
+            .map(move |(row, hover)| {
+                // The force's part of (A⁺ δw)_i: row_F·R_bᵀF = (R_b row_F)·F.
+                let f = r * Vector3::new(row[0], row[1], row[2]);
+                let mut e = InputVector::zeros();
+                for k in 0..3 {
+                    e[k] = f[k];
+                }
+                (
+                    e,
+                    -fraction * (hover - self.thrust_min_n),
+                    fraction * (self.thrust_max_n - hover),
+                )
+            })
+    }
+}
+
 /// E(pitch, yaw): ZYX Euler rates (roll, pitch, yaw) → world angular velocity.
 fn euler_rate_map(pitch: f64, yaw: f64) -> Matrix3<f64> {
     let (sp, cp) = pitch.sin_cos();

@@ -4,7 +4,8 @@
 //! min  Σ_{k<N} ½[x_k;u_k]ᵀ[Q_k S_kᵀ; S_k R_k][x_k;u_k] + q_kᵀx_k + r_kᵀu_k  + ½x_NᵀQ_Nx_N + q_Nᵀx_N
 //! s.t. x_0 = x̄_0,   x_{k+1} = A x_k + B u_k + c_k,
 //!      lower ≤ x_k[i] ≤ upper (i ∈ state_indices),  lower ≤ u_k[i] ≤ upper (i ∈ input_indices),
-//!      lower ≤ g_jᵀ x_k ≤ upper (general rows on the state)
+//!      lower ≤ g_jᵀ x_k ≤ upper (general rows on the state),
+//!      lower ≤ e_jᵀ u_k ≤ upper (general rows on the input)
 //! ```
 //!
 //! In an SQP step the variables are the deltas from the linearisation point. A and B do not
@@ -53,12 +54,21 @@ pub struct StageConstraints {
     pub general_lower: Vec<f64>,
     /// Their upper bounds.
     pub general_upper: Vec<f64>,
+    /// General rows on the input, `lower ≤ eᵀu ≤ upper`.
+    pub input_general: Vec<InputVector>,
+    /// Their lower bounds.
+    pub input_general_lower: Vec<f64>,
+    /// Their upper bounds.
+    pub input_general_upper: Vec<f64>,
 }
 
 impl StageConstraints {
     /// Number of two-sided constraints.
     pub fn len(&self) -> usize {
-        self.state_indices.len() + self.input_indices.len() + self.general.len()
+        self.state_indices.len()
+            + self.input_indices.len()
+            + self.general.len()
+            + self.input_general.len()
     }
 
     /// True without any constraint.
@@ -71,6 +81,7 @@ impl StageConstraints {
         self.state_indices == other.state_indices
             && self.input_indices == other.input_indices
             && self.general.len() == other.general.len()
+            && self.input_general.len() == other.input_general.len()
     }
 
     /// Largest violation by (x, u) (u ignored when None), ≥ 0.
@@ -86,6 +97,12 @@ impl StageConstraints {
                 worst = worst
                     .max(self.input_lower[j] - u[i])
                     .max(u[i] - self.input_upper[j]);
+            }
+            for (j, e) in self.input_general.iter().enumerate() {
+                let v = e.dot(u);
+                worst = worst
+                    .max(self.input_general_lower[j] - v)
+                    .max(v - self.input_general_upper[j]);
             }
         }
         for (j, g) in self.general.iter().enumerate() {
@@ -188,6 +205,9 @@ impl StructuredQp {
                     input_indices: c.input_indices.clone(),
                     input_lower: c.input_lower.clone(),
                     input_upper: c.input_upper.clone(),
+                    input_general: c.input_general.clone(),
+                    input_general_lower: c.input_general_lower.clone(),
+                    input_general_upper: c.input_general_upper.clone(),
                     ..StageConstraints::default()
                 };
                 only_inputs.violation(&x[0], u.first())

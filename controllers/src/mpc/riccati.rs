@@ -64,6 +64,7 @@ enum RowKind {
     State(usize),
     Input(usize),
     General(usize),
+    InputGeneral(usize),
 }
 
 /// One inequality `sign·(row of z) ≤ h`.
@@ -266,6 +267,20 @@ impl RiccatiIpm {
                     });
                 }
             }
+            if k < n {
+                for j in 0..c.input_general.len() {
+                    self.rows.push(Row {
+                        kind: RowKind::InputGeneral(j),
+                        sign: -1.0,
+                        h: -c.input_general_lower[j],
+                    });
+                    self.rows.push(Row {
+                        kind: RowKind::InputGeneral(j),
+                        sign: 1.0,
+                        h: c.input_general_upper[j],
+                    });
+                }
+            }
             if k > 0 {
                 for j in 0..c.general.len() {
                     self.rows.push(Row {
@@ -343,6 +358,9 @@ impl RiccatiIpm {
             RowKind::State(i) => x[i],
             RowKind::Input(i) => u.map_or(0.0, |u| u[i]),
             RowKind::General(j) => qp.constraints[k].general[j].dot(x),
+            RowKind::InputGeneral(j) => {
+                u.map_or(0.0, |u| qp.constraints[k].input_general[j].dot(u))
+            }
         };
         row.sign * v
     }
@@ -365,6 +383,11 @@ impl RiccatiIpm {
                 }
             }
             RowKind::General(j) => gx.axpy(c, &qp.constraints[k].general[j], 1.0),
+            RowKind::InputGeneral(j) => {
+                if let Some(gu) = gu {
+                    gu.axpy(c, &qp.constraints[k].input_general[j], 1.0);
+                }
+            }
         }
     }
 
@@ -494,6 +517,12 @@ impl RiccatiIpm {
                 RowKind::General(j) => {
                     let g = &qp.constraints[k].general[j];
                     q.ger(w, g, g, 1.0);
+                }
+                RowKind::InputGeneral(j) => {
+                    if let Some(r) = r.as_deref_mut() {
+                        let e = &qp.constraints[k].input_general[j];
+                        r.ger(w, e, e, 1.0);
+                    }
                 }
             }
         }

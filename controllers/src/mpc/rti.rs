@@ -36,7 +36,7 @@
 //! A, B are the integrator's exact sensitivities). Feedback: the QP is solved by the chosen
 //! path and the full step is taken. A solve that fails leaves the shifted solution in place.
 
-use nalgebra::{SMatrix, UnitQuaternion, Vector3};
+use nalgebra::{Rotation3, SMatrix, UnitQuaternion, Vector3};
 use platform::Vehicle;
 use serde::Serialize;
 
@@ -63,7 +63,7 @@ const STATE_BOUND_INDICES: [usize; 10] = [
     IX_Q + 2,
     IX_Q + 3,
 ];
-/// Bounded input entries: the arm references.
+/// Bounded input entries: the arm references (force and torque: the rotor envelope rows).
 const INPUT_BOUND_INDICES: [usize; NQ] = [IU_QREF, IU_QREF + 1, IU_QREF + 2, IU_QREF + 3];
 
 /// Why the MPC cannot be built.
@@ -132,6 +132,8 @@ pub struct SqpRti {
     b: StateInputMatrix,
     joint_lower: [f64; NQ],
     joint_upper: [f64; NQ],
+    /// The rotors' thrust envelope bounding force and torque (None: unbounded).
+    envelope: Option<crate::mpc::model::RotorEnvelope>,
     /// Diagonal state weights of the linear residuals (v, η, ω, q), stage and terminal alike.
     state_weights: StateVector,
     input_weights: InputVector,
@@ -161,6 +163,10 @@ impl SqpRti {
             joint_lower[j] = model.arm_lower_rad[j].max(-config.joint_limit_rad);
             joint_upper[j] = model.arm_upper_rad[j].min(config.joint_limit_rad);
         }
+        let envelope = config
+            .rotor_margin_for_force
+            .and_then(|_| crate::mpc::model::RotorEnvelope::of(vehicle));
+        let rotor_rows = envelope.as_ref().map_or(0, |e| e.allocation_rows.len());
         let w = &config.weights;
         let mut state_weights = StateVector::zeros();
         for i in 0..3 {
@@ -196,6 +202,9 @@ impl SqpRti {
                 c.input_indices = INPUT_BOUND_INDICES.to_vec();
                 c.input_lower = vec![0.0; NQ];
                 c.input_upper = vec![0.0; NQ];
+                c.input_general = vec![InputVector::zeros(); rotor_rows];
+                c.input_general_lower = vec![0.0; rotor_rows];
+                c.input_general_upper = vec![0.0; rotor_rows];
             }
         }
         let empty = StageBounds {
@@ -211,6 +220,7 @@ impl SqpRti {
             b,
             joint_lower,
             joint_upper,
+            envelope,
             state_weights,
             input_weights: InputVector::from_column_slice(&w.input),
             rate_weights: InputVector::from_column_slice(&w.input_rate),
@@ -243,6 +253,11 @@ impl SqpRti {
         self.config.qp = settings;
         self.riccati.set_settings(settings);
         self.clarabel.set_settings(settings);
+    }
+
+    /// The rotors' thrust envelope that bounds force and torque (None: unbounded).
+    pub fn rotor_envelope(&self) -> Option<&crate::mpc::model::RotorEnvelope> {
+        self.envelope.as_ref()
     }
 
     /// Arm joint bounds used (URDF ∩ ±joint_limit_rad), rad.
@@ -443,6 +458,19 @@ impl SqpRti {
                     c.input_lower[j] = self.joint_lower[j] - u[iu];
                     c.input_upper[j] = self.joint_upper[j] - u[iu];
                 }
+                if let (Some(envelope), Some(fraction)) =
+                    (&self.envelope, self.config.rotor_margin_for_force)
+                {
+                    // Heading of the measured state over the whole horizon; roll and pitch
+                    // (within ±0.01 rad) neglected, as the reference does for the frame change.
+                    let attitude = Rotation3::from_euler_angles(0.0, 0.0, self.xs[0][IX_ETA + 2]);
+                    for (j, (e, lo, hi)) in envelope.input_rows(&attitude, fraction).enumerate() {
+                        let v = e.dot(&u);
+                        c.input_general[j] = e;
+                        c.input_general_lower[j] = lo - v;
+                        c.input_general_upper[j] = hi - v;
+                    }
+                }
             }
             if k > 0 {
                 let b = self.bounds[k];
@@ -493,6 +521,17 @@ impl SqpRti {
                     violation = violation
                         .max(self.joint_lower[j] - u[iu])
                         .max(u[iu] - self.joint_upper[j]);
+                }
+                if let (Some(envelope), Some(fraction)) =
+                    (&self.envelope, self.config.rotor_margin_for_force)
+                {
+                    // Heading of the measured state over the whole horizon; roll and pitch
+                    // (within ±0.01 rad) neglected, as the reference does for the frame change.
+                    let attitude = Rotation3::from_euler_angles(0.0, 0.0, self.xs[0][IX_ETA + 2]);
+                    for (e, lo, hi) in envelope.input_rows(&attitude, fraction) {
+                        let v = e.dot(&u);
+                        violation = violation.max(lo - v).max(v - hi);
+                    }
                 }
             }
             cost += 0.5 * self.stage_scale(k) * stage;
