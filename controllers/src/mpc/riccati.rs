@@ -63,8 +63,17 @@ const REFINEMENT_THRESHOLD: f64 = 1e-2;
 enum RowKind {
     State(usize),
     Input(usize),
-    General(usize),
-    InputGeneral(usize),
+    /// General state row j, non-zero on entries lo..hi.
+    General(usize, usize, usize),
+    /// General input row j, non-zero on entries lo..hi.
+    InputGeneral(usize, usize, usize),
+}
+
+/// The range `lo..hi` outside which `v` is zero.
+fn support<const N: usize>(v: &SMatrix<f64, N, 1>) -> (usize, usize) {
+    let lo = v.iter().position(|x| *x != 0.0).unwrap_or(0);
+    let hi = v.iter().rposition(|x| *x != 0.0).map_or(lo, |i| i + 1);
+    (lo, hi)
 }
 
 /// One inequality `sign·(row of z) ≤ h`.
@@ -268,28 +277,30 @@ impl RiccatiIpm {
                 }
             }
             if k < n {
-                for j in 0..c.input_general.len() {
+                for (j, e) in c.input_general.iter().enumerate() {
+                    let (lo, hi) = support(e);
                     self.rows.push(Row {
-                        kind: RowKind::InputGeneral(j),
+                        kind: RowKind::InputGeneral(j, lo, hi),
                         sign: -1.0,
                         h: -c.input_general_lower[j],
                     });
                     self.rows.push(Row {
-                        kind: RowKind::InputGeneral(j),
+                        kind: RowKind::InputGeneral(j, lo, hi),
                         sign: 1.0,
                         h: c.input_general_upper[j],
                     });
                 }
             }
             if k > 0 {
-                for j in 0..c.general.len() {
+                for (j, g) in c.general.iter().enumerate() {
+                    let (lo, hi) = support(g);
                     self.rows.push(Row {
-                        kind: RowKind::General(j),
+                        kind: RowKind::General(j, lo, hi),
                         sign: -1.0,
                         h: -c.general_lower[j],
                     });
                     self.rows.push(Row {
-                        kind: RowKind::General(j),
+                        kind: RowKind::General(j, lo, hi),
                         sign: 1.0,
                         h: c.general_upper[j],
                     });
@@ -357,10 +368,14 @@ impl RiccatiIpm {
         let v = match row.kind {
             RowKind::State(i) => x[i],
             RowKind::Input(i) => u.map_or(0.0, |u| u[i]),
-            RowKind::General(j) => qp.constraints[k].general[j].dot(x),
-            RowKind::InputGeneral(j) => {
-                u.map_or(0.0, |u| qp.constraints[k].input_general[j].dot(u))
+            RowKind::General(j, lo, hi) => {
+                let g = &qp.constraints[k].general[j];
+                (lo..hi).map(|i| g[i] * x[i]).sum()
             }
+            RowKind::InputGeneral(j, lo, hi) => u.map_or(0.0, |u| {
+                let e = &qp.constraints[k].input_general[j];
+                (lo..hi).map(|i| e[i] * u[i]).sum()
+            }),
         };
         row.sign * v
     }
@@ -382,10 +397,18 @@ impl RiccatiIpm {
                     gu[i] += c;
                 }
             }
-            RowKind::General(j) => gx.axpy(c, &qp.constraints[k].general[j], 1.0),
-            RowKind::InputGeneral(j) => {
+            RowKind::General(j, lo, hi) => {
+                let g = &qp.constraints[k].general[j];
+                for i in lo..hi {
+                    gx[i] += c * g[i];
+                }
+            }
+            RowKind::InputGeneral(j, lo, hi) => {
                 if let Some(gu) = gu {
-                    gu.axpy(c, &qp.constraints[k].input_general[j], 1.0);
+                    let e = &qp.constraints[k].input_general[j];
+                    for i in lo..hi {
+                        gu[i] += c * e[i];
+                    }
                 }
             }
         }
@@ -514,14 +537,22 @@ impl RiccatiIpm {
                         r[(i, i)] += w;
                     }
                 }
-                RowKind::General(j) => {
+                RowKind::General(j, lo, hi) => {
                     let g = &qp.constraints[k].general[j];
-                    q.ger(w, g, g, 1.0);
+                    for b in lo..hi {
+                        for a in lo..hi {
+                            q[(a, b)] += w * g[a] * g[b];
+                        }
+                    }
                 }
-                RowKind::InputGeneral(j) => {
+                RowKind::InputGeneral(j, lo, hi) => {
                     if let Some(r) = r.as_deref_mut() {
                         let e = &qp.constraints[k].input_general[j];
-                        r.ger(w, e, e, 1.0);
+                        for b in lo..hi {
+                            for a in lo..hi {
+                                r[(a, b)] += w * e[a] * e[b];
+                            }
+                        }
                     }
                 }
             }
