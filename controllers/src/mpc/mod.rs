@@ -4,7 +4,7 @@
 //! - [`model`]: the prediction model — base double integrators, Euler-rate attitude, the
 //!   first-order arm servo — its RK4 integrator with exact sensitivities, and the end
 //!   effector's whole-body forward kinematics (from the `platform` description) with
-//!   analytic Jacobians.
+//!   analytic Jacobians; the rotors' thrust envelope that bounds the force.
 //! - [`SqpRti`]: the OCP (horizon 0.8 s in 32 intervals, nonlinear least-squares cost on the EE
 //!   pose and the regularisation terms, wall-aware position, attitude, joint and EE-height
 //!   bounds) and one Gauss–Newton SQP iteration per tick, warm-started by shifting.
@@ -12,8 +12,15 @@
 //!   multiple-shooting QP, built once and updated in place) and [`RiccatiIpm`] (a Riccati
 //!   recursion interior-point method written for this stage-wise structure).
 //! - [`WholeBodyMpc`]: the `mpc` controller — output filter, gravity compensation after the
-//!   solve, and the fallback (hold the shifted solution, then IK-PID) reported in
-//!   [`MpcStatus`].
+//!   solve, and the fallback (hold the shifted solution, then IK-PID; IK-PID at once for a
+//!   wrench the rotors cannot deliver) reported in [`MpcStatus`].
+//! - [`scenario`]: the standard scenario of `amstack mpc-bench` and the tests (a 0.3 m EE
+//!   step toward a wall, the loop closed on the model).
+//!
+//! Measured (`amstack mpc-bench`, release, 2 cores): one RTI step takes ≈ 0.7–0.9 ms median
+//! with the Riccati path (5 interior-point iterations; the factorisation is ~40 % of it, the
+//! per-row work on the ~1000 inequality rows ~35 %, preparation 0.035 ms) and ≈ 15–17 ms
+//! with clarabel.
 
 mod clarabel_qp;
 mod config;

@@ -22,9 +22,15 @@
 //!   force with gravity added, so its rate term pulls every predicted force toward +m·g).
 //! - A bound that the measured state already violates is not imposed at once: at stage k it
 //!   is widened to `b + (v̂ − b)·exp(−t_k/τ)` (τ = `recovery_time_constant_s`, or 2/k_a for the
-//!   joints and the EE height, which only the arm servo can move), so a disturbance never
-//!   makes the QP infeasible. Within its bounds the measured state sees the reference's
-//!   constraints unchanged.
+//!   joints and the EE height, which only the arm servo can move), so a state already out of
+//!   bounds does not make the QP infeasible at once. Within its bounds the measured state
+//!   sees the reference's constraints unchanged. (A state inside the tilt band but rotating
+//!   out of it fast can still make the QP infeasible; the controller's fallback handles it.)
+//! - The force is bounded: six rows per stage keep the thrust the force alone allocates to
+//!   each rotor within `rotor_margin_for_force` of its margin around hover
+//!   ([`crate::mpc::model::RotorEnvelope`]), with the measured heading over the horizon (roll
+//!   and pitch, within ±0.01 rad, neglected). The reference's force is unbounded.
+//! - Joint and arm-reference bounds are the URDF limits within ±π (the reference: ±π).
 //!
 //! # SQP-RTI
 //!
