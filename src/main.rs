@@ -9,6 +9,7 @@ mod mpc_bench;
 mod output;
 mod platforms;
 mod track;
+mod twin_flags;
 mod twin_serve;
 mod vehicles;
 

@@ -9,10 +9,10 @@ use anyhow::Result;
 use comfy_table::{Table, presets};
 use controllers::{ControllerKind, profile};
 use policy_runtime::{Interface, TrackConfig, TrackResult, Trajectory, run_track};
-use sim_twin::{Disturbances, MotorConfig, TwinConfig};
 
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_json};
+use crate::twin_flags::TwinFlags;
 use crate::vehicles::all_vehicles;
 
 #[derive(Debug, clap::Args)]
@@ -50,23 +50,8 @@ pub struct Args {
     /// Start transient excluded from the error metrics, s.
     #[arg(long, value_name = "S", default_value_t = 2.0)]
     settle: f64,
-    /// Comma-separated: drag, wind, ground, wall, noise, saturation; or `reference` (the
-    /// paper's evaluation set: all but noise), `all`, `none`. Without `saturation` the
-    /// rotors are ideal and unbounded, as in the reference's default.
-    #[arg(long, value_name = "LIST", default_value = "none")]
-    disturbances: String,
-    /// Motor time constant, s (needs `saturation`); the paper identified 0.0475.
-    #[arg(long, value_name = "S")]
-    motor_tau: Option<f64>,
-    /// Motor normalised-speed rate limit, 1/s (needs `saturation`); the paper uses 0.75.
-    #[arg(long, value_name = "R")]
-    motor_rate_limit: Option<f64>,
-    /// Ground-effect intensity k (the paper's rho); default 0.171, its real-flight fit 3.4.
-    #[arg(long, value_name = "K")]
-    ground_effect_k: Option<f64>,
-    /// Seed of every random draw (noise).
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    #[command(flatten)]
+    twin: TwinFlags,
     /// Write the scores as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -104,22 +89,7 @@ fn config(args: &Args) -> Result<TrackConfig> {
             "--controller mpc: the whole-body MPC tracks end-effector targets; add --interface ee",
         ));
     }
-    let disturbances = Disturbances::parse_list(&args.disturbances)
-        .map_err(|e| bad_input(format!("--disturbances: {e}")))?;
-    let mut twin = TwinConfig {
-        disturbances,
-        motor: MotorConfig {
-            time_constant_s: args.motor_tau,
-            rate_limit_per_s: args.motor_rate_limit,
-        },
-        seed: args.seed,
-        ..TwinConfig::default()
-    };
-    if let Some(k) = args.ground_effect_k {
-        twin.aero.ground_effect_k = k;
-    }
-    twin.validate()
-        .map_err(|e| bad_input(format!("twin: {e}")))?;
+    let twin = args.twin.twin_config()?;
     let duration_s = args
         .duration
         .unwrap_or_else(|| trajectory.default_duration_s());
@@ -189,7 +159,7 @@ pub(crate) fn run_with(
         config.controller.name(),
         config.interface.name(),
         config.duration_s,
-        args.disturbances
+        args.twin.disturbances
     );
     let duration = config.duration_s;
     // Ctrl-C stops the flight at the next simulated second and closes the log properly.

@@ -7,9 +7,9 @@ use std::time::Duration;
 
 use anyhow::Result;
 use sim_twin::ipc::{Mode, ServeConfig, ServeError, TwinServer};
-use sim_twin::{Disturbances, MotorConfig, TwinConfig};
 
 use crate::cli_error::bad_input;
+use crate::twin_flags::TwinFlags;
 use crate::vehicles::all_vehicles;
 
 #[derive(Debug, clap::Args)]
@@ -64,46 +64,12 @@ pub struct ServeArgs {
     /// Exit after serving this many sessions (default: until Ctrl-C).
     #[arg(long, value_name = "N")]
     sessions: Option<u64>,
-    /// Comma-separated disturbances, as `amstack track --disturbances`.
-    #[arg(long, value_name = "LIST", default_value = "none")]
-    disturbances: String,
-    /// Motor time constant, s (needs `saturation`).
-    #[arg(long, value_name = "S")]
-    motor_tau: Option<f64>,
-    /// Motor normalised-speed rate limit, 1/s (needs `saturation`).
-    #[arg(long, value_name = "R")]
-    motor_rate_limit: Option<f64>,
-    /// Ground-effect intensity k.
-    #[arg(long, value_name = "K")]
-    ground_effect_k: Option<f64>,
-    /// Seed of every random draw (noise); every session starts from it.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    /// The twin's settings, as in `amstack track`; every session starts from the seed.
+    #[command(flatten)]
+    twin: TwinFlags,
     /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
     #[arg(long = "vehicle", value_name = "FILE.toml")]
     vehicles: Vec<PathBuf>,
-}
-
-/// The twin configuration from the same flags as `amstack track` (so the two sides of a
-/// split flight agree when given the same flags).
-fn twin_config(args: &ServeArgs) -> Result<TwinConfig> {
-    let disturbances = Disturbances::parse_list(&args.disturbances)
-        .map_err(|e| bad_input(format!("--disturbances: {e}")))?;
-    let mut twin = TwinConfig {
-        disturbances,
-        motor: MotorConfig {
-            time_constant_s: args.motor_tau,
-            rate_limit_per_s: args.motor_rate_limit,
-        },
-        seed: args.seed,
-        ..TwinConfig::default()
-    };
-    if let Some(k) = args.ground_effect_k {
-        twin.aero.ground_effect_k = k;
-    }
-    twin.validate()
-        .map_err(|e| bad_input(format!("twin: {e}")))?;
-    Ok(twin)
 }
 
 pub fn run(args: &TwinArgs) -> Result<()> {
@@ -128,7 +94,7 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
             ids.join(", ")
         )));
     };
-    let twin = twin_config(args)?;
+    let twin = args.twin.twin_config()?;
     let mode = if args.realtime {
         Mode::Realtime
     } else {

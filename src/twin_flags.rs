@@ -1,0 +1,52 @@
+//! The flags that set up the twin, shared by `amstack track`, `amstack fly` and
+//! `amstack twin serve`: both sides of a split flight must build the same `TwinConfig` from
+//! the same flags, or the handshake refuses them.
+
+use anyhow::Result;
+use sim_twin::{Disturbances, MotorConfig, TwinConfig};
+
+use crate::cli_error::bad_input;
+
+#[derive(Debug, clap::Args)]
+pub struct TwinFlags {
+    /// Comma-separated: drag, wind, ground, wall, noise, saturation; or `reference` (the
+    /// paper's evaluation set: all but noise), `all`, `none`. Without `saturation` the
+    /// rotors are ideal and unbounded, as in the reference's default.
+    #[arg(long, value_name = "LIST", default_value = "none")]
+    pub disturbances: String,
+    /// Motor time constant, s (needs `saturation`); the paper identified 0.0475.
+    #[arg(long, value_name = "S")]
+    pub motor_tau: Option<f64>,
+    /// Motor normalised-speed rate limit, 1/s (needs `saturation`); the paper uses 0.75.
+    #[arg(long, value_name = "R")]
+    pub motor_rate_limit: Option<f64>,
+    /// Ground-effect intensity k (the paper's rho); default 0.171, its real-flight fit 3.4.
+    #[arg(long, value_name = "K")]
+    pub ground_effect_k: Option<f64>,
+    /// Seed of every random draw (noise).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+impl TwinFlags {
+    /// The validated twin configuration; a bad value is bad input naming its flag.
+    pub fn twin_config(&self) -> Result<TwinConfig> {
+        let disturbances = Disturbances::parse_list(&self.disturbances)
+            .map_err(|e| bad_input(format!("--disturbances: {e}")))?;
+        let mut twin = TwinConfig {
+            disturbances,
+            motor: MotorConfig {
+                time_constant_s: self.motor_tau,
+                rate_limit_per_s: self.motor_rate_limit,
+            },
+            seed: self.seed,
+            ..TwinConfig::default()
+        };
+        if let Some(k) = self.ground_effect_k {
+            twin.aero.ground_effect_k = k;
+        }
+        twin.validate()
+            .map_err(|e| bad_input(format!("twin: {e}")))?;
+        Ok(twin)
+    }
+}
