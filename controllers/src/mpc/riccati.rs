@@ -250,30 +250,20 @@ impl RiccatiIpm {
             self.start.push(self.rows.len());
             if k > 0 {
                 for (j, &i) in c.state_indices.iter().enumerate() {
-                    self.rows.push(Row {
-                        kind: RowKind::State(i),
-                        sign: -1.0,
-                        h: -c.state_lower[j],
-                    });
-                    self.rows.push(Row {
-                        kind: RowKind::State(i),
-                        sign: 1.0,
-                        h: c.state_upper[j],
-                    });
+                    self.rows.extend(bound_rows(
+                        RowKind::State(i),
+                        c.state_lower[j],
+                        c.state_upper[j],
+                    ));
                 }
             }
             if k < n {
                 for (j, &i) in c.input_indices.iter().enumerate() {
-                    self.rows.push(Row {
-                        kind: RowKind::Input(i),
-                        sign: -1.0,
-                        h: -c.input_lower[j],
-                    });
-                    self.rows.push(Row {
-                        kind: RowKind::Input(i),
-                        sign: 1.0,
-                        h: c.input_upper[j],
-                    });
+                    self.rows.extend(bound_rows(
+                        RowKind::Input(i),
+                        c.input_lower[j],
+                        c.input_upper[j],
+                    ));
                 }
             }
             if k < n {
@@ -993,6 +983,22 @@ impl QpSolver for RiccatiIpm {
     fn name(&self) -> &'static str {
         "riccati"
     }
+}
+
+/// The two rows of `lower ≤ v ≤ upper` on the variable of `kind`: −v ≤ −lower, v ≤ upper.
+fn bound_rows(kind: RowKind, lower: f64, upper: f64) -> [Row; 2] {
+    [
+        Row {
+            kind,
+            sign: -1.0,
+            h: -lower,
+        },
+        Row {
+            kind,
+            sign: 1.0,
+            h: upper,
+        },
+    ]
 }
 
 /// Lower Cholesky factor of a symmetric positive definite matrix (None if it is not).
