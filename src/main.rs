@@ -3,6 +3,7 @@
 //! Thin by design: it parses flags, reads files, calls the crates and writes results.
 //! Exit codes: 0 success, 2 bad input (one line on stderr naming what was wrong), 1 failure.
 
+mod bench;
 mod cli_error;
 mod fly;
 mod mpc_bench;
@@ -39,6 +40,9 @@ struct Cli {
 enum Command {
     /// The vehicles and their figures: mass, inertia, rotors, reach, thrust margins.
     Platforms(platforms::Args),
+    /// The benchmark: tasks x rollouts of the scripted policies on a platform and
+    /// controller -> success rate, subtasks, tracking and limit metrics (table, JSON, MCAP).
+    Bench(Box<bench::Args>),
     /// Fly a reference trajectory in the twin and report tracking errors, tilt and
     /// saturation: the validation experiments of the paper.
     Track(Box<track::Args>),
@@ -71,6 +75,7 @@ fn main() -> ExitCode {
     };
     let result = match cli.command {
         Command::Platforms(args) => platforms::run(&args),
+        Command::Bench(args) => bench::run(&args),
         Command::Track(args) => track::run(&args),
         Command::Fly(args) => fly::run(&args),
         Command::Twin(args) => twin_serve::run(&args),
@@ -82,7 +87,7 @@ fn main() -> ExitCode {
             let interrupted = matches!(
                 e.downcast_ref::<policy_runtime::TrackError>(),
                 Some(policy_runtime::TrackError::Interrupted { .. })
-            );
+            ) || e.downcast_ref::<bench::Interrupted>().is_some();
             let code = if e.downcast_ref::<BadInput>().is_some() {
                 2
             } else if interrupted {

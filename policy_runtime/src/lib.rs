@@ -26,6 +26,7 @@
 //!   chunks flushed as they fill so a killed run leaves a readable file.
 //!   [`record::Recording`] reads a file back by streaming, complete or cut short.
 
+pub mod bench;
 pub mod flight_log;
 pub mod ipc_link;
 pub mod link;
@@ -33,6 +34,7 @@ pub mod metrics;
 pub mod record;
 pub mod scripted;
 pub mod stack;
+pub mod task_policies;
 pub mod track;
 pub mod trajectory;
 

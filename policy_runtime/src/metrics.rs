@@ -146,6 +146,11 @@ impl CriteriaLatch {
         }
     }
 
+    /// Each criterion: reached at some tick.
+    pub fn reached(&self) -> &[bool] {
+        &self.reached
+    }
+
     /// Completed / total; `None` for a task without subtasks.
     pub fn completion(&self) -> Option<f64> {
         (!self.reached.is_empty())

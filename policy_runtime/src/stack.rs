@@ -114,6 +114,8 @@ pub struct FlightStack {
     initial: Vec<f64>,
     ee: Option<EeInterface>,
     mpc: Option<MpcInterface>,
+    /// The vehicle IK profile's safety margin from obstacle faces, m.
+    safety_margin_m: f64,
     dt_s: f64,
 }
 
@@ -188,6 +190,7 @@ impl FlightStack {
             })
             .collect();
         let vehicle_initial = vehicle.initial_configuration();
+        let vehicle_id = vehicle.id.clone();
         // The EE interface needs IK unless the end effector is the controlled body.
         let ee = if vehicle.ee_link == vehicle.base_link {
             None
@@ -215,6 +218,9 @@ impl FlightStack {
             initial: vehicle_initial,
             ee,
             mpc,
+            safety_margin_m: IkConfig::for_vehicle(&vehicle_id)
+                .unwrap_or_default()
+                .safety_margin_m,
             dt_s,
         })
     }
@@ -231,6 +237,26 @@ impl FlightStack {
         if let Some(mpc) = &mut self.mpc {
             mpc.limits = limits;
         }
+    }
+
+    /// Keeps the base in front of an obstacle face at world x `face_x_m` (a wall, a door, a
+    /// window: AMBENCH_SPEC §2.6 per-env limits), minus the vehicle's IK safety margin;
+    /// `None` keeps it above the ground only. Called every tick by the benchmark, as the
+    /// reference recomputes the limits every step.
+    pub fn keep_in_front_of(&mut self, face_x_m: Option<f64>) {
+        let margin = self
+            .ee
+            .as_ref()
+            .map_or(self.safety_margin_m, |e| e.ik.config().safety_margin_m);
+        self.set_base_limits(face_x_m.map_or_else(BaseLimits::above_ground, |x| {
+            BaseLimits::in_front_of_face_x(x, margin)
+        }));
+    }
+
+    /// An end-effector action as the base + joint target the IK makes of it (the base +
+    /// joint interface of the scripted policies, converted as the reference does).
+    pub fn ee_to_base_joint_target(&mut self, ee: &EeTarget) -> BaseJointTarget {
+        self.ee_to_base_joint(ee).0
     }
 
     /// Whether each tilting rotor's thrust is projected on its measured direction (for links

@@ -187,6 +187,11 @@ pub struct TwinConfig {
     pub noise: NoiseConfig,
     /// Seed of every random draw of the twin.
     pub seed: u64,
+    /// The task scene built around the vehicle at every reset (None: an empty world with
+    /// the ground only).
+    pub task: Option<crate::tasks::TaskId>,
+    /// How grasps hold (contact only, or with the grasp constraint).
+    pub grasp: crate::tasks::GraspMode,
     /// Base pose at reset (AMBENCH_SPEC §1.1: 1 m up, level).
     #[serde(skip, default = "default_initial_pose")]
     pub initial_base_pose: Isometry3<f64>,
@@ -208,6 +213,8 @@ impl Default for TwinConfig {
             tilt_thrust: TiltThrust::default(),
             noise: NoiseConfig::default(),
             seed: 0,
+            task: None,
+            grasp: crate::tasks::GraspMode::default(),
             initial_base_pose: default_initial_pose(),
         }
     }

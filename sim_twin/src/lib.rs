@@ -21,6 +21,7 @@ mod config;
 mod convert;
 mod error;
 pub mod ipc;
+pub mod tasks;
 mod twin;
 mod vehicle_body;
 
@@ -29,5 +30,6 @@ mod tests;
 
 pub use config::{Disturbances, MotorConfig, NoiseConfig, TiltThrust, TwinConfig};
 pub use error::TwinError;
+pub use tasks::{GraspMode, TaskId, TaskObservation, TaskStatus};
 pub use twin::Twin;
 pub use vehicle_body::{ROBOT_GROUP, WORLD_GROUP};

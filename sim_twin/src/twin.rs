@@ -32,6 +32,8 @@ use crate::convert::{
     pose_from_rapier, pose_to_rapier, rotation_from_rapier, vector_from_rapier, vector_to_rapier,
 };
 use crate::error::TwinError;
+use crate::tasks::objects::Grasp;
+use crate::tasks::{Build, GraspMode, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::vehicle_body::{self, ROBOT_GROUP, VehicleBody, WORLD_GROUP, material};
 
 /// Standard gravity of the world, m/s² (AMBENCH_SPEC §0).
@@ -68,6 +70,21 @@ pub struct Twin {
     time_s: f64,
     truth: Measurement,
     diverged_at: Option<f64>,
+    task: TaskState,
+}
+
+/// The task scene and what the twin keeps for it.
+#[derive(Debug, Default)]
+struct TaskState {
+    scene: Option<Box<dyn Scene>>,
+    grasp: Grasp,
+    /// Colliders of the two gripping sides.
+    fingers: [Vec<ColliderHandle>; 2],
+    /// Configuration indices of the gripper joints.
+    gripper_dofs: Vec<usize>,
+    /// Env steps since reset.
+    steps: u64,
+    status: TaskStatus,
 }
 
 impl std::fmt::Debug for Twin {
@@ -97,10 +114,30 @@ impl Twin {
         } else {
             None
         };
-        let (world, body) = Self::build_world(&vehicle, &config)?;
+        let scene = config.task.map(TaskId::scene);
+        let overrides = scene
+            .as_ref()
+            .map(|s| s.initial_overrides(&vehicle))
+            .unwrap_or_default();
+        let mut q0 = vehicle.initial_configuration();
+        for (name, value) in &overrides.joints {
+            if let Some(d) = vehicle
+                .model
+                .joint_id(name)
+                .and_then(|j| vehicle.model.joints[j].dof)
+            {
+                q0[d] = *value;
+            }
+        }
+        let mut world_from_base = config.initial_base_pose;
+        if let Some(r) = overrides.base_rotation {
+            world_from_base.rotation *= r;
+        }
+        let (world, body) = Self::build_world(&vehicle, &config, &world_from_base, &q0)?;
         let rotors = Self::rotor_mounts(&vehicle, &body)?;
+        let task = TaskState::new(&vehicle, &body, scene);
         let mut twin = Self {
-            joint_targets: vehicle.initial_configuration(),
+            joint_targets: q0,
             vehicle,
             rng: ChaCha8Rng::seed_from_u64(config.seed),
             config,
@@ -114,15 +151,34 @@ impl Twin {
             time_s: 0.0,
             truth: Measurement::default(),
             diverged_at: None,
+            task,
         };
         twin.sample_observation_bias();
         twin.truth = twin.measure(&[], DisturbanceReport::default());
+        twin.build_scene()?;
+        // Ray casts read the broad phase, which only a step or a collision pass fills. One
+        // pass, after every body is in: bodies added after a collision pass would miss the
+        // physics pipeline's island registration.
+        twin.world.detect_collisions(&(), &());
+        // The collision pass consumed the new bodies' change flags without registering them
+        // with the islands of the physics pipeline: flag the free bodies again so the first
+        // step does (rapier keeps a free body out of an island otherwise, and never moves it).
+        let handles: Vec<RigidBodyHandle> = twin.world.bodies.iter().map(|(h, _)| h).collect();
+        for h in handles {
+            if let Some(rb) = twin.world.bodies.get_mut(h)
+                && rb.is_dynamic()
+            {
+                rb.wake_up(true);
+            }
+        }
         Ok(twin)
     }
 
     fn build_world(
         vehicle: &Vehicle,
         config: &TwinConfig,
+        world_from_base: &Isometry3<f64>,
+        q0: &[f64],
     ) -> Result<(PhysicsWorld, VehicleBody), TwinError> {
         let mut world = PhysicsWorld::new();
         world.gravity = Vector::new(0.0, 0.0, -GRAVITY_MPS2);
@@ -139,9 +195,7 @@ impl Twin {
             .collision_groups(groups),
             Some(ground),
         );
-        let body = vehicle_body::build(vehicle, &mut world, &config.initial_base_pose)?;
-        // Ray casts read the broad phase, which only a step or a collision pass fills.
-        world.detect_collisions(&(), &());
+        let body = vehicle_body::build(vehicle, &mut world, world_from_base, q0)?;
         Ok((world, body))
     }
 
@@ -298,6 +352,7 @@ impl Twin {
         }
         self.time_s += dt;
         self.truth = self.measure(&reports, disturbances);
+        self.update_task();
         Ok(self.observe())
     }
 
@@ -616,5 +671,162 @@ fn gaussian(rng: &mut ChaCha8Rng, std: f64, n: usize) -> Vec<f64> {
     match Normal::new(0.0, std) {
         Ok(dist) => (0..n).map(|_| dist.sample(rng)).collect(),
         Err(_) => vec![0.0; n],
+    }
+}
+
+impl TaskState {
+    fn new(vehicle: &Vehicle, body: &VehicleBody, scene: Option<Box<dyn Scene>>) -> Self {
+        let model = &vehicle.model;
+        let joints = vehicle.gripper.as_ref().map_or(&[][..], |g| &g.joints[..]);
+        let child = |j: usize| body.link_colliders[model.joints[j].child].clone();
+        let fingers = match *joints {
+            [a, b, ..] => [child(a), child(b)],
+            // One moving jaw: it closes against the link that carries it.
+            [a] => [child(a), body.link_colliders[model.joints[a].parent].clone()],
+            [] => [Vec::new(), Vec::new()],
+        };
+        let status = TaskStatus {
+            success: false,
+            criteria: vec![false; scene.as_ref().map_or(0, |s| s.criteria_names().len())],
+        };
+        Self {
+            scene,
+            grasp: Grasp::default(),
+            fingers,
+            gripper_dofs: joints.iter().filter_map(|&j| model.joints[j].dof).collect(),
+            steps: 0,
+            status,
+        }
+    }
+}
+
+/// A task scene's view of the twin.
+impl Twin {
+    /// The task of the scene around the vehicle, if any.
+    pub fn task(&self) -> Option<TaskId> {
+        self.task.scene.as_ref().map(|s| s.task())
+    }
+
+    /// The task's verdict after the last step (criteria not latched); None without a task.
+    pub fn task_status(&self) -> Option<&TaskStatus> {
+        self.task.scene.as_ref().map(|_| &self.task.status)
+    }
+
+    /// The task's observation keys now (AMBENCH_SPEC §5.1); None without a task.
+    pub fn task_observation(&self) -> Option<TaskObservation> {
+        self.task.scene.as_ref().map(|s| s.observation(&self.world))
+    }
+
+    /// The pose of the task's wall (or wall-like object), for wall normals.
+    pub fn task_wall(&self) -> Option<Isometry3<f64>> {
+        self.task.scene.as_ref().and_then(|s| s.wall())
+    }
+
+    /// World x of the obstacle face the base must stay in front of (IK limits), if any.
+    pub fn obstacle_face_x(&self) -> Option<f64> {
+        self.task
+            .scene
+            .as_ref()
+            .and_then(|s| s.obstacle_face_x(&self.world))
+    }
+
+    /// Whether the grasp constraint holds an object.
+    pub fn holding(&self) -> bool {
+        self.task.grasp.held.is_some()
+    }
+
+    /// Env steps since reset.
+    pub fn steps(&self) -> u64 {
+        self.task.steps
+    }
+
+    /// The tool tip now: ee + R_ee·tool_tip offset, oriented as the command frame.
+    pub fn tool_tip(&self) -> Isometry3<f64> {
+        let ee = self.truth.world_from_ee;
+        Isometry3::from_parts(
+            nalgebra::Translation3::from(ee * Point3::from(self.vehicle.tool_tip_in_ee_m)),
+            self.vehicle.command_to_link.inverse() * ee.rotation,
+        )
+    }
+
+    fn gripper_width_m(&self) -> f64 {
+        self.task
+            .gripper_dofs
+            .iter()
+            .filter_map(|&d| self.truth.joint_positions.get(d))
+            .sum()
+    }
+
+    /// The gripper is closing when its first joint's target is nearer the closed position
+    /// than the open one (action < 0).
+    fn gripper_closing(&self) -> bool {
+        let Some(g) = &self.vehicle.gripper else {
+            return false;
+        };
+        let (Some(&d), Some(&closed), Some(&open)) = (
+            self.task.gripper_dofs.first(),
+            g.closed.first(),
+            g.open.first(),
+        ) else {
+            return false;
+        };
+        let target = self.joint_targets.get(d).copied().unwrap_or(closed);
+        (target - closed).abs() < (target - open).abs()
+    }
+
+    fn build_scene(&mut self) -> Result<(), TwinError> {
+        let Some(mut scene) = self.task.scene.take() else {
+            return Ok(());
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(self.config.seed);
+        // Its own stream: noise draws never shift the scene's randomisation.
+        rng.set_stream(1);
+        let tool_tip = self.tool_tip();
+        let mut b = Build {
+            world: &mut self.world,
+            rng: &mut rng,
+            tool_tip,
+            world_from_ee: self.truth.world_from_ee,
+            graspable: Vec::new(),
+            pre_grasped: None,
+        };
+        let built = scene.build(&mut b);
+        let (graspable, pre_grasped) = (b.graspable, b.pre_grasped);
+        self.task.scene = Some(scene);
+        built?;
+        self.task.grasp.graspable = graspable;
+        if let Some(object) = pre_grasped {
+            let (ee_body, _) = self.body.of_link(self.vehicle.ee_link);
+            self.task.grasp.attach(&mut self.world, ee_body, object);
+        }
+        Ok(())
+    }
+
+    fn update_task(&mut self) {
+        let Some(mut scene) = self.task.scene.take() else {
+            return;
+        };
+        self.task.steps += 1;
+        let closing = self.gripper_closing();
+        let (ee_body, _) = self.body.of_link(self.vehicle.ee_link);
+        self.task.grasp.update(
+            &mut self.world,
+            ee_body,
+            &self.task.fingers,
+            closing,
+            self.config.grasp == GraspMode::Assisted,
+        );
+        let dt = self.config.control_dt_s();
+        let view = View {
+            step: self.task.steps,
+            dt_s: dt,
+            substep_s: dt / f64::from(self.config.physics_substeps),
+            world_from_ee: self.truth.world_from_ee,
+            tool_tip: self.tool_tip().translation.vector,
+            base_position: self.truth.base.position_in_world_m,
+            gripper_width_m: self.gripper_width_m(),
+        };
+        self.task.status = scene.after_step(&mut self.world, &view);
+        self.task.scene = Some(scene);
     }
 }

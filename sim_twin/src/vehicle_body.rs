@@ -52,6 +52,8 @@ pub(crate) struct VehicleBody {
     pub base: RigidBodyHandle,
     /// Every rigid body of the vehicle.
     pub bodies: Vec<RigidBodyHandle>,
+    /// Colliders of each link (by link id).
+    pub link_colliders: Vec<Vec<ColliderHandle>>,
     /// One entry per configuration index.
     pub dofs: Vec<DofJoint>,
 }
@@ -100,10 +102,10 @@ pub(crate) fn build(
     vehicle: &Vehicle,
     world: &mut PhysicsWorld,
     world_from_base: &Isometry3<f64>,
+    q0: &[f64],
 ) -> Result<VehicleBody, TwinError> {
     let model = &vehicle.model;
-    let q0 = vehicle.initial_configuration();
-    let root_from_link = model.forward_kinematics(&q0);
+    let root_from_link = model.forward_kinematics(q0);
 
     // Segments: which body each link belongs to and where it sits in it.
     let mut segment: Vec<(usize, Isometry3<f64>)> =
@@ -158,6 +160,7 @@ pub(crate) fn build(
 
     // Colliders, in the robot's group.
     let groups = InteractionGroups::new(ROBOT_GROUP, Group::ALL, InteractionTestMode::And);
+    let mut link_colliders = vec![Vec::new(); model.links.len()];
     for (link, (seg, body_from_link)) in segment.iter().enumerate() {
         for g in &model.links[link].collisions {
             let pose = body_from_link * g.link_from_shape * shape_fixup(&g.shape);
@@ -165,7 +168,7 @@ pub(crate) fn build(
                 .density(0.0)
                 .collision_groups(groups)
                 .position(pose_to_rapier(&pose));
-            world.insert_collider(collider, Some(bodies[*seg]));
+            link_colliders[link].push(world.insert_collider(collider, Some(bodies[*seg])));
         }
     }
 
@@ -226,13 +229,14 @@ pub(crate) fn build(
     {
         mb.set_self_contacts_enabled(false);
     }
-    set_joint_positions(world, &dofs, &q0);
+    set_joint_positions(world, &dofs, q0);
 
     let link_body = segment.iter().map(|(s, f)| (bodies[*s], *f)).collect();
     Ok(VehicleBody {
         link_body,
         base: bodies[0],
         bodies,
+        link_colliders,
         dofs,
     })
 }

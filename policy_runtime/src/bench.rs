@@ -1,0 +1,405 @@
+//! The benchmark runner (`amstack bench`): tasks × rollouts of the scripted policies in the
+//! twin, through the flight stack, scored with the metrics of AMBENCH_SPEC §6.
+//!
+//! A rollout (AMBENCH_SPEC §4.0, §6):
+//! 1. the twin is built with the task scene at rollout seed s = run seed + rollout index
+//!    (the reference seeds batch b with base seed + b's first index); the scene's
+//!    randomisation, the noise and the policy's offsets are separate streams of s;
+//! 2. the scripted policy is built from the reset observation; every env step it gives an
+//!    end-effector target (command frame) and a gripper action; with the base + joint
+//!    interface the target goes through the stack's whole-body IK first and the base + joint
+//!    target is what the controller gets;
+//! 3. the step's tracking record is taken, the command sent, the twin stepped; the criteria
+//!    are latched; success terminates; otherwise the rollout ends after
+//!    ⌈episode_length·120⌉ − 1 steps (timeout).
+//!
+//! Rollouts run in parallel threads; each is a pure function of its seed, so results do not
+//! depend on the number of threads or their order.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::time::Instant;
+
+use allocation::AllocationMethod;
+use controllers::ControllerConfig;
+use platform::Vehicle;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use sim_twin::{TaskId, Twin, TwinConfig, TwinError};
+
+use crate::flight_log::{FlightLog, rotors_saturated};
+use crate::metrics::{
+    CriteriaLatch, RolloutSummary, RunSummary, TrackingRecord, summarize_rollout, summarize_run,
+};
+use crate::record::{McapRecorder, RecordError, RunMetadata};
+use crate::stack::{Action, EeTarget, FlightStack, StackError, ThrustLimits};
+use crate::task_policies::{PolicyContext, gripper_override, scripted};
+use crate::track::Interface;
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub struct BenchConfig {
+    /// The vehicle.
+    pub vehicle: Vehicle,
+    /// Base controller and gains.
+    pub controller: ControllerConfig,
+    /// The controller's benchmark name (`ik-pid`, `pid`, `ik-l1`, `l1`, `mpc`).
+    pub controller_name: String,
+    /// Action interface.
+    pub interface: Interface,
+    /// Tasks, in order.
+    pub tasks: Vec<TaskId>,
+    /// Rollouts per task.
+    pub rollouts: usize,
+    /// Run seed.
+    pub seed: u64,
+    /// The twin (disturbances, motor model, noise); its `task` and `seed` are set per
+    /// rollout.
+    pub twin: TwinConfig,
+    /// Worker threads.
+    pub jobs: usize,
+    /// Directory for one MCAP log per rollout (`<task>/rollout-NNN.mcap`), if any.
+    pub mcap_dir: Option<PathBuf>,
+}
+
+/// Why a rollout ended (the reference's termination reasons).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Termination {
+    /// The success criterion held.
+    Success,
+    /// The episode's time ran out.
+    Timeout,
+    /// The stack produced a command the twin refused (non-finite).
+    NanAction,
+    /// The simulation diverged.
+    Diverged,
+    /// Stopped on request.
+    Interrupted,
+}
+
+/// One rollout's result.
+#[derive(Debug, Clone, Serialize)]
+pub struct RolloutResult {
+    /// Task.
+    pub task: TaskId,
+    /// Index within the task.
+    pub index: usize,
+    /// Rollout seed.
+    pub seed: u64,
+    /// Success.
+    pub success: bool,
+    /// Why it ended.
+    pub termination: Termination,
+    /// Env steps executed.
+    pub executed_steps: u64,
+    /// Each criterion, latched "ever true", by name.
+    pub criteria: Vec<(String, bool)>,
+    /// Metrics of the rollout.
+    pub summary: RolloutSummary,
+    /// Wall-clock time, s.
+    pub wall_time_s: f64,
+    /// The rollout's MCAP log.
+    pub mcap: Option<PathBuf>,
+}
+
+/// A rollout that could not run at all.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    /// The stack cannot be built.
+    #[error(transparent)]
+    Stack(#[from] StackError),
+    /// The twin refused its configuration.
+    #[error("twin: {0}")]
+    Twin(#[from] TwinError),
+    /// The scripted policy could not be built.
+    #[error("{task} scripted policy: {message}")]
+    Policy {
+        /// The task.
+        task: TaskId,
+        /// What went wrong.
+        message: String,
+    },
+    /// A log could not be written.
+    #[error(transparent)]
+    Record(#[from] RecordError),
+}
+
+/// Per-task aggregate.
+#[derive(Debug, Clone, Serialize)]
+pub struct TaskResult {
+    /// Task.
+    pub task: TaskId,
+    /// Criteria names.
+    pub criteria: Vec<String>,
+    /// The run-level summary (success rate, subtask completion, spreads over successes).
+    pub summary: RunSummary,
+    /// Every rollout.
+    pub rollouts: Vec<RolloutResult>,
+}
+
+/// Everything a benchmark run produced.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchReport {
+    /// Per task, in the configured order.
+    pub tasks: Vec<TaskResult>,
+    /// Wall-clock time of the whole run, s.
+    pub wall_time_s: f64,
+    /// Env steps simulated over all rollouts.
+    pub env_steps: u64,
+    /// Whether the run was interrupted (results are partial).
+    pub interrupted: bool,
+}
+
+impl BenchReport {
+    /// Env steps per wall-clock second over the run.
+    pub fn steps_per_second(&self) -> f64 {
+        self.env_steps as f64 / self.wall_time_s.max(1e-9)
+    }
+}
+
+/// The seed of rollout `index` of a run seeded `run_seed`.
+pub fn rollout_seed(run_seed: u64, index: usize) -> u64 {
+    run_seed.wrapping_add(index as u64)
+}
+
+/// Runs one rollout of `task`. `stop` interrupts it between steps.
+pub fn run_rollout(
+    config: &BenchConfig,
+    task: TaskId,
+    index: usize,
+    stop: &AtomicBool,
+) -> Result<RolloutResult, BenchError> {
+    let started = Instant::now();
+    let seed = rollout_seed(config.seed, index);
+    let vehicle = &config.vehicle;
+    let twin_config = TwinConfig {
+        task: Some(task),
+        seed,
+        ..config.twin.clone()
+    };
+    let dt = twin_config.control_dt_s();
+    let rate_hz = twin_config.control_rate_hz;
+    let mut twin = Twin::new(vehicle.clone(), twin_config)?;
+    let limits = if config.twin.disturbances.saturation {
+        ThrustLimits::Enforced
+    } else {
+        ThrustLimits::Ideal
+    };
+    let mut stack = FlightStack::new(
+        vehicle.clone(),
+        &config.controller,
+        AllocationMethod::PseudoInverse,
+        limits,
+        dt,
+    )?;
+    let mut measurement = twin.truth().clone();
+    stack.reset_at(&measurement.base, &measurement.joint_positions);
+    let context = PolicyContext {
+        init: measurement.world_from_ee.translation.vector,
+        task: twin.task_observation().unwrap_or_default(),
+        wall: twin.task_wall(),
+    };
+    let mut policy_rng = ChaCha8Rng::seed_from_u64(seed);
+    policy_rng.set_stream(2);
+    let mut policy = scripted(task, &context, &mut policy_rng).map_err(|message| {
+        BenchError::Policy { task, message }
+    })?;
+    let criteria_names = task.criteria_names();
+    let mut latch = CriteriaLatch::new(criteria_names.len());
+    let mut log = match &config.mcap_dir {
+        None => None,
+        Some(dir) => {
+            let path = rollout_log_path(dir, task, index);
+            let run = RunMetadata::new(&vehicle.id, &config.controller_name, seed)
+                .with_interface(config.interface.name())
+                .with_trajectory(&format!("task:{}", task.name()))
+                .with_config(&twin.config().clone())?;
+            Some(FlightLog::new(McapRecorder::create(&path, &run)?, vehicle)?)
+        }
+    };
+    let limits_n = (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n);
+    let has_rotors = !vehicle.rotors.is_empty();
+    let max_steps = task.max_steps(rate_hz);
+    let mut records = Vec::with_capacity(usize::try_from(max_steps).unwrap_or(0));
+    let mut termination = Termination::Timeout;
+    let mut steps = 0;
+    while steps < max_steps {
+        if stop.load(Ordering::Relaxed) {
+            termination = Termination::Interrupted;
+            break;
+        }
+        stack.keep_in_front_of(twin.obstacle_face_x());
+        let (command_pose, mut gripper) = policy.action(steps);
+        if let Some(g) = gripper_override(task) {
+            gripper = g;
+        }
+        let ee = EeTarget {
+            world_from_ee_command: command_pose,
+            gripper,
+        };
+        let ee_desired = stack.link_target(&ee);
+        let action = match config.interface {
+            Interface::Ee => Action::Ee(ee),
+            Interface::BaseJoint => Action::BaseJoint(stack.ee_to_base_joint_target(&ee)),
+        };
+        let record = stack.act(&measurement, &action);
+        if let Some(log) = &mut log {
+            log.tick(&measurement, &record, &ee_desired)?;
+        }
+        let before = measurement.clone();
+        measurement = match twin.step(&record.command) {
+            Ok(m) => m,
+            Err(e) => {
+                termination = match e {
+                    TwinError::Command(_) => Termination::NanAction,
+                    _ => Termination::Diverged,
+                };
+                break;
+            }
+        };
+        steps += 1;
+        if let Some(log) = &mut log {
+            log.outcome(&measurement)?;
+        }
+        records.push(TrackingRecord {
+            ee_desired,
+            ee_actual: before.world_from_ee,
+            base_desired: record.base_target,
+            base_actual: before.base.pose(),
+            saturated: has_rotors.then(|| {
+                record.allocation_saturated || rotors_saturated(&measurement, limits_n)
+            }),
+        });
+        if let Some(status) = twin.task_status() {
+            latch.observe(&status.criteria);
+            if status.success {
+                termination = Termination::Success;
+                break;
+            }
+        }
+    }
+    let mcap = match log {
+        Some(log) => Some(log.finish()?.path),
+        None => None,
+    };
+    let success = termination == Termination::Success;
+    let reach = arm_reach_m(vehicle);
+    Ok(RolloutResult {
+        task,
+        index,
+        seed,
+        success,
+        termination,
+        executed_steps: steps,
+        criteria: criteria_names
+            .iter()
+            .zip(latch.reached())
+            .map(|(n, r)| ((*n).to_owned(), *r))
+            .collect(),
+        summary: summarize_rollout(&records, success, latch.completion(), reach),
+        wall_time_s: started.elapsed().as_secs_f64(),
+        mcap,
+    })
+}
+
+/// The arm reach the errors are normalised by: the vehicle's, or ‖p_ee − p_base‖ at the
+/// initial configuration (0 for the EE-only oracle: its normalised errors are undefined).
+fn arm_reach_m(vehicle: &Vehicle) -> f64 {
+    vehicle.max_arm_reach_m.unwrap_or_else(|| {
+        let q = vehicle.initial_configuration();
+        vehicle.base_from_ee(&q).translation.vector.norm()
+    })
+}
+
+/// Where rollout `index` of `task` logs under `dir`.
+pub fn rollout_log_path(dir: &Path, task: TaskId, index: usize) -> PathBuf {
+    dir.join(task.name()).join(format!("rollout-{index:03}.mcap"))
+}
+
+/// Runs every task's rollouts on `config.jobs` threads. `on_done` sees each rollout as it
+/// finishes (progress); `stop` interrupts the run (finished rollouts are kept).
+pub fn run_bench(
+    config: &BenchConfig,
+    on_done: &(dyn Fn(&RolloutResult) + Sync),
+    stop: &AtomicBool,
+) -> Result<BenchReport, BenchError> {
+    let started = Instant::now();
+    if let Some(dir) = &config.mcap_dir {
+        for task in &config.tasks {
+            let path = dir.join(task.name());
+            std::fs::create_dir_all(&path)
+                .map_err(|source| RecordError::Create { path, source })?;
+        }
+    }
+    let jobs: Vec<(TaskId, usize)> = config
+        .tasks
+        .iter()
+        .flat_map(|t| (0..config.rollouts).map(move |i| (*t, i)))
+        .collect();
+    let results: Mutex<Vec<Option<Result<RolloutResult, BenchError>>>> =
+        Mutex::new((0..jobs.len()).map(|_| None).collect());
+    let next = AtomicUsize::new(0);
+    let failed = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        for _ in 0..config.jobs.max(1) {
+            scope.spawn(|| {
+                loop {
+                    if stop.load(Ordering::Relaxed) || failed.load(Ordering::Relaxed) {
+                        break;
+                    }
+                    let k = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(&(task, index)) = jobs.get(k) else {
+                        break;
+                    };
+                    let result = run_rollout(config, task, index, stop);
+                    match &result {
+                        Ok(r) if r.termination != Termination::Interrupted => on_done(r),
+                        Ok(_) => {}
+                        Err(_) => failed.store(true, Ordering::Relaxed),
+                    }
+                    if let Ok(mut all) = results.lock() {
+                        all[k] = Some(result);
+                    }
+                }
+            });
+        }
+    });
+    let all = results.into_inner().unwrap_or_default();
+    let mut done: Vec<RolloutResult> = Vec::with_capacity(all.len());
+    for r in all.into_iter().flatten() {
+        let r = r?;
+        if r.termination != Termination::Interrupted {
+            done.push(r);
+        }
+    }
+    let interrupted = stop.load(Ordering::Relaxed) || done.len() < jobs.len();
+    let env_steps = done.iter().map(|r| r.executed_steps).sum();
+    let tasks = config
+        .tasks
+        .iter()
+        .map(|&task| {
+            let rollouts: Vec<RolloutResult> =
+                done.iter().filter(|r| r.task == task).cloned().collect();
+            let summaries: Vec<RolloutSummary> =
+                rollouts.iter().map(|r| r.summary.clone()).collect();
+            TaskResult {
+                task,
+                criteria: task.criteria_names().iter().map(|n| (*n).to_owned()).collect(),
+                summary: summarize_run(&summaries),
+                rollouts,
+            }
+        })
+        .collect();
+    Ok(BenchReport {
+        tasks,
+        wall_time_s: started.elapsed().as_secs_f64(),
+        env_steps,
+        interrupted,
+    })
+}
+
+#[cfg(test)]
+mod tests;

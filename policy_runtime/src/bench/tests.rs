@@ -1,0 +1,108 @@
+//! Benchmark runner tests.
+
+use std::sync::atomic::AtomicBool;
+
+use controllers::{ControllerKind, profile};
+use platform::Vehicle;
+use sim_twin::{TaskId, Twin, TwinConfig};
+
+use super::*;
+
+fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> BenchConfig {
+    let vehicle = Vehicle::builtin(vehicle).unwrap_or_else(|e| panic!("{e}"));
+    BenchConfig {
+        controller: profile(&vehicle, controller).unwrap_or_else(|e| panic!("{e}")),
+        controller_name: "test".to_owned(),
+        vehicle,
+        interface,
+        tasks: Vec::new(),
+        rollouts: 1,
+        seed: 0,
+        twin: TwinConfig::default(),
+        jobs: 1,
+        mcap_dir: None,
+    }
+}
+
+/// Prints a rollout's trace: `AMSTACK_TRACE=task[:vehicle[:seed]] cargo test -p
+/// policy_runtime trace -- --ignored --nocapture`.
+#[test]
+#[ignore = "a debugging aid, not a test"]
+fn trace() {
+    let spec = std::env::var("AMSTACK_TRACE").unwrap_or_else(|_| "press-button".to_owned());
+    let mut parts = spec.split(':');
+    let task = TaskId::parse(parts.next().unwrap_or("press-button")).unwrap_or_else(|e| panic!("{e}"));
+    let vehicle = parts.next().unwrap_or("ee-only").to_owned();
+    let seed: u64 = parts.next().and_then(|s| s.parse().ok()).unwrap_or(0);
+    let cfg = config(&vehicle, ControllerKind::Pid, Interface::Ee);
+    let mut twin = Twin::new(
+        cfg.vehicle.clone(),
+        TwinConfig {
+            task: Some(task),
+            seed,
+            ..TwinConfig::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let mut stack = FlightStack::new(
+        cfg.vehicle.clone(),
+        &cfg.controller,
+        AllocationMethod::PseudoInverse,
+        ThrustLimits::Ideal,
+        1.0 / 120.0,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let mut m = twin.truth().clone();
+    stack.reset_at(&m.base, &m.joint_positions);
+    let ctx = PolicyContext {
+        init: m.world_from_ee.translation.vector,
+        task: twin.task_observation().unwrap_or_default(),
+        wall: twin.task_wall(),
+    };
+    println!("reset observation: {:?}\nwall: {:?}", ctx.task, ctx.wall);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(2);
+    let mut policy = scripted(task, &ctx, &mut rng).unwrap_or_else(|e| panic!("{e}"));
+    for step in 0..task.max_steps(120.0) {
+        stack.keep_in_front_of(twin.obstacle_face_x());
+        let (pose, mut g) = policy.action(step);
+        if let Some(o) = gripper_override(task) {
+            g = o;
+        }
+        let ee = EeTarget {
+            world_from_ee_command: pose,
+            gripper: g,
+        };
+        let record = stack.act(&m, &Action::Ee(ee.clone()));
+        m = twin.step(&record.command).unwrap_or_else(|e| panic!("{e}"));
+        let status = twin.task_status().cloned().unwrap_or_default();
+        if step % 60 == 0 || status.success {
+            let p = m.world_from_ee.translation.vector;
+            let t = stack.link_target(&ee).translation.vector;
+            println!(
+                "{step:5} ee ({:.3} {:.3} {:.3}) target ({:.3} {:.3} {:.3}) grip {g:+.2} held {} {:?} obs {:?}",
+                p.x, p.y, p.z, t.x, t.y, t.z, twin.holding(), status, twin.task_observation().map(|o| o.entries)
+            );
+        }
+        if status.success {
+            break;
+        }
+    }
+}
+
+#[test]
+fn rollouts_do_not_depend_on_threads() {
+    let mut cfg = config("ee-only", ControllerKind::Pid, Interface::Ee);
+    cfg.tasks = vec![TaskId::PressButton];
+    cfg.rollouts = 2;
+    let stop = AtomicBool::new(false);
+    let one = run_bench(&cfg, &|_| {}, &stop).unwrap_or_else(|e| panic!("{e}"));
+    cfg.jobs = 2;
+    let two = run_bench(&cfg, &|_| {}, &stop).unwrap_or_else(|e| panic!("{e}"));
+    let key = |r: &BenchReport| {
+        serde_json::to_string(&r.tasks.iter().map(|t| &t.summary).collect::<Vec<_>>())
+            .unwrap_or_default()
+    };
+    assert_eq!(key(&one), key(&two));
+    assert_eq!(one.env_steps, two.env_steps);
+}

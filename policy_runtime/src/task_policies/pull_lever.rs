@@ -1,0 +1,10 @@
+//! Placeholder policy: replaced by the task's module.
+
+use rand_chacha::ChaCha8Rng;
+
+use super::{PolicyContext, identity, wp};
+use crate::scripted::WaypointPolicy;
+
+pub(crate) fn policy(ctx: &PolicyContext, _rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
+    WaypointPolicy::new(vec![wp(0, ctx.init, identity(), 1.0)])
+}

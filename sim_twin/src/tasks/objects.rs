@@ -1,0 +1,452 @@
+//! Building blocks of the task scenes: random draws, fixed and dynamic bodies, the wall,
+//! articulated objects, and the grasp constraint.
+
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rapier3d_f64::prelude::*;
+
+use crate::convert::{pose_from_rapier, pose_to_rapier, vector_from_rapier, vector_to_rapier};
+use crate::vehicle_body::{ROBOT_GROUP, WORLD_GROUP, material};
+
+/// U(lo, hi) (lo when the interval is empty).
+pub(crate) fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    if hi > lo { rng.random_range(lo..hi) } else { lo }
+}
+
+/// U(−half, half).
+pub(crate) fn symmetric(rng: &mut ChaCha8Rng, half: f64) -> f64 {
+    uniform(rng, -half, half)
+}
+
+/// Scene colliders: world members that collide with everything.
+pub(crate) fn world_groups() -> InteractionGroups {
+    InteractionGroups::new(WORLD_GROUP, Group::ALL, InteractionTestMode::And)
+}
+
+/// A held object's colliders: no contact with the robot while the grasp constraint holds it.
+pub(crate) fn held_groups() -> InteractionGroups {
+    InteractionGroups::new(
+        WORLD_GROUP,
+        Group::ALL.difference(ROBOT_GROUP),
+        InteractionTestMode::And,
+    )
+}
+
+/// A fixed body at `pose`.
+pub(crate) fn fixed_body(world: &mut PhysicsWorld, pose: &Isometry3<f64>) -> RigidBodyHandle {
+    world.insert_body(RigidBodyBuilder::fixed().pose(pose_to_rapier(pose)))
+}
+
+/// Attaches a collider (default material: μ 1, e 0, multiply) to `body` at `local`.
+pub(crate) fn attach(
+    world: &mut PhysicsWorld,
+    body: RigidBodyHandle,
+    shape: ColliderBuilder,
+    local: &Isometry3<f64>,
+) -> ColliderHandle {
+    let collider = material(shape)
+        .collision_groups(world_groups())
+        .position(pose_to_rapier(local));
+    world.insert_collider(collider, Some(body))
+}
+
+/// A fixed box of `half` extents centred at `pose`.
+pub(crate) fn fixed_box(
+    world: &mut PhysicsWorld,
+    pose: &Isometry3<f64>,
+    half: Vector3<f64>,
+) -> (RigidBodyHandle, ColliderHandle) {
+    let body = fixed_body(world, pose);
+    let c = attach(
+        world,
+        body,
+        ColliderBuilder::cuboid(half.x, half.y, half.z),
+        &Isometry3::identity(),
+    );
+    (body, c)
+}
+
+/// A dynamic body at `pose` with one collider of mass `mass_kg` (inertia from the shape).
+pub(crate) fn dynamic_body(
+    world: &mut PhysicsWorld,
+    pose: &Isometry3<f64>,
+    shape: ColliderBuilder,
+    mass_kg: f64,
+    gravity: bool,
+) -> (RigidBodyHandle, ColliderHandle) {
+    let body = world.insert_body(
+        RigidBodyBuilder::dynamic()
+            .pose(pose_to_rapier(pose))
+            .gravity_scale(if gravity { 1.0 } else { 0.0 })
+            .can_sleep(false)
+            .build(),
+    );
+    let collider = material(shape)
+        .mass(mass_kg)
+        .collision_groups(world_groups());
+    let c = world.insert_collider(collider, Some(body));
+    (body, c)
+}
+
+/// World pose of a body (identity if it is gone).
+pub(crate) fn pose_of(world: &PhysicsWorld, body: RigidBodyHandle) -> Isometry3<f64> {
+    world
+        .bodies
+        .get(body)
+        .map_or_else(Isometry3::identity, |rb| pose_from_rapier(rb.position()))
+}
+
+/// World position of a body's origin.
+pub(crate) fn position_of(world: &PhysicsWorld, body: RigidBodyHandle) -> Vector3<f64> {
+    pose_of(world, body).translation.vector
+}
+
+/// World linear velocity of a body's centre of mass.
+pub(crate) fn velocity_of(world: &PhysicsWorld, body: RigidBodyHandle) -> Vector3<f64> {
+    world
+        .bodies
+        .get(body)
+        .map_or_else(Vector3::zeros, |rb| vector_from_rapier(rb.linvel()))
+}
+
+/// Moves a body (and zeroes its velocity).
+pub(crate) fn place(world: &mut PhysicsWorld, body: RigidBodyHandle, pose: &Isometry3<f64>) {
+    if let Some(rb) = world.bodies.get_mut(body) {
+        rb.set_position(pose_to_rapier(pose), true);
+        rb.set_linvel(Vector::ZERO, true);
+        rb.set_angvel(Vector::ZERO, true);
+    }
+}
+
+/// Sets the collision groups of every collider of `body`.
+pub(crate) fn set_groups(world: &mut PhysicsWorld, body: RigidBodyHandle, groups: InteractionGroups) {
+    let colliders: Vec<ColliderHandle> = world
+        .bodies
+        .get(body)
+        .map(|rb| rb.colliders().to_vec())
+        .unwrap_or_default();
+    for c in colliders {
+        if let Some(col) = world.colliders.get_mut(c) {
+            col.set_collision_groups(groups);
+        }
+    }
+}
+
+/// Total contact force between two colliders over the last physics substep, N.
+pub(crate) fn contact_force_n(
+    world: &PhysicsWorld,
+    a: ColliderHandle,
+    b: ColliderHandle,
+    substep_s: f64,
+) -> f64 {
+    world
+        .contact_pair(a, b)
+        .map_or(0.0, |p| p.total_impulse_magnitude() / substep_s)
+}
+
+/// Whether two colliders touch (an active contact).
+pub(crate) fn touching(world: &PhysicsWorld, a: ColliderHandle, b: ColliderHandle) -> bool {
+    world
+        .contact_pair(a, b)
+        .is_some_and(|p| p.has_any_active_contact())
+}
+
+/// Quaternion from Euler x-y-z (roll, pitch, yaw) as Isaac Lab's `quat_from_euler_xyz`
+/// (R = Rz·Ry·Rx).
+pub(crate) fn euler_xyz(roll: f64, pitch: f64, yaw: f64) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_euler_angles(roll, pitch, yaw)
+}
+
+/// The default wall of the suite (AMBENCH_SPEC §4.0): a box 0.1 × 2.0 × 2.0 m, μ 1, e 0.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Wall {
+    /// Centre pose.
+    pub pose: Isometry3<f64>,
+}
+
+impl Wall {
+    /// Half extents, m.
+    pub const HALF: Vector3<f64> = Vector3::new(0.05, 1.0, 1.0);
+    /// Default centre.
+    pub const CENTER: Vector3<f64> = Vector3::new(2.0, 0.0, 1.0);
+
+    /// The wall at its default pose.
+    pub fn at_default() -> Self {
+        Self::at(Self::CENTER)
+    }
+
+    /// The wall centred at `center`, unrotated.
+    pub fn at(center: Vector3<f64>) -> Self {
+        Self {
+            pose: Isometry3::from_parts(Translation3::from(center), UnitQuaternion::identity()),
+        }
+    }
+
+    /// The default wall moved by U(±dx), U(±dy) and pitched by U(±pitch) (Isaac Lab's
+    /// `reset_root_state_uniform`: orientation = default ⊗ euler(0, pitch, 0)).
+    pub fn randomized(rng: &mut ChaCha8Rng, dx: f64, dy: f64, pitch: f64) -> Self {
+        let x = symmetric(rng, dx);
+        let y = symmetric(rng, dy);
+        let p = symmetric(rng, pitch);
+        Self {
+            pose: Isometry3::from_parts(
+                Translation3::from(Self::CENTER + Vector3::new(x, y, 0.0)),
+                euler_xyz(0.0, p, 0.0),
+            ),
+        }
+    }
+
+    /// Adds it to the world.
+    pub fn insert(&self, world: &mut PhysicsWorld) -> (RigidBodyHandle, ColliderHandle) {
+        fixed_box(world, &self.pose, Self::HALF)
+    }
+
+    /// A point given in the wall's frame, in the world.
+    pub fn point(&self, local: Vector3<f64>) -> Vector3<f64> {
+        self.pose.translation.vector + self.pose.rotation * local
+    }
+
+    /// The pose of a frame at `local` in the wall, turned by `rotation` after the wall's.
+    pub fn frame(&self, local: Vector3<f64>, rotation: UnitQuaternion<f64>) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::from(self.point(local)),
+            self.pose.rotation * rotation,
+        )
+    }
+
+    /// World x of the face toward the robot at the wall's centre (IK limits).
+    pub fn face_x(&self) -> f64 {
+        self.pose.translation.x - Self::HALF.x
+    }
+}
+
+/// A one-degree-of-freedom joint's type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Dof {
+    /// Slides along the joint frame's x.
+    Prismatic,
+    /// Turns about the joint frame's x.
+    Revolute,
+}
+
+/// An articulated object's joint: the spec's limits, drive and friction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct JointSpec {
+    /// Prismatic or revolute.
+    pub dof: Dof,
+    /// Lower and upper limit (m or rad).
+    pub limits: Option<(f64, f64)>,
+    /// Spring stiffness toward `target` (N/m or N·m/rad), 0 for none.
+    pub stiffness: f64,
+    /// Viscous damping (N·s/m or N·m·s/rad).
+    pub damping: f64,
+    /// Spring rest position.
+    pub target: f64,
+    /// Most drive force or torque.
+    pub effort: f64,
+    /// Coulomb friction force or torque (static = dynamic).
+    pub friction: f64,
+    /// Position at reset.
+    pub initial: f64,
+}
+
+/// Velocity gain of the friction motor: far above any object's inertia/dt so the cap
+/// (the friction force) decides.
+const FRICTION_GAIN: f64 = 1.0e4;
+
+/// An articulated object: a fixed root body and a dynamic link on a one-DoF joint.
+#[derive(Debug, Clone)]
+pub(crate) struct Articulation {
+    /// The root (fixed).
+    pub root: RigidBodyHandle,
+    /// The moving link.
+    pub link: RigidBodyHandle,
+    /// The joint.
+    pub joint: ImpulseJointHandle,
+    dof: Dof,
+    root_from_joint: Isometry3<f64>,
+    joint_from_link0: Isometry3<f64>,
+}
+
+impl Articulation {
+    /// Adds a link to `root` on a joint at `root_from_joint` (axis = the joint frame's x).
+    /// `joint_from_link0` places the link in the joint frame at position 0; the link starts
+    /// at `spec.initial`. `shapes` are the link's colliders in its own frame.
+    pub fn insert(
+        world: &mut PhysicsWorld,
+        root: RigidBodyHandle,
+        root_from_joint: Isometry3<f64>,
+        joint_from_link0: Isometry3<f64>,
+        shapes: Vec<(ColliderBuilder, Isometry3<f64>)>,
+        mass_kg: f64,
+        spec: &JointSpec,
+    ) -> (Self, Vec<ColliderHandle>) {
+        let world_from_root = pose_of(world, root);
+        let moved = match spec.dof {
+            Dof::Prismatic => Isometry3::translation(spec.initial, 0.0, 0.0),
+            Dof::Revolute => Isometry3::rotation(Vector3::x() * spec.initial),
+        };
+        let pose = world_from_root * root_from_joint * moved * joint_from_link0;
+        let link = world.insert_body(
+            RigidBodyBuilder::dynamic()
+                .pose(pose_to_rapier(&pose))
+                .can_sleep(false)
+                .build(),
+        );
+        let each = mass_kg / shapes.len().max(1) as f64;
+        let colliders = shapes
+            .into_iter()
+            .map(|(shape, local)| {
+                let c = material(shape)
+                    .mass(each)
+                    .collision_groups(world_groups())
+                    .position(pose_to_rapier(&local));
+                world.insert_collider(c, Some(link))
+            })
+            .collect();
+        let (mask, axis) = match spec.dof {
+            Dof::Prismatic => (JointAxesMask::LOCKED_PRISMATIC_AXES, JointAxis::LinX),
+            Dof::Revolute => (JointAxesMask::LOCKED_REVOLUTE_AXES, JointAxis::AngX),
+        };
+        let frame1 = pose_to_rapier(&root_from_joint);
+        let frame2 = pose_to_rapier(&joint_from_link0.inverse());
+        let mut main = GenericJointBuilder::new(mask)
+            .local_frame1(frame1)
+            .local_frame2(frame2)
+            .contacts_enabled(false)
+            .motor_model(axis, MotorModel::ForceBased)
+            .motor_max_force(axis, spec.effort);
+        if let Some((lo, hi)) = spec.limits {
+            main = main.limits(axis, [lo, hi]);
+        }
+        main = if spec.stiffness > 0.0 {
+            main.motor_position(axis, spec.target, spec.stiffness, spec.damping)
+        } else {
+            main.motor_velocity(axis, 0.0, spec.damping)
+        };
+        let joint = world.insert_impulse_joint(root, link, main.build());
+        if spec.friction > 0.0 {
+            let friction = GenericJointBuilder::new(JointAxesMask::empty())
+                .local_frame1(frame1)
+                .local_frame2(frame2)
+                .contacts_enabled(false)
+                .motor_model(axis, MotorModel::ForceBased)
+                .motor_velocity(axis, 0.0, FRICTION_GAIN)
+                .motor_max_force(axis, spec.friction);
+            world.insert_impulse_joint(root, link, friction.build());
+        }
+        (
+            Self {
+                root,
+                link,
+                joint,
+                dof: spec.dof,
+                root_from_joint,
+                joint_from_link0,
+            },
+            colliders,
+        )
+    }
+
+    /// The joint frame's displacement from position 0.
+    fn displacement(&self, world: &PhysicsWorld) -> Isometry3<f64> {
+        let root_from_link = pose_of(world, self.root).inverse() * pose_of(world, self.link);
+        self.root_from_joint.inverse() * root_from_link * self.joint_from_link0.inverse()
+    }
+
+    /// Joint position (m or rad), from the bodies' poses.
+    pub fn position(&self, world: &PhysicsWorld) -> f64 {
+        let d = self.displacement(world);
+        match self.dof {
+            Dof::Prismatic => d.translation.x,
+            Dof::Revolute => {
+                let q = d.rotation;
+                2.0 * q.i.atan2(q.w)
+            }
+        }
+    }
+
+    /// World pose of the link.
+    pub fn link_pose(&self, world: &PhysicsWorld) -> Isometry3<f64> {
+        pose_of(world, self.link)
+    }
+}
+
+/// The grasp constraint (see [`super::GraspMode`]).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Grasp {
+    /// Bodies the fingers may grasp.
+    pub graspable: Vec<RigidBodyHandle>,
+    /// The object held and the constraint holding it.
+    pub held: Option<(RigidBodyHandle, ImpulseJointHandle)>,
+}
+
+impl Grasp {
+    /// Attaches `object` to `ee_body` where they are now.
+    pub fn attach(&mut self, world: &mut PhysicsWorld, ee_body: RigidBodyHandle, object: RigidBodyHandle) {
+        let ee_from_object = pose_of(world, ee_body).inverse() * pose_of(world, object);
+        let joint = FixedJointBuilder::new()
+            .local_frame1(pose_to_rapier(&ee_from_object))
+            .local_frame2(pose_to_rapier(&Isometry3::identity()))
+            .contacts_enabled(false);
+        let handle = world.insert_impulse_joint(ee_body, object, joint);
+        set_groups(world, object, held_groups());
+        self.held = Some((object, handle));
+    }
+
+    /// Releases the held object, if any.
+    pub fn release(&mut self, world: &mut PhysicsWorld) {
+        if let Some((object, joint)) = self.held.take() {
+            world.remove_impulse_joint(joint);
+            set_groups(world, object, world_groups());
+        }
+    }
+
+    /// One tick of the assisted grasp: release when the gripper opens; engage when it is
+    /// closing and both fingers touch a graspable object.
+    pub fn update(
+        &mut self,
+        world: &mut PhysicsWorld,
+        ee_body: RigidBodyHandle,
+        fingers: &[Vec<ColliderHandle>; 2],
+        closing: bool,
+        assisted: bool,
+    ) {
+        if !closing {
+            self.release(world);
+            return;
+        }
+        if self.held.is_some() || !assisted {
+            return;
+        }
+        let touches = |world: &PhysicsWorld, finger: &[ColliderHandle], object: RigidBodyHandle| {
+            world.bodies.get(object).is_some_and(|rb| {
+                rb.colliders()
+                    .iter()
+                    .any(|o| finger.iter().any(|f| touching(world, *f, *o)))
+            })
+        };
+        let found = self
+            .graspable
+            .iter()
+            .copied()
+            .find(|o| touches(world, &fingers[0], *o) && touches(world, &fingers[1], *o));
+        if let Some(object) = found {
+            self.attach(world, ee_body, object);
+        }
+    }
+}
+
+/// A point `local` of a body in the world.
+pub(crate) fn point_of(world: &PhysicsWorld, body: RigidBodyHandle, local: &Vector3<f64>) -> Vector3<f64> {
+    (pose_of(world, body) * nalgebra::Point3::from(*local)).coords
+}
+
+/// Sets a dynamic body's linear velocity (throws, tests).
+#[allow(dead_code)]
+pub(crate) fn set_velocity(world: &mut PhysicsWorld, body: RigidBodyHandle, v: &Vector3<f64>) {
+    if let Some(rb) = world.bodies.get_mut(body) {
+        rb.set_linvel(vector_to_rapier(v), true);
+    }
+}

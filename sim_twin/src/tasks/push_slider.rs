@@ -1,0 +1,127 @@
+//! Push Slider (AMBENCH_SPEC §4.9): a knob on a rail along a randomised wall, pushed from
+//! q = −0.5 m to 0.45 m.
+//!
+//! [U] choices (the reference keeps the slider only as a USD asset): the rail is a fixed bar
+//! 1.1 m long, 0.02 m deep and 0.04 m high on the wall face; the knob ("Slider" body) is a box
+//! 0.03 m along the rail, 0.16 m out from the rail and 0.08 m high, mass 0.2 kg, its origin at
+//! its centre (0.10 m off the wall face); the joint is limited to [−0.5, 0.5] m. The root is
+//! the wall frame turned 180° about z, so the joint's positive direction is −w_y (the
+//! scripted push direction).
+
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use rapier3d_f64::prelude::*;
+
+use super::objects::{Articulation, Dof, JointSpec, Wall, attach, fixed_body, symmetric};
+use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
+use crate::error::TwinError;
+
+/// Slider position at which it counts as pushed, m.
+pub(crate) const PUSHED_M: f64 = 0.45;
+/// Slider position at reset, m.
+pub(crate) const INITIAL_M: f64 = -0.5;
+/// Engagement: 5 % of the way from the start to the goal.
+pub(crate) const ENGAGED_M: f64 = 0.05 * (PUSHED_M - INITIAL_M);
+
+const RAIL_DEPTH_M: f64 = 0.02;
+const KNOB_HALF: Vector3<f64> = Vector3::new(0.08, 0.015, 0.04);
+
+const SPEC: JointSpec = JointSpec {
+    dof: Dof::Prismatic,
+    limits: Some((-0.5, 0.5)),
+    stiffness: 0.0,
+    damping: 5.0,
+    target: 0.0,
+    effort: 1000.0,
+    friction: 4.0,
+    initial: INITIAL_M,
+};
+
+#[derive(Debug, Default)]
+pub(crate) struct PushSlider {
+    wall: Option<Wall>,
+    slider: Option<Articulation>,
+}
+
+impl Scene for PushSlider {
+    fn task(&self) -> TaskId {
+        TaskId::PushSlider
+    }
+
+    fn criteria_names(&self) -> &'static [&'static str] {
+        &["slider_engaged", "slider_pushed"]
+    }
+
+    fn build(&mut self, b: &mut Build<'_>) -> Result<(), TwinError> {
+        let wall = Wall::randomized(b.rng, 0.2, 0.2, 0.0);
+        wall.insert(b.world);
+        let y = symmetric(b.rng, 0.3);
+        let z = symmetric(b.rng, 0.3);
+        let turned = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
+        // Root frame: x out of the wall toward the robot, y = −w_y (the push direction).
+        let root = fixed_body(b.world, &wall.frame(Vector3::new(-Wall::HALF.x, y, z), turned));
+        attach(
+            b.world,
+            root,
+            ColliderBuilder::cuboid(RAIL_DEPTH_M / 2.0, 0.55, 0.02),
+            &Isometry3::translation(RAIL_DEPTH_M / 2.0, 0.0, 0.0),
+        );
+        // Joint frame: its x along the root's y.
+        let root_from_joint = Isometry3::rotation(Vector3::z() * std::f64::consts::FRAC_PI_2);
+        // Knob centre in the joint frame at q = 0: out of the wall along the root's x, which
+        // is the joint frame's −y.
+        let out = RAIL_DEPTH_M + KNOB_HALF.x;
+        let joint_from_link0 = Isometry3::from_parts(
+            nalgebra::Translation3::new(0.0, -out, 0.0),
+            root_from_joint.rotation.inverse(),
+        );
+        let (slider, _) = Articulation::insert(
+            b.world,
+            root,
+            root_from_joint,
+            joint_from_link0,
+            vec![(
+                ColliderBuilder::cuboid(KNOB_HALF.x, KNOB_HALF.y, KNOB_HALF.z),
+                Isometry3::identity(),
+            )],
+            0.2,
+            &SPEC,
+        );
+        self.wall = Some(wall);
+        self.slider = Some(slider);
+        Ok(())
+    }
+
+    fn after_step(&mut self, world: &mut PhysicsWorld, _view: &View) -> TaskStatus {
+        let q = self.position(world);
+        let pushed = q >= PUSHED_M;
+        TaskStatus {
+            success: pushed,
+            criteria: vec![q - INITIAL_M >= ENGAGED_M, pushed],
+        }
+    }
+
+    fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
+        let mut o = TaskObservation::default();
+        let q = self.position(world);
+        o.push("slider_pos", [q]);
+        o.push("slider_pushed", [f64::from(u8::from(q >= PUSHED_M))]);
+        if let Some(s) = &self.slider {
+            o.push_vec3("slider_body_pos", &s.link_pose(world).translation.vector);
+        }
+        o
+    }
+
+    fn wall(&self) -> Option<Isometry3<f64>> {
+        self.wall.map(|w| w.pose)
+    }
+
+    fn obstacle_face_x(&self, _world: &PhysicsWorld) -> Option<f64> {
+        self.wall.map(|w| w.face_x())
+    }
+}
+
+impl PushSlider {
+    fn position(&self, world: &PhysicsWorld) -> f64 {
+        self.slider.as_ref().map_or(INITIAL_M, |s| s.position(world))
+    }
+}

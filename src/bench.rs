@@ -1,0 +1,379 @@
+//! `amstack bench`: the benchmark — tasks × rollouts of the scripted policies on one
+//! platform and controller, scored as the paper's tables.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::Result;
+use comfy_table::{Table, presets};
+use controllers::{ControllerKind, profile};
+use indicatif::{ProgressBar, ProgressStyle};
+use policy_runtime::Interface;
+use policy_runtime::bench::{BenchConfig, BenchReport, RolloutResult, TaskResult, run_bench};
+use policy_runtime::metrics::{Spread, format_or_na};
+use serde_json::{Value, json};
+use sim_twin::TaskId;
+
+use crate::cli_error::bad_input;
+use crate::output::{check_writable, write_json};
+use crate::twin_flags::TwinFlags;
+use crate::vehicles::all_vehicles;
+
+/// Version of the results JSON layout.
+const RESULTS_SCHEMA: u32 = 1;
+
+#[derive(Debug, clap::Args)]
+#[command(after_help = "\
+Tasks: press-button, peg-in-hole, frame-assembly, cabinet-pick-place, lemon-harvesting,
+toss-ball, rotate-valve, push-slider, pull-lever, open-door, wipe-window, ndt (or all).
+
+Controllers per platform:
+  ee-only                        pid, l1          (end-effector interface only)
+  fa-hexa                        ik-pid, ik-l1, mpc (mpc: end-effector interface only)
+  ua-hexa, ua-quad, omni-hexa    ik-pid, ik-l1
+
+Each rollout's seed is --seed + its index; same flags, same results, whatever --jobs.
+The table shows, per task, the success rate (SR), subtask completion, the errors normalised
+by the arm reach and the tilt use as mean +- std over the successful rollouts, and the rotor
+saturation rate; N/A where a figure is undefined (no subtasks, no arm reach, no rotors).
+
+Examples:
+  amstack bench --task press-button --rollouts 5
+  amstack bench --platform fa-hexa --controller ik-pid --rollouts 30 --out runs/fa-ikpid
+  amstack bench --platform fa-hexa --interface joint --task push-slider --json slider.json")]
+pub struct Args {
+    /// Task name, or `all`.
+    #[arg(long, default_value = "all")]
+    task: String,
+    /// Vehicle id (ee-only, fa-hexa, ua-hexa, ua-quad, omni-hexa, or one added with --vehicle).
+    #[arg(long, default_value = "ee-only")]
+    platform: String,
+    /// Controller [default: pid on ee-only, ik-pid otherwise].
+    #[arg(long)]
+    controller: Option<String>,
+    /// Action interface: ee (end-effector target) or joint (base pose + arm joints, from the
+    /// scripted end-effector targets through the whole-body IK).
+    #[arg(long, default_value = "ee", value_parser = ["ee", "joint"])]
+    interface: String,
+    /// Rollouts per task.
+    #[arg(long, default_value_t = 10)]
+    rollouts: usize,
+    /// Worker threads [default: all cores].
+    #[arg(long)]
+    jobs: Option<usize>,
+    #[command(flatten)]
+    twin: TwinFlags,
+    /// Output directory: results.json, config.json and one MCAP log per rollout.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Write the results JSON here (also written to --out).
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
+    #[arg(long = "vehicle", value_name = "FILE.toml")]
+    vehicles: Vec<PathBuf>,
+}
+
+/// Controllers valid on a vehicle, and whether each takes the joint interface.
+fn controllers_for(vehicle: &platform::Vehicle) -> Vec<&'static str> {
+    if vehicle.ee_link == vehicle.base_link {
+        vec!["pid", "l1"]
+    } else if vehicle.id == "fa-hexa" {
+        vec!["ik-pid", "ik-l1", "mpc"]
+    } else {
+        vec!["ik-pid", "ik-l1"]
+    }
+}
+
+fn tasks(name: &str) -> Result<Vec<TaskId>> {
+    if name == "all" {
+        return Ok(TaskId::ALL.to_vec());
+    }
+    name.split(',')
+        .map(|n| {
+            TaskId::parse(n.trim()).map_err(|e| bad_input(format!("--task: {e}, or all")))
+        })
+        .collect()
+}
+
+pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
+    let vehicles = all_vehicles(&args.vehicles)?;
+    let Some(vehicle) = vehicles.iter().find(|v| v.id == args.platform).cloned() else {
+        let ids: Vec<&str> = vehicles.iter().map(|v| v.id.as_str()).collect();
+        return Err(bad_input(format!(
+            "--platform {}: unknown vehicle (known: {})",
+            args.platform,
+            ids.join(", ")
+        )));
+    };
+    let tasks = tasks(&args.task)?;
+    let valid = controllers_for(&vehicle);
+    let name = args
+        .controller
+        .clone()
+        .unwrap_or_else(|| valid[0].to_owned());
+    if !valid.contains(&name.as_str()) {
+        return Err(bad_input(format!(
+            "--controller {name}: not available on {} (valid: {})",
+            vehicle.id,
+            valid.join(", ")
+        )));
+    }
+    let kind = match name.as_str() {
+        "l1" | "ik-l1" => ControllerKind::L1,
+        "mpc" => ControllerKind::Mpc,
+        _ => ControllerKind::Pid,
+    };
+    let interface = if args.interface == "joint" {
+        Interface::BaseJoint
+    } else {
+        Interface::Ee
+    };
+    if interface == Interface::BaseJoint && vehicle.ee_link == vehicle.base_link {
+        return Err(bad_input(format!(
+            "--interface joint: {} has no arm joints (valid: ee)",
+            vehicle.id
+        )));
+    }
+    if interface == Interface::BaseJoint && kind == ControllerKind::Mpc {
+        return Err(bad_input(
+            "--interface joint: the whole-body MPC takes end-effector targets (valid: ee)",
+        ));
+    }
+    let controller = profile(&vehicle, kind)
+        .map_err(|e| bad_input(format!("--controller {name}: {e}")))?;
+    if args.rollouts == 0 {
+        return Err(bad_input("--rollouts 0: run at least one rollout"));
+    }
+    let jobs = match args.jobs {
+        Some(0) => return Err(bad_input("--jobs 0: use at least one thread")),
+        Some(j) => j,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    let twin = args.twin.twin_config()?;
+    Ok(BenchConfig {
+        vehicle,
+        controller,
+        controller_name: name,
+        interface,
+        tasks,
+        rollouts: args.rollouts,
+        seed: args.twin.seed,
+        twin,
+        jobs,
+        mcap_dir: args.out.as_ref().map(|d| d.join("rollouts")),
+    })
+}
+
+/// The run's configuration as recorded in the results (everything that decides them).
+fn config_json(args: &Args, config: &BenchConfig) -> Result<Value> {
+    Ok(json!({
+        "platform": config.vehicle.id,
+        "controller": config.controller_name,
+        "controller_gains": serde_json::to_value(config.controller)?,
+        "interface": match config.interface {
+            Interface::Ee => "ee",
+            Interface::BaseJoint => "joint",
+        },
+        "tasks": config.tasks.iter().map(|t| t.name()).collect::<Vec<_>>(),
+        "rollouts": config.rollouts,
+        "seed": config.seed,
+        "disturbances": args.twin.disturbances,
+        "twin": serde_json::to_value(&config.twin)?,
+    }))
+}
+
+fn spread_json(s: &Spread) -> Value {
+    json!({ "mean": s.mean, "std": s.std, "stderr": s.stderr, "count": s.count })
+}
+
+fn rollout_json(r: &RolloutResult) -> Value {
+    let s = &r.summary;
+    json!({
+        "index": r.index,
+        "seed": r.seed,
+        "success": r.success,
+        "termination": r.termination,
+        "executed_steps": r.executed_steps,
+        "subtask_completion": s.subtask_completion,
+        "criteria": r.criteria.iter().map(|(n, v)| (n.clone(), Value::Bool(*v))).collect::<serde_json::Map<_, _>>(),
+        "ee_pos_error_m": s.ee_pos_error_m,
+        "base_pos_error_m": s.base_pos_error_m,
+        "norm_ee_error": s.norm_ee_error,
+        "norm_base_error": s.norm_base_error,
+        "tilt_use_rad": s.tilt_use_rad,
+        "saturation_rate": s.saturation_rate,
+        "mcap": r.mcap,
+    })
+}
+
+fn task_json(t: &TaskResult) -> Value {
+    let s = &t.summary;
+    let criteria: serde_json::Map<String, Value> = t
+        .criteria
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            let reached = t.rollouts.iter().filter(|r| r.criteria[i].1).count();
+            let rate = (!t.rollouts.is_empty()).then(|| reached as f64 / t.rollouts.len() as f64);
+            (name.clone(), json!(rate))
+        })
+        .collect();
+    json!({
+        "rollouts": s.rollouts,
+        "successes": s.successes,
+        "success_rate": s.success_rate,
+        "subtask_completion": s.subtask_completion,
+        "criteria_rates": criteria,
+        "norm_ee_error": s.norm_ee_error.mean,
+        "norm_base_error": s.norm_base_error.mean,
+        "tilt_use_rad": s.tilt_use_rad.mean,
+        "saturation_rate": s.saturation_rate.mean,
+        "spread_over_successes": {
+            "norm_ee_error": spread_json(&s.norm_ee_error),
+            "norm_base_error": spread_json(&s.norm_base_error),
+            "tilt_use_rad": spread_json(&s.tilt_use_rad),
+            "saturation_rate": spread_json(&s.saturation_rate),
+        },
+        "per_rollout": t.rollouts.iter().map(rollout_json).collect::<Vec<_>>(),
+    })
+}
+
+/// The results document (README "Results JSON").
+pub(crate) fn results_json(args: &Args, config: &BenchConfig, report: &BenchReport) -> Result<Value> {
+    let tasks: serde_json::Map<String, Value> = report
+        .tasks
+        .iter()
+        .map(|t| (t.task.name().to_owned(), task_json(t)))
+        .collect();
+    let rollouts: usize = report.tasks.iter().map(|t| t.rollouts.len()).sum();
+    let seconds_per_rollout = report.wall_time_s / rollouts.max(1) as f64;
+    Ok(json!({
+        "schema": RESULTS_SCHEMA,
+        "status": if report.interrupted { "interrupted" } else { "completed" },
+        "seed": config.seed,
+        "config": config_json(args, config)?,
+        "tasks": tasks,
+        "timing": {
+            "wall_time_s": report.wall_time_s,
+            "jobs": config.jobs,
+            "env_steps": report.env_steps,
+            "env_steps_per_second": report.steps_per_second(),
+            "seconds_per_rollout": seconds_per_rollout,
+            "rollouts_per_minute": 60.0 / seconds_per_rollout.max(1e-9),
+        },
+    }))
+}
+
+fn pm(s: &Spread, scale: f64, decimals: usize) -> String {
+    match (s.mean, s.std) {
+        (Some(m), Some(d)) => format!("{:.decimals$} ± {:.decimals$}", m * scale, d * scale),
+        (Some(m), None) => format!("{:.decimals$}", m * scale),
+        _ => "N/A".to_owned(),
+    }
+}
+
+/// The paper-shaped table.
+pub(crate) fn table(report: &BenchReport) -> Table {
+    let mut table = Table::new();
+    table.load_style(presets::ASCII_MARKDOWN).set_header([
+        "task",
+        "SR (%)",
+        "subtasks (%)",
+        "norm. EE error",
+        "norm. base error",
+        "tilt use (deg)",
+        "saturation (%)",
+    ]);
+    for t in &report.tasks {
+        let s = &t.summary;
+        table.add_row([
+            t.task.title().to_owned(),
+            format!("{:.2}", 100.0 * s.success_rate),
+            format_or_na(s.subtask_completion.map(|c| 100.0 * c), 1),
+            pm(&s.norm_ee_error, 1.0, 4),
+            pm(&s.norm_base_error, 1.0, 4),
+            pm(&s.tilt_use_rad, 180.0 / std::f64::consts::PI, 2),
+            pm(&s.saturation_rate, 100.0, 2),
+        ]);
+    }
+    table
+}
+
+fn check_out_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| bad_input(format!("--out {}: cannot create it: {e}", dir.display())))?;
+    check_writable("--out", &dir.join("results.json"))
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    if let Some(p) = &args.json {
+        check_writable("--json", p)?;
+    }
+    let config = config(args)?;
+    if let Some(dir) = &args.out {
+        check_out_dir(dir)?;
+    }
+    let total = config.tasks.len() * config.rollouts;
+    eprintln!(
+        "bench: {} task(s) x {} rollouts on {} ({}, {} interface), seed {}, {} thread(s), disturbances: {}",
+        config.tasks.len(),
+        config.rollouts,
+        config.vehicle.id,
+        config.controller_name,
+        args.interface,
+        config.seed,
+        config.jobs,
+        args.twin.disturbances
+    );
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
+    let bar = ProgressBar::new(total as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {pos}/{len} rollouts ({eta} left) {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    let on_done = |r: &RolloutResult| {
+        bar.set_message(format!(
+            "{} #{}: {}",
+            r.task.name(),
+            r.index,
+            if r.success { "success" } else { "fail" }
+        ));
+        bar.inc(1);
+    };
+    let report = run_bench(&config, &on_done, &stop)?;
+    bar.finish_and_clear();
+    println!("{}", table(&report));
+    eprintln!(
+        "{} env steps in {:.1} s ({:.0} steps/s, {} thread(s))",
+        report.env_steps,
+        report.wall_time_s,
+        report.steps_per_second(),
+        config.jobs
+    );
+    let results = results_json(args, &config, &report)?;
+    if let Some(dir) = &args.out {
+        write_json(&dir.join("results.json"), &results)?;
+        write_json(&dir.join("config.json"), &results["config"])?;
+        eprintln!("wrote {}", dir.display());
+    }
+    if let Some(path) = &args.json {
+        write_json(path, &results)?;
+        eprintln!("wrote {}", path.display());
+    }
+    if report.interrupted {
+        return Err(anyhow::Error::new(Interrupted));
+    }
+    Ok(())
+}
+
+/// The run was stopped with Ctrl-C (partial results were written).
+#[derive(Debug, thiserror::Error)]
+#[error("interrupted; partial results written")]
+pub struct Interrupted;
