@@ -86,6 +86,9 @@ impl Scene for PushSlider {
             0.2,
             &SPEC,
         );
+        // The fingers close around the knob and carry it (their drives alone would yield
+        // to the rail's friction).
+        b.graspable.push(slider.link);
         self.wall = Some(wall);
         self.slider = Some(slider);
         Ok(())
