@@ -320,3 +320,96 @@ fn track_with_mpc_is_refused_off_the_fa_hexa_and_off_the_ee_interface() {
         &["--interface ee"],
     );
 }
+
+#[test]
+fn bench_refuses_unknown_names_and_impossible_combinations_listing_the_choices() {
+    assert_bad_input(
+        &amstack(&["bench", "--task", "fly-away"]),
+        &["--task", "fly-away", "press-button", "wipe-window"],
+    );
+    assert_bad_input(
+        &amstack(&["bench", "--platform", "blimp"]),
+        &["--platform blimp", "fa-hexa", "ee-only"],
+    );
+    assert_bad_input(
+        &amstack(&["bench", "--platform", "ee-only", "--controller", "ik-pid"]),
+        &["--controller ik-pid", "ee-only", "pid, l1"],
+    );
+    assert_bad_input(
+        &amstack(&["bench", "--platform", "ua-quad", "--controller", "mpc"]),
+        &["--controller mpc", "ik-pid, ik-l1"],
+    );
+    assert_bad_input(
+        &amstack(&["bench", "--platform", "ee-only", "--interface", "joint"]),
+        &["--interface joint", "ee-only", "valid: ee"],
+    );
+    assert_bad_input(&amstack(&["bench", "--rollouts", "0"]), &["--rollouts 0"]);
+    assert_bad_input(
+        &amstack(&["bench", "--json", "/nonexistent-dir/results.json"]),
+        &["--json", "/nonexistent-dir"],
+    );
+}
+
+#[test]
+fn bench_writes_the_documented_results_and_one_log_per_rollout() {
+    let dir = match tempfile::tempdir() {
+        Ok(d) => d,
+        Err(e) => panic!("tempdir: {e}"),
+    };
+    let out_dir = dir.path().join("run");
+    let json = dir.path().join("results.json");
+    let out = amstack(&[
+        "bench",
+        "--task",
+        "press-button,push-slider",
+        "--rollouts",
+        "2",
+        "--jobs",
+        "2",
+        "--seed",
+        "7",
+        "--out",
+        &out_dir.to_string_lossy(),
+        "--json",
+        &json.to_string_lossy(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let table = stdout(&out);
+    for needle in ["Press Button", "Push Slider", "SR (%)", "N/A"] {
+        assert!(table.contains(needle), "{needle:?} not in\n{table}");
+    }
+    let text = std::fs::read_to_string(&json).unwrap_or_default();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+    assert_eq!(v["seed"], 7);
+    assert_eq!(v["config"]["platform"], "ee-only");
+    assert!(v["timing"]["wall_time_s"].as_f64().is_some_and(|t| t > 0.0));
+    let slider = &v["tasks"]["push-slider"];
+    for field in [
+        "success_rate",
+        "subtask_completion",
+        "norm_ee_error",
+        "norm_base_error",
+        "tilt_use_rad",
+        "saturation_rate",
+        "rollouts",
+    ] {
+        assert!(slider.get(field).is_some(), "tasks.push-slider.{field} missing: {slider}");
+    }
+    assert_eq!(slider["rollouts"], 2);
+    // The oracle has no rotors and no arm reach: those figures are undefined, null.
+    assert!(slider["saturation_rate"].is_null() && slider["norm_ee_error"].is_null());
+    // Press Button has no subtasks.
+    assert!(v["tasks"]["press-button"]["subtask_completion"].is_null());
+    assert_eq!(
+        std::fs::read_to_string(out_dir.join("results.json")).unwrap_or_default(),
+        text,
+        "--out holds the same results"
+    );
+    assert!(out_dir.join("config.json").is_file());
+    for task in ["press-button", "push-slider"] {
+        for i in 0..2 {
+            let log = out_dir.join(format!("rollouts/{task}/rollout-{i:03}.mcap"));
+            assert!(log.is_file(), "{} missing", log.display());
+        }
+    }
+}

@@ -367,6 +367,16 @@ impl Articulation {
         }
     }
 
+    /// Puts the link at joint position `q` at rest (tests, resets).
+    pub fn set_position(&self, world: &mut PhysicsWorld, q: f64) {
+        let moved = match self.dof {
+            Dof::Prismatic => Isometry3::translation(q, 0.0, 0.0),
+            Dof::Revolute => Isometry3::rotation(Vector3::x() * q),
+        };
+        let pose = pose_of(world, self.root) * self.root_from_joint * moved * self.joint_from_link0;
+        place(world, self.link, &pose);
+    }
+
     /// World pose of the link.
     pub fn link_pose(&self, world: &PhysicsWorld) -> Isometry3<f64> {
         pose_of(world, self.link)

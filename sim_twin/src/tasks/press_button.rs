@@ -101,6 +101,14 @@ impl Scene for PressButton {
 }
 
 impl PressButton {
+    /// Puts the plunger at `q` (tests).
+    #[cfg(test)]
+    pub(crate) fn set_plunger(&self, world: &mut PhysicsWorld, q: f64) {
+        if let Some(p) = &self.plunger {
+            p.set_position(world, q);
+        }
+    }
+
     fn pressed(&self, world: &PhysicsWorld) -> bool {
         self.plunger
             .as_ref()

@@ -124,6 +124,14 @@ impl Scene for PushSlider {
 }
 
 impl PushSlider {
+    /// Puts the knob at `q` (tests).
+    #[cfg(test)]
+    pub(crate) fn set_slider(&self, world: &mut PhysicsWorld, q: f64) {
+        if let Some(s) = &self.slider {
+            s.set_position(world, q);
+        }
+    }
+
     fn position(&self, world: &PhysicsWorld) -> f64 {
         self.slider.as_ref().map_or(INITIAL_M, |s| s.position(world))
     }

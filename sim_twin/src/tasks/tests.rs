@@ -67,3 +67,85 @@ fn coulomb_friction_holds_below_and_slides_above_its_force() {
     let q = a.position(&w);
     assert!(q > 0.25 && q < 0.45, "q = {q}");
 }
+
+/// A scene built alone in a world (no vehicle), from `seed`.
+pub(crate) fn built(scene: &mut dyn super::Scene, seed: u64) -> PhysicsWorld {
+    use rand::SeedableRng;
+    let mut w = world();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut b = super::Build {
+        world: &mut w,
+        rng: &mut rng,
+        tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
+        world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
+        graspable: Vec::new(),
+        pre_grasped: None,
+    };
+    scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
+    w
+}
+
+/// A view of a vehicle at its reset pose.
+pub(crate) fn view(step: u64) -> super::View {
+    super::View {
+        step,
+        dt_s: 1.0 / 120.0,
+        substep_s: 1.0 / 480.0,
+        world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
+        tool_tip: Vector3::new(0.18, 0.0, 1.0),
+        base_position: Vector3::new(0.0, 0.0, 1.0),
+        gripper_width_m: 0.002,
+    }
+}
+
+#[test]
+fn the_button_counts_as_pressed_from_4_mm() {
+    use super::Scene;
+    let mut scene = super::press_button::PressButton::default();
+    let mut w = built(&mut scene, 3);
+    for (q, pressed) in [(0.0, false), (0.0039, false), (0.0041, true), (0.01, true)] {
+        scene.set_plunger(&mut w, q);
+        let status = scene.after_step(&mut w, &view(1));
+        assert_eq!(status.success, pressed, "q = {q}");
+        let o = scene.observation(&w);
+        assert_eq!(o.scalar("button_pressed").unwrap_or(-1.0), f64::from(u8::from(pressed)));
+    }
+}
+
+#[test]
+fn the_slider_engages_at_5_percent_and_succeeds_at_045() {
+    use super::Scene;
+    let mut scene = super::push_slider::PushSlider::default();
+    let mut w = built(&mut scene, 4);
+    // q0 = −0.5; engaged when q − q0 ≥ 0.05·0.95 = 0.0475.
+    for (q, engaged, pushed) in [
+        (-0.5, false, false),
+        (-0.453, false, false),
+        (-0.452, true, false),
+        (0.449, true, false),
+        (0.451, true, true),
+    ] {
+        scene.set_slider(&mut w, q);
+        let s = scene.after_step(&mut w, &view(1));
+        assert_eq!(s.criteria, vec![engaged, pushed], "q = {q}");
+        assert_eq!(s.success, pushed, "q = {q}");
+    }
+}
+
+#[test]
+fn wall_and_button_randomisation_stays_in_the_spec_ranges() {
+    use super::Scene;
+    for seed in 0..20 {
+        let mut scene = super::press_button::PressButton::default();
+        let w = built(&mut scene, seed);
+        let wall = scene.wall().unwrap_or_else(|| panic!("a wall"));
+        let (roll, pitch, yaw) = wall.rotation.euler_angles();
+        assert!((wall.translation.x - 2.0).abs() <= 0.2 && wall.translation.y.abs() <= 0.2);
+        assert!(roll.abs() < 1e-12 && yaw.abs() < 1e-12 && pitch.abs() <= 0.2);
+        // The plunger sits on the wall face within ±0.3 m of its centre (wall-local y, z).
+        let goal = scene.observation(&w).vec3("goal_pos", 0).unwrap_or_else(|e| panic!("{e}"));
+        let local = wall.inverse() * nalgebra::Point3::from(goal);
+        assert!(local.y.abs() <= 0.3 && local.z.abs() <= 0.3, "{local:?}");
+        assert!(local.x < -0.05 && local.x > -0.1, "in front of the face: {local:?}");
+    }
+}
