@@ -91,9 +91,7 @@ fn tasks(name: &str) -> Result<Vec<TaskId>> {
         return Ok(TaskId::ALL.to_vec());
     }
     name.split(',')
-        .map(|n| {
-            TaskId::parse(n.trim()).map_err(|e| bad_input(format!("--task: {e}, or all")))
-        })
+        .map(|n| TaskId::parse(n.trim()).map_err(|e| bad_input(format!("--task: {e}, or all"))))
         .collect()
 }
 
@@ -141,8 +139,8 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
             "--interface joint: the whole-body MPC takes end-effector targets (valid: ee)",
         ));
     }
-    let controller = profile(&vehicle, kind)
-        .map_err(|e| bad_input(format!("--controller {name}: {e}")))?;
+    let controller =
+        profile(&vehicle, kind).map_err(|e| bad_input(format!("--controller {name}: {e}")))?;
     if args.rollouts == 0 {
         return Err(bad_input("--rollouts 0: run at least one rollout"));
     }
@@ -241,7 +239,11 @@ fn task_json(t: &TaskResult) -> Value {
 }
 
 /// The results document (README "Results JSON").
-pub(crate) fn results_json(args: &Args, config: &BenchConfig, report: &BenchReport) -> Result<Value> {
+pub(crate) fn results_json(
+    args: &Args,
+    config: &BenchConfig,
+    report: &BenchReport,
+) -> Result<Value> {
     let tasks: serde_json::Map<String, Value> = report
         .tasks
         .iter()

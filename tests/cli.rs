@@ -379,7 +379,8 @@ fn bench_writes_the_documented_results_and_one_log_per_rollout() {
         assert!(table.contains(needle), "{needle:?} not in\n{table}");
     }
     let text = std::fs::read_to_string(&json).unwrap_or_default();
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+    let v: serde_json::Value =
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
     assert_eq!(v["seed"], 7);
     assert_eq!(v["config"]["platform"], "ee-only");
     assert!(v["timing"]["wall_time_s"].as_f64().is_some_and(|t| t > 0.0));
@@ -393,7 +394,10 @@ fn bench_writes_the_documented_results_and_one_log_per_rollout() {
         "saturation_rate",
         "rollouts",
     ] {
-        assert!(slider.get(field).is_some(), "tasks.push-slider.{field} missing: {slider}");
+        assert!(
+            slider.get(field).is_some(),
+            "tasks.push-slider.{field} missing: {slider}"
+        );
     }
     assert_eq!(slider["rollouts"], 2);
     // The oracle has no rotors and no arm reach: those figures are undefined, null.

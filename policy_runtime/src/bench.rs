@@ -204,9 +204,8 @@ pub fn run_rollout(
     };
     let mut policy_rng = ChaCha8Rng::seed_from_u64(seed);
     policy_rng.set_stream(2);
-    let mut policy = scripted(task, &context, &mut policy_rng).map_err(|message| {
-        BenchError::Policy { task, message }
-    })?;
+    let mut policy = scripted(task, &context, &mut policy_rng)
+        .map_err(|message| BenchError::Policy { task, message })?;
     let criteria_names = task.criteria_names();
     let mut latch = CriteriaLatch::new(criteria_names.len());
     let mut log = match &config.mcap_dir {
@@ -269,9 +268,8 @@ pub fn run_rollout(
             ee_actual: before.world_from_ee,
             base_desired: record.base_target,
             base_actual: before.base.pose(),
-            saturated: has_rotors.then(|| {
-                record.allocation_saturated || rotors_saturated(&measurement, limits_n)
-            }),
+            saturated: has_rotors
+                .then(|| record.allocation_saturated || rotors_saturated(&measurement, limits_n)),
         });
         if let Some(status) = twin.task_status() {
             latch.observe(&status.criteria);
@@ -316,7 +314,8 @@ fn arm_reach_m(vehicle: &Vehicle) -> f64 {
 
 /// Where rollout `index` of `task` logs under `dir`.
 pub fn rollout_log_path(dir: &Path, task: TaskId, index: usize) -> PathBuf {
-    dir.join(task.name()).join(format!("rollout-{index:03}.mcap"))
+    dir.join(task.name())
+        .join(format!("rollout-{index:03}.mcap"))
 }
 
 /// Runs every task's rollouts on `config.jobs` threads. `on_done` sees each rollout as it
@@ -387,7 +386,11 @@ pub fn run_bench(
                 rollouts.iter().map(|r| r.summary.clone()).collect();
             TaskResult {
                 task,
-                criteria: task.criteria_names().iter().map(|n| (*n).to_owned()).collect(),
+                criteria: task
+                    .criteria_names()
+                    .iter()
+                    .map(|n| (*n).to_owned())
+                    .collect(),
                 summary: summarize_run(&summaries),
                 rollouts,
             }

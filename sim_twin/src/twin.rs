@@ -682,7 +682,10 @@ impl TaskState {
         let fingers = match *joints {
             [a, b, ..] => [child(a), child(b)],
             // One moving jaw: it closes against the link that carries it.
-            [a] => [child(a), body.link_colliders[model.joints[a].parent].clone()],
+            [a] => [
+                child(a),
+                body.link_colliders[model.joints[a].parent].clone(),
+            ],
             [] => [Vec::new(), Vec::new()],
         };
         let status = TaskStatus {

@@ -242,7 +242,12 @@ fn flight_logs_read_back_by_the_python_mcap_reader() {
     assert_eq!(run["metadata"]["seed"], "42");
 }
 
-fn bench(id: &str, kind: ControllerKind, tasks: Vec<sim_twin::TaskId>, rollouts: usize) -> policy_runtime::bench::BenchReport {
+fn bench(
+    id: &str,
+    kind: ControllerKind,
+    tasks: Vec<sim_twin::TaskId>,
+    rollouts: usize,
+) -> policy_runtime::bench::BenchReport {
     let v = vehicle(id);
     let config = policy_runtime::bench::BenchConfig {
         controller: profile(&v, kind).unwrap_or_else(|e| panic!("{id}: {e}")),
@@ -265,7 +270,12 @@ fn bench(id: &str, kind: ControllerKind, tasks: Vec<sim_twin::TaskId>, rollouts:
 /// rollouts per task from `amstack bench --rollouts 30`; here seeds 0–2 of each).
 #[test]
 fn the_oracle_completes_every_task_with_its_scripted_policy() {
-    let report = bench("ee-only", ControllerKind::Pid, sim_twin::TaskId::ALL.to_vec(), 3);
+    let report = bench(
+        "ee-only",
+        ControllerKind::Pid,
+        sim_twin::TaskId::ALL.to_vec(),
+        3,
+    );
     let failed: Vec<String> = report
         .tasks
         .iter()
@@ -276,7 +286,11 @@ fn the_oracle_completes_every_task_with_its_scripted_policy() {
     assert!(failed.is_empty(), "failed rollouts: {failed:?}");
     for t in &report.tasks {
         if let Some(c) = t.summary.subtask_completion {
-            assert!((c - 1.0).abs() < 1e-12, "{}: a success completes its subtasks ({c})", t.task);
+            assert!(
+                (c - 1.0).abs() < 1e-12,
+                "{}: a success completes its subtasks ({c})",
+                t.task
+            );
         }
     }
 }
@@ -286,11 +300,20 @@ fn the_oracle_completes_every_task_with_its_scripted_policy() {
 #[test]
 fn fa_hexa_presses_the_button_and_pushes_the_slider_through_ik_pid() {
     use sim_twin::TaskId;
-    let report = bench("fa-hexa", ControllerKind::Pid, vec![TaskId::PressButton, TaskId::PushSlider], 2);
+    let report = bench(
+        "fa-hexa",
+        ControllerKind::Pid,
+        vec![TaskId::PressButton, TaskId::PushSlider],
+        2,
+    );
     for t in &report.tasks {
         assert_eq!(t.summary.success_rate, 1.0, "{}", t.task);
         let e = t.summary.norm_ee_error.mean.unwrap_or(f64::NAN);
         assert!(e > 0.0 && e < 0.02, "{}: normalised EE error {e}", t.task);
-        assert!(t.summary.saturation_rate.mean.is_some(), "{}: rotors, so a rate", t.task);
+        assert!(
+            t.summary.saturation_rate.mean.is_some(),
+            "{}: rotors, so a rate",
+            t.task
+        );
     }
 }

@@ -31,7 +31,8 @@ fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> Be
 fn trace() {
     let spec = std::env::var("AMSTACK_TRACE").unwrap_or_else(|_| "press-button".to_owned());
     let mut parts = spec.split(':');
-    let task = TaskId::parse(parts.next().unwrap_or("press-button")).unwrap_or_else(|e| panic!("{e}"));
+    let task =
+        TaskId::parse(parts.next().unwrap_or("press-button")).unwrap_or_else(|e| panic!("{e}"));
     let vehicle = parts.next().unwrap_or("ee-only").to_owned();
     let seed: u64 = parts.next().and_then(|s| s.parse().ok()).unwrap_or(0);
     let cfg = config(&vehicle, ControllerKind::Pid, Interface::Ee);
@@ -81,7 +82,15 @@ fn trace() {
             let t = stack.link_target(&ee).translation.vector;
             println!(
                 "{step:5} ee ({:.3} {:.3} {:.3}) target ({:.3} {:.3} {:.3}) grip {g:+.2} held {} {:?} obs {:?}",
-                p.x, p.y, p.z, t.x, t.y, t.z, twin.holding(), status, twin.task_observation().map(|o| o.entries)
+                p.x,
+                p.y,
+                p.z,
+                t.x,
+                t.y,
+                t.z,
+                twin.holding(),
+                status,
+                twin.task_observation().map(|o| o.entries)
             );
         }
         if status.success {

@@ -81,11 +81,20 @@ pub fn gripper_override(task: TaskId) -> Option<f64> {
 
 /// U(lo, hi) (lo when the interval is empty).
 pub(crate) fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
-    if hi > lo { rng.random_range(lo..hi) } else { lo }
+    if hi > lo {
+        rng.random_range(lo..hi)
+    } else {
+        lo
+    }
 }
 
 /// A waypoint.
-pub(crate) fn wp(tick: u64, position: Vector3<f64>, orientation: UnitQuaternion<f64>, gripper: f64) -> Waypoint {
+pub(crate) fn wp(
+    tick: u64,
+    position: Vector3<f64>,
+    orientation: UnitQuaternion<f64>,
+    gripper: f64,
+) -> Waypoint {
     Waypoint {
         tick,
         position,

@@ -242,10 +242,7 @@ impl TaskObservation {
             .map(|(_, v)| v.as_slice())
             .ok_or_else(|| {
                 let names: Vec<&str> = self.entries.iter().map(|(n, _)| *n).collect();
-                format!(
-                    "observation '{name}' missing (have: {})",
-                    names.join(", ")
-                )
+                format!("observation '{name}' missing (have: {})", names.join(", "))
             })
     }
 

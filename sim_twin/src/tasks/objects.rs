@@ -11,7 +11,11 @@ use crate::vehicle_body::{ROBOT_GROUP, WORLD_GROUP, material};
 
 /// U(lo, hi) (lo when the interval is empty).
 pub(crate) fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
-    if hi > lo { rng.random_range(lo..hi) } else { lo }
+    if hi > lo {
+        rng.random_range(lo..hi)
+    } else {
+        lo
+    }
 }
 
 /// U(−half, half).
@@ -120,7 +124,11 @@ pub(crate) fn place(world: &mut PhysicsWorld, body: RigidBodyHandle, pose: &Isom
 }
 
 /// Sets the collision groups of every collider of `body`.
-pub(crate) fn set_groups(world: &mut PhysicsWorld, body: RigidBodyHandle, groups: InteractionGroups) {
+pub(crate) fn set_groups(
+    world: &mut PhysicsWorld,
+    body: RigidBodyHandle,
+    groups: InteractionGroups,
+) {
     let colliders: Vec<ColliderHandle> = world
         .bodies
         .get(body)
@@ -394,7 +402,12 @@ pub(crate) struct Grasp {
 
 impl Grasp {
     /// Attaches `object` to `ee_body` where they are now.
-    pub fn attach(&mut self, world: &mut PhysicsWorld, ee_body: RigidBodyHandle, object: RigidBodyHandle) {
+    pub fn attach(
+        &mut self,
+        world: &mut PhysicsWorld,
+        ee_body: RigidBodyHandle,
+        object: RigidBodyHandle,
+    ) {
         let ee_from_object = pose_of(world, ee_body).inverse() * pose_of(world, object);
         let joint = FixedJointBuilder::new()
             .local_frame1(pose_to_rapier(&ee_from_object))
@@ -449,7 +462,11 @@ impl Grasp {
 }
 
 /// A point `local` of a body in the world.
-pub(crate) fn point_of(world: &PhysicsWorld, body: RigidBodyHandle, local: &Vector3<f64>) -> Vector3<f64> {
+pub(crate) fn point_of(
+    world: &PhysicsWorld,
+    body: RigidBodyHandle,
+    local: &Vector3<f64>,
+) -> Vector3<f64> {
     (pose_of(world, body) * nalgebra::Point3::from(*local)).coords
 }
 

@@ -55,7 +55,10 @@ impl Scene for PressButton {
         let scale = uniform(b.rng, 0.5, 1.0);
         let root = fixed_body(
             b.world,
-            &wall.frame(Vector3::new(-Wall::HALF.x, y, z), UnitQuaternion::identity()),
+            &wall.frame(
+                Vector3::new(-Wall::HALF.x, y, z),
+                UnitQuaternion::identity(),
+            ),
         );
         // The cylinder's own axis is y: turn it onto x.
         let shape = ColliderBuilder::cylinder(PLUNGER_LENGTH_M / 2.0, RADIUS_M * scale);

@@ -58,7 +58,10 @@ impl Scene for PushSlider {
         let z = symmetric(b.rng, 0.3);
         let turned = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
         // Root frame: x out of the wall toward the robot, y = −w_y (the push direction).
-        let root = fixed_body(b.world, &wall.frame(Vector3::new(-Wall::HALF.x, y, z), turned));
+        let root = fixed_body(
+            b.world,
+            &wall.frame(Vector3::new(-Wall::HALF.x, y, z), turned),
+        );
         attach(
             b.world,
             root,
@@ -133,6 +136,8 @@ impl PushSlider {
     }
 
     fn position(&self, world: &PhysicsWorld) -> f64 {
-        self.slider.as_ref().map_or(INITIAL_M, |s| s.position(world))
+        self.slider
+            .as_ref()
+            .map_or(INITIAL_M, |s| s.position(world))
     }
 }

@@ -41,7 +41,10 @@ fn slider(stiffness: f64, damping: f64, friction: f64) -> (PhysicsWorld, Articul
         root,
         Isometry3::identity(),
         Isometry3::translation(-0.1, 0.0, 0.0),
-        vec![(ColliderBuilder::cuboid(0.02, 0.02, 0.02), Isometry3::identity())],
+        vec![(
+            ColliderBuilder::cuboid(0.02, 0.02, 0.02),
+            Isometry3::identity(),
+        )],
         0.2,
         &spec,
     );
@@ -61,7 +64,11 @@ fn a_spring_joint_settles_where_force_balances_stiffness() {
 fn coulomb_friction_holds_below_and_slides_above_its_force() {
     let (mut w, a) = slider(0.0, 5.0, 4.0);
     push(&mut w, a.link, Vector3::new(3.0, 0.0, 0.0), 480);
-    assert!(a.position(&w).abs() < 1e-3, "3 N < 4 N friction: q = {}", a.position(&w));
+    assert!(
+        a.position(&w).abs() < 1e-3,
+        "3 N < 4 N friction: q = {}",
+        a.position(&w)
+    );
     // 6 N: 2 N net against damping 5 N·s/m → 0.4 m/s terminal speed.
     push(&mut w, a.link, Vector3::new(6.0, 0.0, 0.0), 480);
     let q = a.position(&w);
@@ -108,7 +115,10 @@ fn the_button_counts_as_pressed_from_4_mm() {
         let status = scene.after_step(&mut w, &view(1));
         assert_eq!(status.success, pressed, "q = {q}");
         let o = scene.observation(&w);
-        assert_eq!(o.scalar("button_pressed").unwrap_or(-1.0), f64::from(u8::from(pressed)));
+        assert_eq!(
+            o.scalar("button_pressed").unwrap_or(-1.0),
+            f64::from(u8::from(pressed))
+        );
     }
 }
 
@@ -143,9 +153,15 @@ fn wall_and_button_randomisation_stays_in_the_spec_ranges() {
         assert!((wall.translation.x - 2.0).abs() <= 0.2 && wall.translation.y.abs() <= 0.2);
         assert!(roll.abs() < 1e-12 && yaw.abs() < 1e-12 && pitch.abs() <= 0.2);
         // The plunger sits on the wall face within ±0.3 m of its centre (wall-local y, z).
-        let goal = scene.observation(&w).vec3("goal_pos", 0).unwrap_or_else(|e| panic!("{e}"));
+        let goal = scene
+            .observation(&w)
+            .vec3("goal_pos", 0)
+            .unwrap_or_else(|e| panic!("{e}"));
         let local = wall.inverse() * nalgebra::Point3::from(goal);
         assert!(local.y.abs() <= 0.3 && local.z.abs() <= 0.3, "{local:?}");
-        assert!(local.x < -0.05 && local.x > -0.1, "in front of the face: {local:?}");
+        assert!(
+            local.x < -0.05 && local.x > -0.1,
+            "in front of the face: {local:?}"
+        );
     }
 }
