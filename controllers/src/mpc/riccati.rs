@@ -1001,50 +1001,25 @@ fn bound_rows(kind: RowKind, lower: f64, upper: f64) -> [Row; 2] {
     ]
 }
 
-/// Lower Cholesky factor of a symmetric positive definite matrix (None if it is not).
+/// Lower Cholesky factor of a symmetric positive definite matrix (None if it is not, or if
+/// a pivot is not finite): nalgebra's fixed-size factorisation.
 fn cholesky(m: &InputMatrix) -> Option<InputMatrix> {
-    let mut l = InputMatrix::zeros();
-    for j in 0..NU {
-        let mut d = m[(j, j)];
-        for k in 0..j {
-            d -= l[(j, k)] * l[(j, k)];
-        }
-        if !(d > 0.0 && d.is_finite()) {
-            return None;
-        }
-        let d = d.sqrt();
-        l[(j, j)] = d;
-        for i in (j + 1)..NU {
-            let mut v = m[(i, j)];
-            for k in 0..j {
-                v -= l[(i, k)] * l[(j, k)];
-            }
-            l[(i, j)] = v / d;
-        }
-    }
-    Some(l)
+    let l = nalgebra::linalg::Cholesky::new(*m)?.unpack();
+    l.diagonal()
+        .iter()
+        .all(|d| *d > 0.0 && d.is_finite())
+        .then_some(l)
 }
 
 /// v ← L⁻¹v.
 fn forward_substitute(l: &InputMatrix, v: &mut InputVector) {
-    for i in 0..NU {
-        let mut x = v[i];
-        for k in 0..i {
-            x -= l[(i, k)] * v[k];
-        }
-        v[i] = x / l[(i, i)];
-    }
+    // L comes from `cholesky`: its diagonal is positive, so the solve cannot fail.
+    let _ = l.solve_lower_triangular_mut(v);
 }
 
 /// v ← L⁻ᵀv.
 fn backward_substitute(l: &InputMatrix, v: &mut InputVector) {
-    for i in (0..NU).rev() {
-        let mut x = v[i];
-        for k in (i + 1)..NU {
-            x -= l[(k, i)] * v[k];
-        }
-        v[i] = x / l[(i, i)];
-    }
+    let _ = l.tr_solve_lower_triangular_mut(v);
 }
 
 /// Compile-time check of the dimensions the recursion assumes.
