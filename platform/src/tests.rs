@@ -84,7 +84,7 @@ fn total_masses_match_the_reference() {
         ("ua-hexa", 6.635, 1e-9),
         ("ua-quad", 4.407, 0.01),
         ("omni-hexa", 3.345, 1e-9),
-        ("ee-only", 0.22, 1e-9),
+        ("ee-only", 5.0, 1e-9),
     ] {
         let v = vehicle(id);
         let m = v.model.total_mass_kg();

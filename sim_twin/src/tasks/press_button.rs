@@ -10,7 +10,7 @@
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
-use super::objects::{Articulation, Dof, JointSpec, Wall, fixed_body, symmetric, uniform};
+use super::objects::{Dof, JointSpec, ReducedJoint, Wall, fixed_body, symmetric, uniform};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
 
@@ -35,7 +35,7 @@ const SPEC: JointSpec = JointSpec {
 #[derive(Debug, Default)]
 pub(crate) struct PressButton {
     wall: Option<Wall>,
-    plunger: Option<Articulation>,
+    plunger: Option<ReducedJoint>,
 }
 
 impl Scene for PressButton {
@@ -63,7 +63,7 @@ impl Scene for PressButton {
         // The cylinder's own axis is y: turn it onto x.
         let shape = ColliderBuilder::cylinder(PLUNGER_LENGTH_M / 2.0, RADIUS_M * scale);
         let along_x = Isometry3::rotation(Vector3::z() * std::f64::consts::FRAC_PI_2);
-        let (plunger, _) = Articulation::insert(
+        let Some((plunger, _)) = ReducedJoint::insert(
             b.world,
             root,
             Isometry3::identity(),
@@ -71,7 +71,11 @@ impl Scene for PressButton {
             vec![(shape, along_x)],
             0.05,
             &SPEC,
-        );
+        ) else {
+            return Err(TwinError::Config(
+                "press-button: the plunger joint closes a loop".to_owned(),
+            ));
+        };
         self.wall = Some(wall);
         self.plunger = Some(plunger);
         Ok(())

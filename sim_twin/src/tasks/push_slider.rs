@@ -11,7 +11,7 @@
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
-use super::objects::{Articulation, Dof, JointSpec, Wall, attach, fixed_body, symmetric};
+use super::objects::{Dof, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
 
@@ -39,7 +39,7 @@ const SPEC: JointSpec = JointSpec {
 #[derive(Debug, Default)]
 pub(crate) struct PushSlider {
     wall: Option<Wall>,
-    slider: Option<Articulation>,
+    slider: Option<ReducedJoint>,
 }
 
 impl Scene for PushSlider {
@@ -77,7 +77,7 @@ impl Scene for PushSlider {
             nalgebra::Translation3::new(0.0, -out, 0.0),
             root_from_joint.rotation.inverse(),
         );
-        let (slider, _) = Articulation::insert(
+        let Some((slider, _)) = ReducedJoint::insert(
             b.world,
             root,
             root_from_joint,
@@ -88,7 +88,11 @@ impl Scene for PushSlider {
             )],
             0.2,
             &SPEC,
-        );
+        ) else {
+            return Err(TwinError::Config(
+                "push-slider: the slider joint closes a loop".to_owned(),
+            ));
+        };
         // The fingers close around the knob and carry it (their drives alone would yield
         // to the rail's friction).
         b.graspable.push(slider.link);
