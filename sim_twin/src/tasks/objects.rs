@@ -618,3 +618,18 @@ impl ReducedJoint {
         pose_of(world, self.link)
     }
 }
+
+// Shared by the peg-in-hole, toss-ball and wipe-window scenes.
+
+/// Makes every contact of `collider` exact at every step. rapier's contact recycling keeps a
+/// touching pair's contact points and normal, frozen in world space, until the pair's relative
+/// pose has drifted by `contact_recycle_distance` (5 cm by default): a held peg sliding a few
+/// millimetres into a hole keeps a stale normal from its first touch and stops against a
+/// contact that is no longer there. Pairs with active hooks are never recycled; the twin
+/// steps with no hooks (`()`), so the solver-contact hook asked for here is a no-op and the
+/// only effect is a full contact update of this collider's pairs every step.
+pub(crate) fn exact_contacts(world: &mut PhysicsWorld, collider: ColliderHandle) {
+    if let Some(c) = world.colliders.get_mut(collider) {
+        c.set_active_hooks(ActiveHooks::MODIFY_SOLVER_CONTACTS);
+    }
+}
