@@ -10,7 +10,9 @@ use comfy_table::{Table, presets};
 use controllers::{ControllerKind, profile};
 use indicatif::{ProgressBar, ProgressStyle};
 use policy_runtime::Interface;
-use policy_runtime::bench::{BenchConfig, BenchReport, RolloutResult, TaskResult, run_bench};
+use policy_runtime::bench::{
+    BenchConfig, BenchReport, EpisodeLength, RolloutResult, TaskResult, run_bench,
+};
 use policy_runtime::metrics::{Spread, format_or_na};
 use serde_json::{Value, json};
 use sim_twin::TaskId;
@@ -59,6 +61,11 @@ pub struct Args {
     /// Rollouts per task.
     #[arg(long, default_value_t = 10)]
     rollouts: usize,
+    /// Episode length: `spec` (the task's), `script` (the task's, or longer where its scripted
+    /// policy needs it, as the reference's demonstration recorder runs it: only Wipe Window),
+    /// or seconds.
+    #[arg(long, value_name = "spec|script|S", default_value = "script")]
+    episode_length: String,
     /// Worker threads [default: all cores].
     #[arg(long)]
     jobs: Option<usize>,
@@ -149,8 +156,21 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         Some(j) => j,
         None => std::thread::available_parallelism().map_or(1, |n| n.get()),
     };
+    let episode = match args.episode_length.as_str() {
+        "spec" => EpisodeLength::Spec,
+        "script" => EpisodeLength::Script,
+        s => match s.parse::<f64>() {
+            Ok(x) if x.is_finite() && x > 0.0 => EpisodeLength::Seconds(x),
+            _ => {
+                return Err(bad_input(format!(
+                    "--episode-length {s}: not spec, script or a positive number of seconds"
+                )));
+            }
+        },
+    };
     let twin = args.twin.twin_config()?;
     Ok(BenchConfig {
+        episode,
         vehicle,
         controller,
         controller_name: name,
@@ -176,6 +196,7 @@ fn config_json(args: &Args, config: &BenchConfig) -> Result<Value> {
         },
         "tasks": config.tasks.iter().map(|t| t.name()).collect::<Vec<_>>(),
         "rollouts": config.rollouts,
+        "episode_length": config.episode,
         "seed": config.seed,
         "disturbances": args.twin.disturbances,
         "twin": serde_json::to_value(&config.twin)?,

@@ -259,6 +259,7 @@ fn bench(
         seed: 0,
         twin: TwinConfig::default(),
         jobs: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        episode: policy_runtime::bench::EpisodeLength::Script,
         mcap_dir: None,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);

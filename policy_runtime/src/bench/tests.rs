@@ -20,6 +20,7 @@ fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> Be
         seed: 0,
         twin: TwinConfig::default(),
         jobs: 1,
+        episode: EpisodeLength::Script,
         mcap_dir: None,
     }
 }

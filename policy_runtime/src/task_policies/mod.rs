@@ -42,11 +42,18 @@ pub struct PolicyContext {
 pub trait TaskPolicy: Send + std::fmt::Debug {
     /// End-effector target (command frame) and gripper action at env step `step`.
     fn action(&mut self, step: u64) -> (Isometry3<f64>, f64);
+
+    /// The env step of the script's last waypoint (it holds afterwards).
+    fn end_step(&self) -> u64;
 }
 
 impl TaskPolicy for WaypointPolicy {
     fn action(&mut self, step: u64) -> (Isometry3<f64>, f64) {
         WaypointPolicy::action(self, step)
+    }
+
+    fn end_step(&self) -> u64 {
+        self.end_tick()
     }
 }
 

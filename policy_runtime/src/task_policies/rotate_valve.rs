@@ -71,6 +71,10 @@ impl TaskPolicy for RotateValvePolicy {
         }
         (pose, gripper)
     }
+
+    fn end_step(&self) -> u64 {
+        self.waypoints.end_tick()
+    }
 }
 
 pub(crate) fn policy(

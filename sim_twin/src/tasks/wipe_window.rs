@@ -63,6 +63,9 @@ pub(crate) const WINDOW_CENTER: Vector3<f64> = Vector3::new(2.0, 0.0, 1.0);
 const WINDOW_SIZE_M: f64 = 1.0;
 /// Glass thickness, m.
 pub(crate) const GLASS_THICKNESS_M: f64 = 0.01;
+/// [U] Depth of solid behind the glass's back face (the pane is set in the wall): the
+/// collider is the glass plus this, so a hard press cannot tunnel through 1 cm of glass.
+const BACKING_M: f64 = 0.2;
 /// Frame depth along x, m.
 const FRAME_DEPTH_M: f64 = 0.05;
 /// Frame border width, m ([U]).
@@ -232,9 +235,11 @@ fn window_parts() -> [(Vector3<f64>, Vector3<f64>); 5] {
     let bar_x = front + bar_half_x;
     let b = FRAME_BORDER_M / 2.0;
     [
+        // The glass collider runs BACKING_M deeper than the pane: pressed hard, the sponge
+        // and the fingers otherwise pass through a 1 cm shape within a few steps.
         (
-            Vector3::new(GLASS_THICKNESS_M / 2.0, half, half),
-            Vector3::new(glass_x, 0.0, 0.0),
+            Vector3::new((GLASS_THICKNESS_M + BACKING_M) / 2.0, half, half),
+            Vector3::new(glass_x + BACKING_M / 2.0, 0.0, 0.0),
         ),
         (
             Vector3::new(bar_half_x, half, b),
