@@ -280,7 +280,16 @@ pub fn run_rollout(
             log.tick(&measurement, &record, &ee_desired)?;
         }
         let before = measurement.clone();
-        measurement = match twin.step(&record.command) {
+        // A physics engine panic (NaN inside rapier) ends this rollout as diverged, not the run.
+        let stepped = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            twin.step(&record.command)
+        }))
+        .unwrap_or_else(|_| {
+            Err(TwinError::Diverged(
+                "the physics engine panicked (non-finite state)".to_owned(),
+            ))
+        });
+        measurement = match stepped {
             Ok(m) => m,
             Err(e) => {
                 termination = match e {

@@ -356,17 +356,26 @@ impl Twin {
         Ok(self.observe())
     }
 
-    /// True when every vehicle body's pose and velocities are finite.
+    /// True when every free body (vehicle and scene) is finite and within physical bounds:
+    /// a jammed multibody blows up over a few steps before its state turns NaN (and rapier
+    /// panics on NaN), so speeds and positions no flight reaches count as divergence too.
     fn vehicle_is_finite(&self) -> bool {
-        self.body.bodies.iter().all(|h| {
-            self.world.bodies.get(*h).is_some_and(|rb| {
-                let p = rb.position();
-                let finite = |v: Vector| v.x.is_finite() && v.y.is_finite() && v.z.is_finite();
-                finite(p.translation)
-                    && p.rotation.is_finite()
-                    && finite(rb.linvel())
-                    && finite(rb.angvel())
-            })
+        const MAX_POSITION_M: f64 = 1.0e4;
+        const MAX_SPEED_MPS: f64 = 200.0;
+        const MAX_ANGULAR_SPEED_RADPS: f64 = 2.0e3;
+        self.world.bodies.iter().all(|(_, rb)| {
+            if !rb.is_dynamic() {
+                return true;
+            }
+            let p = rb.position();
+            let finite = |v: Vector| v.x.is_finite() && v.y.is_finite() && v.z.is_finite();
+            finite(p.translation)
+                && p.rotation.is_finite()
+                && finite(rb.linvel())
+                && finite(rb.angvel())
+                && p.translation.length() < MAX_POSITION_M
+                && rb.linvel().length() < MAX_SPEED_MPS
+                && rb.angvel().length() < MAX_ANGULAR_SPEED_RADPS
         })
     }
 
