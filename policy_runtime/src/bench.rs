@@ -245,7 +245,7 @@ pub fn run_rollout(
             let path = rollout_log_path(dir, task, index);
             let run = RunMetadata::new(&vehicle.id, &config.controller_name, seed)
                 .with_interface(config.interface.name())
-                .with_trajectory(&format!("task:{}", task.name()))
+                .with_trajectory(format!("task:{}", task.name()))
                 .with_config(&twin.config().clone())?;
             Some(FlightLog::new(McapRecorder::create(&path, &run)?, vehicle)?)
         }
@@ -281,14 +281,13 @@ pub fn run_rollout(
         }
         let before = measurement.clone();
         // A physics engine panic (NaN inside rapier) ends this rollout as diverged, not the run.
-        let stepped = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            twin.step(&record.command)
-        }))
-        .unwrap_or_else(|_| {
-            Err(TwinError::Diverged(
-                "the physics engine panicked (non-finite state)".to_owned(),
-            ))
-        });
+        let stepped =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| twin.step(&record.command)))
+                .unwrap_or_else(|_| {
+                    Err(TwinError::Diverged(
+                        "the physics engine panicked (non-finite state)".to_owned(),
+                    ))
+                });
         measurement = match stepped {
             Ok(m) => m,
             Err(e) => {

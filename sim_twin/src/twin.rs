@@ -798,7 +798,6 @@ impl Twin {
             world: &mut self.world,
             rng: &mut rng,
             tool_tip,
-            world_from_ee: self.truth.world_from_ee,
             graspable: Vec::new(),
             pre_grasped: None,
         };
@@ -831,7 +830,6 @@ impl Twin {
         let dt = self.config.control_dt_s();
         let view = View {
             step: self.task.steps,
-            dt_s: dt,
             substep_s: dt / f64::from(self.config.physics_substeps),
             world_from_ee: self.truth.world_from_ee,
             tool_tip: self.tool_tip().translation.vector,

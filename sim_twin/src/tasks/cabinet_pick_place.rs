@@ -43,7 +43,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
 use super::objects::{
-    Articulation, Dof, JointSpec, attach, fixed_body, position_of, symmetric, velocity_of,
+    Dof, JointSpec, ReducedJoint, attach, fixed_body, position_of, symmetric, velocity_of,
     world_groups,
 };
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
@@ -115,7 +115,7 @@ const DOOR_ORIGIN: Vector3<f64> = Vector3::new(1.12, 0.30, 0.825);
 #[derive(Debug, Default)]
 pub(crate) struct CabinetPickPlace {
     root: Option<RigidBodyHandle>,
-    door: Option<Articulation>,
+    door: Option<ReducedJoint>,
     can: Option<RigidBodyHandle>,
     can_reset_z: f64,
 }
@@ -169,7 +169,7 @@ impl Scene for CabinetPickPlace {
                 )
             })
             .collect();
-        let (door, _) = Articulation::insert(
+        let (door, _) = ReducedJoint::insert(
             b.world,
             root,
             root_from_joint,
@@ -177,7 +177,10 @@ impl Scene for CabinetPickPlace {
             shapes,
             DOOR_MASS_KG,
             &DOOR,
-        );
+        )
+        .ok_or_else(|| {
+            TwinError::Config("cabinet: the door joint cannot join its root".to_owned())
+        })?;
         // Can: x ±0.02, y ±0.05.
         let dx = symmetric(b.rng, 0.02);
         let dy = symmetric(b.rng, 0.05);
@@ -286,7 +289,6 @@ mod tests {
             world: &mut w,
             rng: &mut rng,
             tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
             graspable: Vec::new(),
             pre_grasped: None,
         };
@@ -298,7 +300,6 @@ mod tests {
     fn view() -> View {
         View {
             step: 1,
-            dt_s: 1.0 / 120.0,
             substep_s: 1.0 / 480.0,
             world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
             tool_tip: Vector3::new(0.18, 0.0, 1.0),

@@ -363,7 +363,6 @@ mod tests {
             world: &mut w,
             rng: &mut rng,
             tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
             graspable: Vec::new(),
             pre_grasped: None,
         };
@@ -378,7 +377,6 @@ mod tests {
     fn view(tip: Vector3<f64>, width: f64) -> View {
         View {
             step: 1,
-            dt_s: 1.0 / 120.0,
             substep_s: 1.0 / 480.0,
             world_from_ee: Isometry3::translation(tip.x - 0.18, tip.y, tip.z),
             tool_tip: tip,

@@ -9,10 +9,12 @@
 //! Conventions shared by the scenes:
 //! - Positions are world positions (one environment, origin at zero).
 //! - Static scene parts are fixed rapier bodies (the reference's kinematic bodies never
-//!   move). Articulated objects ([`objects::Articulation`]) are a fixed root and a dynamic
-//!   link on an impulse joint with the spec's limits; stiffness and damping are the joint
-//!   motor (implicit), Coulomb joint friction a second velocity motor whose force is capped
-//!   at the friction value (also implicit, so stable at any damping-to-inertia ratio).
+//!   move). Articulated objects ([`objects::ReducedJoint`]) are a fixed root and a dynamic
+//!   link on a multibody (reduced-coordinate, as PhysX articulations) joint with the spec's
+//!   limits; stiffness and damping are the joint motor (implicit), Coulomb joint friction a
+//!   second velocity motor whose force is capped at the friction value (also implicit, so
+//!   stable at any damping-to-inertia ratio). An impulse joint would let a load through its
+//!   anchor leak past a heavily damped drive.
 //! - Grasping ([`GraspMode`]): physical contact and friction between fingers and object,
 //!   plus, by default, a grasp constraint that engages only while both fingers touch the
 //!   object with the gripper closing and releases when the gripper opens.
@@ -280,8 +282,6 @@ pub(crate) struct Build<'a> {
     pub rng: &'a mut ChaCha8Rng,
     /// The tool tip at reset: position ee + R_ee·tool_tip and the command-frame orientation.
     pub tool_tip: Isometry3<f64>,
-    /// The end-effector link pose at reset.
-    pub world_from_ee: Isometry3<f64>,
     /// Objects the fingers may grasp, and the one held from the start (pre-grasped).
     pub graspable: Vec<RigidBodyHandle>,
     /// An object attached to the end effector at reset (AMBENCH_SPEC §4.0 pre-grasp).
@@ -293,8 +293,6 @@ pub(crate) struct Build<'a> {
 pub(crate) struct View {
     /// Env steps completed in this episode (1 after the first step).
     pub step: u64,
-    /// Control period, s.
-    pub dt_s: f64,
     /// Physics substep, s (joint and contact impulses are per substep).
     pub substep_s: f64,
     /// End-effector link pose.

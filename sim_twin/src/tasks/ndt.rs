@@ -92,7 +92,6 @@ mod tests {
     fn view(step: u64, ee: Vector3<f64>) -> View {
         View {
             step,
-            dt_s: 1.0 / 120.0,
             substep_s: 1.0 / 480.0,
             world_from_ee: Isometry3::translation(ee.x, ee.y, ee.z),
             tool_tip: ee + Vector3::new(0.18, 0.0, 0.0),

@@ -114,15 +114,6 @@ pub(crate) fn velocity_of(world: &PhysicsWorld, body: RigidBodyHandle) -> Vector
         .map_or_else(Vector3::zeros, |rb| vector_from_rapier(rb.linvel()))
 }
 
-/// Moves a body (and zeroes its velocity).
-pub(crate) fn place(world: &mut PhysicsWorld, body: RigidBodyHandle, pose: &Isometry3<f64>) {
-    if let Some(rb) = world.bodies.get_mut(body) {
-        rb.set_position(pose_to_rapier(pose), true);
-        rb.set_linvel(Vector::ZERO, true);
-        rb.set_angvel(Vector::ZERO, true);
-    }
-}
-
 /// Sets the collision groups of every collider of `body`.
 pub(crate) fn set_groups(
     world: &mut PhysicsWorld,
@@ -263,134 +254,6 @@ pub(crate) struct JointSpec {
 /// (the friction force) decides.
 const FRICTION_GAIN: f64 = 1.0e4;
 
-/// An articulated object: a fixed root body and a dynamic link on a one-DoF joint.
-#[derive(Debug, Clone)]
-pub(crate) struct Articulation {
-    /// The root (fixed).
-    pub root: RigidBodyHandle,
-    /// The moving link.
-    pub link: RigidBodyHandle,
-    /// The joint.
-    pub joint: ImpulseJointHandle,
-    dof: Dof,
-    root_from_joint: Isometry3<f64>,
-    joint_from_link0: Isometry3<f64>,
-}
-
-impl Articulation {
-    /// Adds a link to `root` on a joint at `root_from_joint` (axis = the joint frame's x).
-    /// `joint_from_link0` places the link in the joint frame at position 0; the link starts
-    /// at `spec.initial`. `shapes` are the link's colliders in its own frame.
-    pub fn insert(
-        world: &mut PhysicsWorld,
-        root: RigidBodyHandle,
-        root_from_joint: Isometry3<f64>,
-        joint_from_link0: Isometry3<f64>,
-        shapes: Vec<(ColliderBuilder, Isometry3<f64>)>,
-        mass_kg: f64,
-        spec: &JointSpec,
-    ) -> (Self, Vec<ColliderHandle>) {
-        let world_from_root = pose_of(world, root);
-        let moved = match spec.dof {
-            Dof::Prismatic => Isometry3::translation(spec.initial, 0.0, 0.0),
-            Dof::Revolute => Isometry3::rotation(Vector3::x() * spec.initial),
-        };
-        let pose = world_from_root * root_from_joint * moved * joint_from_link0;
-        let link = world.insert_body(
-            RigidBodyBuilder::dynamic()
-                .pose(pose_to_rapier(&pose))
-                .can_sleep(false)
-                .build(),
-        );
-        let each = mass_kg / shapes.len().max(1) as f64;
-        let colliders = shapes
-            .into_iter()
-            .map(|(shape, local)| {
-                let c = material(shape)
-                    .mass(each)
-                    .collision_groups(world_groups())
-                    .position(pose_to_rapier(&local));
-                world.insert_collider(c, Some(link))
-            })
-            .collect();
-        let (mask, axis) = match spec.dof {
-            Dof::Prismatic => (JointAxesMask::LOCKED_PRISMATIC_AXES, JointAxis::LinX),
-            Dof::Revolute => (JointAxesMask::LOCKED_REVOLUTE_AXES, JointAxis::AngX),
-        };
-        let frame1 = pose_to_rapier(&root_from_joint);
-        let frame2 = pose_to_rapier(&joint_from_link0.inverse());
-        let mut main = GenericJointBuilder::new(mask)
-            .local_frame1(frame1)
-            .local_frame2(frame2)
-            .contacts_enabled(false)
-            .motor_model(axis, MotorModel::ForceBased)
-            .motor_max_force(axis, spec.effort);
-        if let Some((lo, hi)) = spec.limits {
-            main = main.limits(axis, [lo, hi]);
-        }
-        main = if spec.stiffness > 0.0 {
-            main.motor_position(axis, spec.target, spec.stiffness, spec.damping)
-        } else {
-            main.motor_velocity(axis, 0.0, spec.damping)
-        };
-        let joint = world.insert_impulse_joint(root, link, main.build());
-        if spec.friction > 0.0 {
-            let friction = GenericJointBuilder::new(JointAxesMask::empty())
-                .local_frame1(frame1)
-                .local_frame2(frame2)
-                .contacts_enabled(false)
-                .motor_model(axis, MotorModel::ForceBased)
-                .motor_velocity(axis, 0.0, FRICTION_GAIN)
-                .motor_max_force(axis, spec.friction);
-            world.insert_impulse_joint(root, link, friction.build());
-        }
-        (
-            Self {
-                root,
-                link,
-                joint,
-                dof: spec.dof,
-                root_from_joint,
-                joint_from_link0,
-            },
-            colliders,
-        )
-    }
-
-    /// The joint frame's displacement from position 0.
-    fn displacement(&self, world: &PhysicsWorld) -> Isometry3<f64> {
-        let root_from_link = pose_of(world, self.root).inverse() * pose_of(world, self.link);
-        self.root_from_joint.inverse() * root_from_link * self.joint_from_link0.inverse()
-    }
-
-    /// Joint position (m or rad), from the bodies' poses.
-    pub fn position(&self, world: &PhysicsWorld) -> f64 {
-        let d = self.displacement(world);
-        match self.dof {
-            Dof::Prismatic => d.translation.x,
-            Dof::Revolute => {
-                let q = d.rotation;
-                2.0 * q.i.atan2(q.w)
-            }
-        }
-    }
-
-    /// Puts the link at joint position `q` at rest (tests, resets).
-    pub fn set_position(&self, world: &mut PhysicsWorld, q: f64) {
-        let moved = match self.dof {
-            Dof::Prismatic => Isometry3::translation(q, 0.0, 0.0),
-            Dof::Revolute => Isometry3::rotation(Vector3::x() * q),
-        };
-        let pose = pose_of(world, self.root) * self.root_from_joint * moved * self.joint_from_link0;
-        place(world, self.link, &pose);
-    }
-
-    /// World pose of the link.
-    pub fn link_pose(&self, world: &PhysicsWorld) -> Isometry3<f64> {
-        pose_of(world, self.link)
-    }
-}
-
 /// The grasp constraint (see [`super::GraspMode`]).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Grasp {
@@ -461,15 +324,6 @@ impl Grasp {
     }
 }
 
-/// A point `local` of a body in the world.
-pub(crate) fn point_of(
-    world: &PhysicsWorld,
-    body: RigidBodyHandle,
-    local: &Vector3<f64>,
-) -> Vector3<f64> {
-    (pose_of(world, body) * nalgebra::Point3::from(*local)).coords
-}
-
 /// Sets a dynamic body's linear velocity (throws, tests).
 #[allow(dead_code)]
 pub(crate) fn set_velocity(world: &mut PhysicsWorld, body: RigidBodyHandle, v: &Vector3<f64>) {
@@ -482,7 +336,7 @@ pub(crate) fn set_velocity(world: &mut PhysicsWorld, body: RigidBodyHandle, v: &
 // Reduced-coordinate articulated objects (added for Rotate Valve, Pull Lever, Open Door).
 //
 // The reference's articulated objects are PhysX articulations: reduced coordinates, the joint
-// itself exact, only the drive solved. An [`Articulation`] (impulse joint) holds its link with
+// itself exact, only the drive solved. An impulse joint would hold its link with
 // velocity constraints solved by the same few PGS iterations as the heavily damped drive; a
 // load that reaches the link through the anchor (gravity, a grasp at a lever arm) then leaks
 // past the drive: a 0.2 kg arm on a 100 N·m·s/rad damper under 0.2 N·m of gravity turns
@@ -632,4 +486,24 @@ pub(crate) fn exact_contacts(world: &mut PhysicsWorld, collider: ColliderHandle)
     if let Some(c) = world.colliders.get_mut(collider) {
         c.set_active_hooks(ActiveHooks::MODIFY_SOLVER_CONTACTS);
     }
+}
+
+/// Moves a body (and zeroes its velocity): scene tests.
+#[cfg(test)]
+pub(crate) fn place(world: &mut PhysicsWorld, body: RigidBodyHandle, pose: &Isometry3<f64>) {
+    if let Some(rb) = world.bodies.get_mut(body) {
+        rb.set_position(pose_to_rapier(pose), true);
+        rb.set_linvel(Vector::ZERO, true);
+        rb.set_angvel(Vector::ZERO, true);
+    }
+}
+
+/// A point `local` of a body in the world: scene tests.
+#[cfg(test)]
+pub(crate) fn point_of(
+    world: &PhysicsWorld,
+    body: RigidBodyHandle,
+    local: &Vector3<f64>,
+) -> Vector3<f64> {
+    (pose_of(world, body) * nalgebra::Point3::from(*local)).coords
 }

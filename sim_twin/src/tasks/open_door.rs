@@ -189,7 +189,6 @@ mod tests {
             world: &mut w,
             rng: &mut rng,
             tool_tip: Isometry3::identity(),
-            world_from_ee: Isometry3::identity(),
             graspable: Vec::new(),
             pre_grasped: None,
         };
@@ -200,7 +199,6 @@ mod tests {
     fn view() -> View {
         View {
             step: 1,
-            dt_s: 1.0 / 120.0,
             substep_s: 1.0 / 480.0,
             world_from_ee: Isometry3::identity(),
             tool_tip: Vector3::zeros(),

@@ -226,7 +226,6 @@ mod tests {
             world: &mut world,
             rng: &mut rng,
             tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
             graspable: Vec::new(),
             pre_grasped: None,
         };
@@ -238,7 +237,6 @@ mod tests {
     fn view() -> View {
         View {
             step: 1,
-            dt_s: 1.0 / 120.0,
             substep_s: 1.0 / 480.0,
             world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
             tool_tip: Vector3::new(0.18, 0.0, 1.0),

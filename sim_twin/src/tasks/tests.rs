@@ -3,7 +3,7 @@
 use nalgebra::{Isometry3, Vector3};
 use rapier3d_f64::prelude::*;
 
-use super::objects::{Articulation, Dof, JointSpec, fixed_body};
+use super::objects::{Dof, JointSpec, ReducedJoint, fixed_body};
 use crate::convert::vector_to_rapier;
 
 fn world() -> PhysicsWorld {
@@ -23,7 +23,7 @@ fn push(world: &mut PhysicsWorld, body: RigidBodyHandle, force: Vector3<f64>, st
     }
 }
 
-fn slider(stiffness: f64, damping: f64, friction: f64) -> (PhysicsWorld, Articulation) {
+fn slider(stiffness: f64, damping: f64, friction: f64) -> (PhysicsWorld, ReducedJoint) {
     let mut w = world();
     let root = fixed_body(&mut w, &Isometry3::translation(1.0, 0.0, 1.0));
     let spec = JointSpec {
@@ -36,7 +36,7 @@ fn slider(stiffness: f64, damping: f64, friction: f64) -> (PhysicsWorld, Articul
         friction,
         initial: 0.0,
     };
-    let (a, _) = Articulation::insert(
+    let Some((a, _)) = ReducedJoint::insert(
         &mut w,
         root,
         Isometry3::identity(),
@@ -47,7 +47,9 @@ fn slider(stiffness: f64, damping: f64, friction: f64) -> (PhysicsWorld, Articul
         )],
         0.2,
         &spec,
-    );
+    ) else {
+        panic!("the joint joins its root")
+    };
     (w, a)
 }
 
@@ -84,7 +86,6 @@ pub(crate) fn built(scene: &mut dyn super::Scene, seed: u64) -> PhysicsWorld {
         world: &mut w,
         rng: &mut rng,
         tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-        world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
         graspable: Vec::new(),
         pre_grasped: None,
     };
@@ -96,7 +97,6 @@ pub(crate) fn built(scene: &mut dyn super::Scene, seed: u64) -> PhysicsWorld {
 pub(crate) fn view(step: u64) -> super::View {
     super::View {
         step,
-        dt_s: 1.0 / 120.0,
         substep_s: 1.0 / 480.0,
         world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
         tool_tip: Vector3::new(0.18, 0.0, 1.0),

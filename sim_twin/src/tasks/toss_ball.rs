@@ -205,7 +205,6 @@ mod tests {
             world: &mut world,
             rng: &mut rng,
             tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
             graspable: Vec::new(),
             pre_grasped: None,
         };
@@ -218,7 +217,6 @@ mod tests {
     fn view(tool_tip: Vector3<f64>, base_x: f64) -> View {
         View {
             step: 1,
-            dt_s: 1.0 / 120.0,
             substep_s: 1.0 / 480.0,
             world_from_ee: Isometry3::translation(tool_tip.x - 0.18, tool_tip.y, tool_tip.z),
             tool_tip,

@@ -281,7 +281,6 @@ mod tests {
             world: &mut world,
             rng: &mut rng,
             tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
             graspable: Vec::new(),
             pre_grasped: None,
         };
@@ -294,7 +293,6 @@ mod tests {
     fn view(step: u64) -> View {
         View {
             step,
-            dt_s: 4.0 * SUBSTEP_S,
             substep_s: SUBSTEP_S,
             world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
             tool_tip: Vector3::new(0.18, 0.0, 1.0),
