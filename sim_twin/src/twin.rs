@@ -800,15 +800,18 @@ impl Twin {
             tool_tip,
             graspable: Vec::new(),
             pre_grasped: None,
+            pre_grasp_width_m: 0.0,
         };
         let built = scene.build(&mut b);
-        let (graspable, pre_grasped) = (b.graspable, b.pre_grasped);
+        let (graspable, pre_grasped, width) = (b.graspable, b.pre_grasped, b.pre_grasp_width_m);
         self.task.scene = Some(scene);
         built?;
         self.task.grasp.graspable = graspable;
         if let Some(object) = pre_grasped {
             let (ee_body, _) = self.body.of_link(self.vehicle.ee_link);
-            self.task.grasp.attach(&mut self.world, ee_body, object);
+            self.task
+                .grasp
+                .attach(&mut self.world, ee_body, object, width);
         }
         Ok(())
     }
@@ -819,12 +822,13 @@ impl Twin {
         };
         self.task.steps += 1;
         let closing = self.gripper_closing();
+        let width = self.gripper_width_m();
         let (ee_body, _) = self.body.of_link(self.vehicle.ee_link);
         self.task.grasp.update(
             &mut self.world,
             ee_body,
             &self.task.fingers,
-            closing,
+            (closing, width),
             self.config.grasp == GraspMode::Assisted,
         );
         let dt = self.config.control_dt_s();

@@ -286,6 +286,8 @@ pub(crate) struct Build<'a> {
     pub graspable: Vec<RigidBodyHandle>,
     /// An object attached to the end effector at reset (AMBENCH_SPEC §4.0 pre-grasp).
     pub pre_grasped: Option<RigidBodyHandle>,
+    /// The pre-grasped object's width between the fingers (the spec's grasp width), m.
+    pub pre_grasp_width_m: f64,
 }
 
 /// What a scene sees after a control tick.

@@ -254,6 +254,9 @@ pub(crate) struct JointSpec {
 /// (the friction force) decides.
 const FRICTION_GAIN: f64 = 1.0e4;
 
+/// How much wider than the object the fingers open before it slips out, m.
+const RELEASE_MARGIN_M: f64 = 0.002;
+
 /// The grasp constraint (see [`super::GraspMode`]).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Grasp {
@@ -261,16 +264,23 @@ pub(crate) struct Grasp {
     pub graspable: Vec<RigidBodyHandle>,
     /// The object held and the constraint holding it.
     pub held: Option<(RigidBodyHandle, ImpulseJointHandle)>,
+    /// Gripper width beyond which the opening fingers no longer hold the object, m: its
+    /// width between the fingers (measured when they closed on it, or the spec's grasp
+    /// width for a pre-grasped object).
+    pub release_width_m: f64,
 }
 
 impl Grasp {
-    /// Attaches `object` to `ee_body` where they are now.
+    /// Attaches `object` to `ee_body` where they are now; the fingers let it go once they
+    /// open wider than `release_width_m`.
     pub fn attach(
         &mut self,
         world: &mut PhysicsWorld,
         ee_body: RigidBodyHandle,
         object: RigidBodyHandle,
+        release_width_m: f64,
     ) {
+        self.release_width_m = release_width_m;
         let ee_from_object = pose_of(world, ee_body).inverse() * pose_of(world, object);
         let joint = FixedJointBuilder::new()
             .local_frame1(pose_to_rapier(&ee_from_object))
@@ -289,18 +299,21 @@ impl Grasp {
         }
     }
 
-    /// One tick of the assisted grasp: release when the gripper opens; engage when it is
-    /// closing and both fingers touch a graspable object.
+    /// One tick of the assisted grasp: release once the gripper opens (action ≥ 0) wider
+    /// than the held object; engage when it is closing and both fingers touch a graspable
+    /// object. `width_m` is the measured gripper width.
     pub fn update(
         &mut self,
         world: &mut PhysicsWorld,
         ee_body: RigidBodyHandle,
         fingers: &[Vec<ColliderHandle>; 2],
-        closing: bool,
+        (closing, width_m): (bool, f64),
         assisted: bool,
     ) {
         if !closing {
-            self.release(world);
+            if width_m > self.release_width_m {
+                self.release(world);
+            }
             return;
         }
         if self.held.is_some() || !assisted {
@@ -319,7 +332,8 @@ impl Grasp {
             .copied()
             .find(|o| touches(world, &fingers[0], *o) && touches(world, &fingers[1], *o));
         if let Some(object) = found {
-            self.attach(world, ee_body, object);
+            // The fingers stopped on it: it slips out once they open past this width.
+            self.attach(world, ee_body, object, width_m + RELEASE_MARGIN_M);
         }
     }
 }

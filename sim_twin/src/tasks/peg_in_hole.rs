@@ -132,6 +132,8 @@ impl Scene for PegInHole {
         exact_contacts(b.world, peg_collider);
         b.graspable.push(peg);
         b.pre_grasped = Some(peg);
+        // AMBENCH_SPEC §4.1: grasp width 0.04 m.
+        b.pre_grasp_width_m = 0.04;
         self.wall = Some(wall);
         self.hole = Some(hole);
         self.peg = Some(peg);
@@ -228,6 +230,8 @@ mod tests {
             tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
             graspable: Vec::new(),
             pre_grasped: None,
+        pre_grasp_width_m: 0.0,
+            pre_grasp_width_m: 0.0,
         };
         let mut scene = PegInHole::default();
         scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));

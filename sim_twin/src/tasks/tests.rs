@@ -88,6 +88,7 @@ pub(crate) fn built(scene: &mut dyn super::Scene, seed: u64) -> PhysicsWorld {
         tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
         graspable: Vec::new(),
         pre_grasped: None,
+        pre_grasp_width_m: 0.0,
     };
     scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
     w

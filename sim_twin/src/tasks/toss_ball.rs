@@ -101,6 +101,8 @@ impl Scene for TossBall {
         exact_contacts(b.world, ball_collider);
         b.graspable.push(ball);
         b.pre_grasped = Some(ball);
+        // AMBENCH_SPEC §4.11: grasp width 0.08 m.
+        b.pre_grasp_width_m = 0.08;
         self.container = Some(container);
         self.container_position = position;
         self.ball = Some(ball);
@@ -207,6 +209,8 @@ mod tests {
             tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
             graspable: Vec::new(),
             pre_grasped: None,
+        pre_grasp_width_m: 0.0,
+            pre_grasp_width_m: 0.0,
         };
         let mut scene = TossBall::default();
         scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));

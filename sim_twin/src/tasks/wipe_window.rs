@@ -159,6 +159,8 @@ impl Scene for WipeWindow {
         exact_contacts(b.world, sponge.1);
         b.graspable.push(sponge.0);
         b.pre_grasped = Some(sponge.0);
+        // AMBENCH_SPEC §4.12: grasp width 0.04 m.
+        b.pre_grasp_width_m = 0.04;
         self.sponge = Some(sponge);
         self.window = Some(window);
         Ok(())
@@ -283,6 +285,8 @@ mod tests {
             tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
             graspable: Vec::new(),
             pre_grasped: None,
+        pre_grasp_width_m: 0.0,
+            pre_grasp_width_m: 0.0,
         };
         let mut scene = WipeWindow::default();
         scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
