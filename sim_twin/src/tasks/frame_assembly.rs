@@ -252,7 +252,7 @@ mod tests {
             tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
             graspable: Vec::new(),
             pre_grasped: None,
-        pre_grasp_width_m: 0.0,
+            pre_grasp_width_m: 0.0,
             pre_grasp_width_m: 0.0,
         };
         s.build(&mut b).unwrap_or_else(|e| panic!("{e}"));

@@ -228,7 +228,7 @@ mod tests {
             tool_tip: Isometry3::identity(),
             graspable: Vec::new(),
             pre_grasped: None,
-        pre_grasp_width_m: 0.0,
+            pre_grasp_width_m: 0.0,
             pre_grasp_width_m: 0.0,
         };
         scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
