@@ -366,7 +366,6 @@ mod tests {
             graspable: Vec::new(),
             pre_grasped: None,
             pre_grasp_width_m: 0.0,
-            pre_grasp_width_m: 0.0,
         };
         s.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
