@@ -260,53 +260,29 @@ fn insert_can(world: &mut PhysicsWorld, pose: &Isometry3<f64>) -> RigidBodyHandl
 
 #[cfg(test)]
 mod tests {
-    use rand::SeedableRng;
-    use rand_chacha::ChaCha8Rng;
 
     use super::*;
     use crate::tasks::objects::{place, pose_of, set_velocity};
-    use crate::tasks::{Build, Scene, View};
+    use crate::tasks::{Scene, View};
 
     fn world() -> PhysicsWorld {
-        let mut w = PhysicsWorld::new();
-        w.gravity = Vector::new(0.0, 0.0, -9.81);
-        w.integration_parameters.dt = 1.0 / 480.0;
-        let ground = w.insert_body(RigidBodyBuilder::fixed());
-        w.insert_collider(
-            material(ColliderBuilder::halfspace(
-                rapier3d_f64::na::Unit::new_unchecked(Vector::Z),
-            )),
-            Some(ground),
-        );
-        w
+        crate::tasks::tests::world_with(true)
     }
 
     fn scene(seed: u64) -> (PhysicsWorld, CabinetPickPlace, Vec<RigidBodyHandle>) {
         let mut w = world();
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut s = CabinetPickPlace::default();
-        let mut b = Build {
-            world: &mut w,
-            rng: &mut rng,
-            tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            graspable: Vec::new(),
-            pre_grasped: None,
-            pre_grasp_width_m: 0.0,
-        };
-        s.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
-        let graspable = b.graspable;
-        (w, s, graspable)
+        let built = crate::tasks::tests::build_into(&mut w, &mut s, seed);
+        (w, s, built.graspable)
     }
 
     fn view() -> View {
-        View {
-            step: 1,
-            substep_s: 1.0 / 480.0,
-            world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
-            tool_tip: Vector3::new(0.18, 0.0, 1.0),
-            base_position: Vector3::new(0.0, 0.0, 1.0),
-            gripper_width_m: 0.09,
-        }
+        crate::tasks::tests::view_of(
+            1,
+            Vector3::new(0.18, 0.0, 1.0),
+            Vector3::new(0.0, 0.0, 1.0),
+            0.09,
+        )
     }
 
     fn can(s: &CabinetPickPlace) -> RigidBodyHandle {

@@ -334,56 +334,28 @@ fn insert_container(world: &mut PhysicsWorld, bottom: &Vector3<f64>) {
 
 #[cfg(test)]
 mod tests {
-    use rand::SeedableRng;
-    use rand_chacha::ChaCha8Rng;
 
     use super::*;
     use crate::tasks::objects::place;
-    use crate::tasks::{Build, Scene, View};
+    use crate::tasks::{Scene, View};
 
     fn world() -> PhysicsWorld {
-        let mut w = PhysicsWorld::new();
-        w.gravity = Vector::new(0.0, 0.0, -9.81);
-        w.integration_parameters.dt = 1.0 / 480.0;
-        let ground = w.insert_body(RigidBodyBuilder::fixed());
-        w.insert_collider(
-            material(ColliderBuilder::halfspace(
-                rapier3d_f64::na::Unit::new_unchecked(Vector::Z),
-            )),
-            Some(ground),
-        );
-        w
+        crate::tasks::tests::world_with(true)
     }
 
     fn scene(seed: u64) -> (PhysicsWorld, LemonHarvesting) {
         let mut w = world();
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut s = LemonHarvesting::default();
-        let mut b = Build {
-            world: &mut w,
-            rng: &mut rng,
-            tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            graspable: Vec::new(),
-            pre_grasped: None,
-            pre_grasp_width_m: 0.0,
-        };
-        s.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
+        let built = crate::tasks::tests::build_into(&mut w, &mut s, seed);
         assert_eq!(
-            b.graspable,
+            built.graspable,
             vec![s.lemon.unwrap_or_else(|| panic!("no lemon"))]
         );
         (w, s)
     }
 
     fn view(tip: Vector3<f64>, width: f64) -> View {
-        View {
-            step: 1,
-            substep_s: 1.0 / 480.0,
-            world_from_ee: Isometry3::translation(tip.x - 0.18, tip.y, tip.z),
-            tool_tip: tip,
-            base_position: Vector3::new(0.0, 0.0, 1.0),
-            gripper_width_m: width,
-        }
+        crate::tasks::tests::view_of(1, tip, Vector3::new(0.0, 0.0, 1.0), width)
     }
 
     fn lemon(s: &LemonHarvesting) -> RigidBodyHandle {

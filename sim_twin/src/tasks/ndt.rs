@@ -90,14 +90,7 @@ mod tests {
     use super::*;
 
     fn view(step: u64, ee: Vector3<f64>) -> View {
-        View {
-            step,
-            substep_s: 1.0 / 480.0,
-            world_from_ee: Isometry3::translation(ee.x, ee.y, ee.z),
-            tool_tip: ee + Vector3::new(0.18, 0.0, 0.0),
-            base_position: ee,
-            gripper_width_m: 0.002,
-        }
+        crate::tasks::tests::view_of(step, ee + Vector3::new(0.18, 0.0, 0.0), ee, 0.002)
     }
 
     #[test]

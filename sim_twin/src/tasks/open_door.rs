@@ -172,40 +172,20 @@ impl Scene for OpenDoor {
 
 #[cfg(test)]
 mod tests {
-    use rand::SeedableRng;
-    use rand_chacha::ChaCha8Rng;
 
     use super::*;
     use crate::convert::vector_to_rapier;
     use crate::tasks::objects::pose_of;
 
     fn built(seed: u64) -> (PhysicsWorld, OpenDoor) {
-        let mut w = PhysicsWorld::new();
-        w.gravity = Vector::new(0.0, 0.0, -9.81);
-        w.integration_parameters.dt = 1.0 / 480.0;
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut w = crate::tasks::tests::world_with(false);
         let mut scene = OpenDoor::default();
-        let mut b = Build {
-            world: &mut w,
-            rng: &mut rng,
-            tool_tip: Isometry3::identity(),
-            graspable: Vec::new(),
-            pre_grasped: None,
-            pre_grasp_width_m: 0.0,
-        };
-        scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
+        crate::tasks::tests::build_into(&mut w, &mut scene, seed);
         (w, scene)
     }
 
     fn view() -> View {
-        View {
-            step: 1,
-            substep_s: 1.0 / 480.0,
-            world_from_ee: Isometry3::identity(),
-            tool_tip: Vector3::zeros(),
-            base_position: Vector3::zeros(),
-            gripper_width_m: 0.0,
-        }
+        crate::tasks::tests::view_of(1, Vector3::zeros(), Vector3::zeros(), 0.0)
     }
 
     fn hinge(scene: &OpenDoor) -> ReducedJoint {

@@ -212,8 +212,6 @@ fn bar_points(half_m: f64, bar_m: f64, chamfer_m: f64) -> Vec<Vector3<f64>> {
 #[cfg(test)]
 mod tests {
     use nalgebra::Point3;
-    use rand::SeedableRng;
-    use rand_chacha::ChaCha8Rng;
 
     use super::*;
     use crate::tasks::objects::{place, position_of};
@@ -221,31 +219,20 @@ mod tests {
 
     /// The scene alone in a world without gravity, the tool tip at (0.18, 0, 1).
     fn built(seed: u64) -> (PhysicsWorld, PegInHole) {
-        let mut world = PhysicsWorld::new();
+        let mut world = crate::tasks::tests::world_with(false);
         world.gravity = Vector::ZERO;
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut b = Build {
-            world: &mut world,
-            rng: &mut rng,
-            tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            graspable: Vec::new(),
-            pre_grasped: None,
-            pre_grasp_width_m: 0.0,
-        };
         let mut scene = PegInHole::default();
-        scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
+        crate::tasks::tests::build_into(&mut world, &mut scene, seed);
         (world, scene)
     }
 
     fn view() -> View {
-        View {
-            step: 1,
-            substep_s: 1.0 / 480.0,
-            world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
-            tool_tip: Vector3::new(0.18, 0.0, 1.0),
-            base_position: Vector3::new(0.0, 0.0, 1.0),
-            gripper_width_m: 0.002,
-        }
+        crate::tasks::tests::view_of(
+            1,
+            Vector3::new(0.18, 0.0, 1.0),
+            Vector3::new(0.0, 0.0, 1.0),
+            0.002,
+        )
     }
 
     fn handles(scene: &PegInHole) -> (RigidBodyHandle, RigidBodyHandle) {

@@ -209,40 +209,19 @@ impl Scene for RotateValve {
 #[cfg(test)]
 mod tests {
     use nalgebra::Point3;
-    use rand::SeedableRng;
-    use rand_chacha::ChaCha8Rng;
 
     use super::*;
     use crate::convert::vector_to_rapier;
 
     fn built(seed: u64) -> (PhysicsWorld, RotateValve, Vec<RigidBodyHandle>) {
-        let mut w = PhysicsWorld::new();
-        w.gravity = Vector::new(0.0, 0.0, -9.81);
-        w.integration_parameters.dt = 1.0 / 480.0;
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut w = crate::tasks::tests::world_with(false);
         let mut scene = RotateValve::default();
-        let mut b = Build {
-            world: &mut w,
-            rng: &mut rng,
-            tool_tip: Isometry3::identity(),
-            graspable: Vec::new(),
-            pre_grasped: None,
-            pre_grasp_width_m: 0.0,
-        };
-        scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
-        let graspable = b.graspable.clone();
-        (w, scene, graspable)
+        let built = crate::tasks::tests::build_into(&mut w, &mut scene, seed);
+        (w, scene, built.graspable)
     }
 
     fn view() -> View {
-        View {
-            step: 1,
-            substep_s: 1.0 / 480.0,
-            world_from_ee: Isometry3::identity(),
-            tool_tip: Vector3::zeros(),
-            base_position: Vector3::zeros(),
-            gripper_width_m: 0.0,
-        }
+        crate::tasks::tests::view_of(1, Vector3::zeros(), Vector3::zeros(), 0.0)
     }
 
     fn shaft(scene: &RotateValve) -> ReducedJoint {

@@ -6,11 +6,77 @@ use rapier3d_f64::prelude::*;
 use super::objects::{Dof, JointSpec, ReducedJoint, fixed_body};
 use crate::convert::vector_to_rapier;
 
-fn world() -> PhysicsWorld {
+/// A world as the twin's (gravity, 120 Hz in 4 substeps) without a vehicle; with `ground`,
+/// the ground plane too.
+pub(crate) fn world_with(ground: bool) -> PhysicsWorld {
     let mut w = PhysicsWorld::new();
     w.gravity = Vector::new(0.0, 0.0, -9.81);
     w.integration_parameters.dt = 1.0 / 480.0;
+    if ground {
+        let body = w.insert_body(RigidBodyBuilder::fixed());
+        w.insert_collider(
+            crate::vehicle_body::material(ColliderBuilder::halfspace(
+                rapier3d_f64::na::Unit::new_unchecked(Vector::Z),
+            )),
+            Some(body),
+        );
+    }
     w
+}
+
+fn world() -> PhysicsWorld {
+    world_with(false)
+}
+
+/// What a scene registered while it built itself.
+#[derive(Debug)]
+pub(crate) struct Built {
+    /// Bodies the fingers may grasp.
+    pub graspable: Vec<RigidBodyHandle>,
+    /// The object attached at reset.
+    pub pre_grasped: Option<RigidBodyHandle>,
+}
+
+/// `scene` built into `world` from `seed`, with the tool tip at (0.18, 0, 1) m and the
+/// identity command frame (the vehicles' reset pose).
+pub(crate) fn build_into(
+    world: &mut PhysicsWorld,
+    scene: &mut dyn super::Scene,
+    seed: u64,
+) -> Built {
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut b = super::Build {
+        world,
+        rng: &mut rng,
+        tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
+        graspable: Vec::new(),
+        pre_grasped: None,
+        pre_grasp_width_m: 0.0,
+    };
+    scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
+    Built {
+        graspable: b.graspable,
+        pre_grasped: b.pre_grasped,
+    }
+}
+
+/// The view after env step `step` of a level end effector whose tool tip is at `tool_tip`
+/// (its link 0.18 m behind), the base at `base`, the gripper `width_m` wide.
+pub(crate) fn view_of(
+    step: u64,
+    tool_tip: Vector3<f64>,
+    base: Vector3<f64>,
+    width_m: f64,
+) -> super::View {
+    super::View {
+        step,
+        substep_s: 1.0 / 480.0,
+        world_from_ee: Isometry3::translation(tool_tip.x - 0.18, tool_tip.y, tool_tip.z),
+        tool_tip,
+        base_position: base,
+        gripper_width_m: width_m,
+    }
 }
 
 fn push(world: &mut PhysicsWorld, body: RigidBodyHandle, force: Vector3<f64>, steps: usize) {
@@ -77,33 +143,21 @@ fn coulomb_friction_holds_below_and_slides_above_its_force() {
     assert!(q > 0.25 && q < 0.45, "q = {q}");
 }
 
-/// A scene built alone in a world (no vehicle), from `seed`.
+/// A scene built alone in a world (no vehicle, no ground), from `seed`.
 pub(crate) fn built(scene: &mut dyn super::Scene, seed: u64) -> PhysicsWorld {
-    use rand::SeedableRng;
     let mut w = world();
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let mut b = super::Build {
-        world: &mut w,
-        rng: &mut rng,
-        tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-        graspable: Vec::new(),
-        pre_grasped: None,
-        pre_grasp_width_m: 0.0,
-    };
-    scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
+    build_into(&mut w, scene, seed);
     w
 }
 
 /// A view of a vehicle at its reset pose.
 pub(crate) fn view(step: u64) -> super::View {
-    super::View {
+    view_of(
         step,
-        substep_s: 1.0 / 480.0,
-        world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
-        tool_tip: Vector3::new(0.18, 0.0, 1.0),
-        base_position: Vector3::new(0.0, 0.0, 1.0),
-        gripper_width_m: 0.002,
-    }
+        Vector3::new(0.18, 0.0, 1.0),
+        Vector3::new(0.0, 0.0, 1.0),
+        0.002,
+    )
 }
 
 #[test]

@@ -190,8 +190,6 @@ fn container_parts() -> [(Vector3<f64>, Vector3<f64>); 5] {
 
 #[cfg(test)]
 mod tests {
-    use rand::SeedableRng;
-    use rand_chacha::ChaCha8Rng;
 
     use super::*;
     use crate::tasks::objects::place;
@@ -199,33 +197,20 @@ mod tests {
 
     /// The scene alone in a world with gravity, the tool tip at (0.18, 0, 1).
     fn built(seed: u64) -> (PhysicsWorld, TossBall) {
-        let mut world = PhysicsWorld::new();
-        world.gravity = Vector::new(0.0, 0.0, -9.81);
-        world.integration_parameters.dt = 1.0 / 480.0;
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut b = Build {
-            world: &mut world,
-            rng: &mut rng,
-            tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            graspable: Vec::new(),
-            pre_grasped: None,
-            pre_grasp_width_m: 0.0,
-        };
+        let mut world = crate::tasks::tests::world_with(false);
         let mut scene = TossBall::default();
-        scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(b.pre_grasped, scene.ball);
+        let built = crate::tasks::tests::build_into(&mut world, &mut scene, seed);
+        assert_eq!(built.pre_grasped, scene.ball);
         (world, scene)
     }
 
     fn view(tool_tip: Vector3<f64>, base_x: f64) -> View {
-        View {
-            step: 1,
-            substep_s: 1.0 / 480.0,
-            world_from_ee: Isometry3::translation(tool_tip.x - 0.18, tool_tip.y, tool_tip.z),
+        crate::tasks::tests::view_of(
+            1,
             tool_tip,
-            base_position: Vector3::new(base_x, tool_tip.y, tool_tip.z),
-            gripper_width_m: 0.09,
-        }
+            Vector3::new(base_x, tool_tip.y, tool_tip.z),
+            0.09,
+        )
     }
 
     fn ball(scene: &TossBall) -> RigidBodyHandle {

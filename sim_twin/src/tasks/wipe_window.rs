@@ -264,44 +264,28 @@ fn window_parts() -> [(Vector3<f64>, Vector3<f64>); 5] {
 
 #[cfg(test)]
 mod tests {
-    use rand::SeedableRng;
-    use rand_chacha::ChaCha8Rng;
 
     use super::*;
     use crate::convert::vector_to_rapier;
     use crate::tasks::objects::place;
 
-    const SUBSTEP_S: f64 = 1.0 / 480.0;
-
     /// The scene alone in a world without gravity, the tool tip at (0.18, 0, 1).
     fn built(seed: u64) -> (PhysicsWorld, WipeWindow) {
-        let mut world = PhysicsWorld::new();
+        let mut world = crate::tasks::tests::world_with(false);
         world.gravity = Vector::ZERO;
-        world.integration_parameters.dt = SUBSTEP_S;
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut b = Build {
-            world: &mut world,
-            rng: &mut rng,
-            tool_tip: Isometry3::translation(0.18, 0.0, 1.0),
-            graspable: Vec::new(),
-            pre_grasped: None,
-            pre_grasp_width_m: 0.0,
-        };
         let mut scene = WipeWindow::default();
-        scene.build(&mut b).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(b.pre_grasped, scene.sponge.map(|s| s.0));
+        let built = crate::tasks::tests::build_into(&mut world, &mut scene, seed);
+        assert_eq!(built.pre_grasped, scene.sponge.map(|s| s.0));
         (world, scene)
     }
 
     fn view(step: u64) -> View {
-        View {
+        crate::tasks::tests::view_of(
             step,
-            substep_s: SUBSTEP_S,
-            world_from_ee: Isometry3::translation(0.0, 0.0, 1.0),
-            tool_tip: Vector3::new(0.18, 0.0, 1.0),
-            base_position: Vector3::new(0.0, 0.0, 1.0),
-            gripper_width_m: 0.04,
-        }
+            Vector3::new(0.18, 0.0, 1.0),
+            Vector3::new(0.0, 0.0, 1.0),
+            0.04,
+        )
     }
 
     #[test]
