@@ -20,7 +20,7 @@ use sim_twin::TaskId;
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_json};
 use crate::twin_flags::TwinFlags;
-use crate::vehicles::all_vehicles;
+use crate::vehicles::find_vehicle;
 
 /// Version of the results JSON layout.
 const RESULTS_SCHEMA: u32 = 1;
@@ -103,15 +103,7 @@ fn tasks(name: &str) -> Result<Vec<TaskId>> {
 }
 
 pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
-    let vehicles = all_vehicles(&args.vehicles)?;
-    let Some(vehicle) = vehicles.iter().find(|v| v.id == args.platform).cloned() else {
-        let ids: Vec<&str> = vehicles.iter().map(|v| v.id.as_str()).collect();
-        return Err(bad_input(format!(
-            "--platform {}: unknown vehicle (known: {})",
-            args.platform,
-            ids.join(", ")
-        )));
-    };
+    let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
     let tasks = tasks(&args.task)?;
     let valid = controllers_for(&vehicle);
     let name = args

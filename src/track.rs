@@ -13,7 +13,7 @@ use policy_runtime::{Interface, TrackConfig, TrackResult, Trajectory, run_track}
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_json};
 use crate::twin_flags::TwinFlags;
-use crate::vehicles::all_vehicles;
+use crate::vehicles::find_vehicle;
 
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
@@ -64,15 +64,7 @@ pub struct Args {
 }
 
 fn config(args: &Args) -> Result<TrackConfig> {
-    let vehicles = all_vehicles(&args.vehicles)?;
-    let Some(vehicle) = vehicles.iter().find(|v| v.id == args.platform).cloned() else {
-        let ids: Vec<&str> = vehicles.iter().map(|v| v.id.as_str()).collect();
-        return Err(bad_input(format!(
-            "--platform {}: unknown vehicle (known: {})",
-            args.platform,
-            ids.join(", ")
-        )));
-    };
+    let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
     let trajectory: Trajectory = args
         .trajectory
         .parse()

@@ -10,7 +10,7 @@ use sim_twin::ipc::{Mode, ServeConfig, ServeError, TwinServer};
 
 use crate::cli_error::bad_input;
 use crate::twin_flags::TwinFlags;
-use crate::vehicles::all_vehicles;
+use crate::vehicles::find_vehicle;
 
 #[derive(Debug, clap::Args)]
 pub struct TwinArgs {
@@ -85,15 +85,7 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
             args.ipc
         )));
     }
-    let vehicles = all_vehicles(&args.vehicles)?;
-    let Some(vehicle) = vehicles.iter().find(|v| v.id == args.platform).cloned() else {
-        let ids: Vec<&str> = vehicles.iter().map(|v| v.id.as_str()).collect();
-        return Err(bad_input(format!(
-            "--platform {}: unknown vehicle (known: {})",
-            args.platform,
-            ids.join(", ")
-        )));
-    };
+    let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
     let twin = args.twin.twin_config()?;
     let mode = if args.realtime {
         Mode::Realtime

@@ -37,3 +37,15 @@ pub fn all_vehicles(extra: &[std::path::PathBuf]) -> Result<Vec<Vehicle>> {
     }
     Ok(vehicles)
 }
+
+/// The vehicle `id` among the built-in ones and the user's (`--platform`); bad input naming
+/// the known ids otherwise.
+pub fn find_vehicle(extra: &[std::path::PathBuf], id: &str) -> Result<Vehicle> {
+    let vehicles = all_vehicles(extra)?;
+    let ids: Vec<&str> = vehicles.iter().map(|v| v.id.as_str()).collect();
+    let unknown = bad_input(format!(
+        "--platform {id}: unknown vehicle (known: {})",
+        ids.join(", ")
+    ));
+    vehicles.into_iter().find(|v| v.id == id).ok_or(unknown)
+}
