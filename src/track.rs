@@ -12,7 +12,7 @@ use policy_runtime::{Interface, TrackConfig, TrackResult, Trajectory, run_track}
 
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_json};
-use crate::twin_flags::TwinFlags;
+use crate::twin_flags::{SceneFlag, TwinFlags};
 use crate::vehicles::find_vehicle;
 
 #[derive(Debug, clap::Args)]
@@ -52,6 +52,8 @@ pub struct Args {
     settle: f64,
     #[command(flatten)]
     twin: TwinFlags,
+    #[command(flatten)]
+    scene: SceneFlag,
     /// Write the scores as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -81,7 +83,8 @@ fn config(args: &Args) -> Result<TrackConfig> {
             "--controller mpc: the whole-body MPC tracks end-effector targets; add --interface ee",
         ));
     }
-    let twin = args.twin.twin_config()?;
+    let mut twin = args.twin.twin_config()?;
+    args.scene.apply(&mut twin)?;
     let duration_s = args
         .duration
         .unwrap_or_else(|| trajectory.default_duration_s());

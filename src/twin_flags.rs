@@ -3,7 +3,7 @@
 //! the same flags, or the handshake refuses them.
 
 use anyhow::Result;
-use sim_twin::{Disturbances, MotorConfig, TwinConfig};
+use sim_twin::{Disturbances, MotorConfig, TaskId, TwinConfig};
 
 use crate::cli_error::bad_input;
 
@@ -48,5 +48,30 @@ impl TwinFlags {
         twin.validate()
             .map_err(|e| bad_input(format!("twin: {e}")))?;
         Ok(twin)
+    }
+}
+
+/// `--task`: a task's scene built around the vehicle (`track`, `fly`, `twin serve`; both
+/// sides of a split flight must name the same one, or the handshake refuses them).
+#[derive(Debug, clap::Args)]
+pub struct SceneFlag {
+    /// Build a task's scene around the vehicle (press-button, push-slider, ...: the names of
+    /// `amstack bench --help`): its objects are in the world, for contact and for the ground
+    /// and near-wall effects.
+    #[arg(long, value_name = "NAME")]
+    pub task: Option<String>,
+}
+
+impl SceneFlag {
+    /// Puts the named task's scene into `twin`; an unknown name is bad input listing the
+    /// valid ones.
+    pub fn apply(&self, twin: &mut TwinConfig) -> Result<()> {
+        twin.task = self
+            .task
+            .as_deref()
+            .map(TaskId::parse)
+            .transpose()
+            .map_err(|e| bad_input(format!("--task: {e}")))?;
+        Ok(())
     }
 }

@@ -9,7 +9,7 @@ use anyhow::Result;
 use sim_twin::ipc::{Mode, ServeConfig, ServeError, TwinServer};
 
 use crate::cli_error::bad_input;
-use crate::twin_flags::TwinFlags;
+use crate::twin_flags::{SceneFlag, TwinFlags};
 use crate::vehicles::find_vehicle;
 
 #[derive(Debug, clap::Args)]
@@ -67,6 +67,8 @@ pub struct ServeArgs {
     /// The twin's settings, as in `amstack track`; every session starts from the seed.
     #[command(flatten)]
     twin: TwinFlags,
+    #[command(flatten)]
+    scene: SceneFlag,
     /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
     #[arg(long = "vehicle", value_name = "FILE.toml")]
     vehicles: Vec<PathBuf>,
@@ -86,7 +88,8 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
         )));
     }
     let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
-    let twin = args.twin.twin_config()?;
+    let mut twin = args.twin.twin_config()?;
+    args.scene.apply(&mut twin)?;
     let mode = if args.realtime {
         Mode::Realtime
     } else {

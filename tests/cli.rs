@@ -344,6 +344,11 @@ fn bench_refuses_unknown_names_and_impossible_combinations_listing_the_choices()
         &["--interface joint", "ee-only", "valid: ee"],
     );
     assert_bad_input(&amstack(&["bench", "--rollouts", "0"]), &["--rollouts 0"]);
+    // The scene flag of track, fly and twin serve names the same tasks.
+    assert_bad_input(
+        &amstack(&["track", "--task", "fly-away"]),
+        &["--task", "fly-away", "push-slider"],
+    );
     assert_bad_input(
         &amstack(&["bench", "--json", "/nonexistent-dir/results.json"]),
         &["--json", "/nonexistent-dir"],
