@@ -823,12 +823,18 @@ impl Twin {
         self.task.steps += 1;
         let closing = self.gripper_closing();
         let width = self.gripper_width_m();
+        let target_width: f64 = self
+            .task
+            .gripper_dofs
+            .iter()
+            .filter_map(|&d| self.joint_targets.get(d))
+            .sum();
         let (ee_body, _) = self.body.of_link(self.vehicle.ee_link);
         self.task.grasp.update(
             &mut self.world,
             ee_body,
             &self.task.fingers,
-            (closing, width),
+            (closing, width, target_width),
             self.config.grasp == GraspMode::Assisted,
         );
         let dt = self.config.control_dt_s();

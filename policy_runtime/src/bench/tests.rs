@@ -25,8 +25,9 @@ fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> Be
     }
 }
 
-/// Prints a rollout's trace: `AMSTACK_TRACE=task[:vehicle[:seed]] cargo test -p
-/// policy_runtime trace -- --ignored --nocapture`.
+/// Prints a rollout's trace every `AMSTACK_TRACE_EVERY` steps (default 60):
+/// `AMSTACK_TRACE=task[:vehicle[:seed]] cargo test -p policy_runtime trace -- --ignored
+/// --nocapture`.
 #[test]
 #[ignore = "a debugging aid, not a test"]
 fn trace() {
@@ -65,6 +66,11 @@ fn trace() {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(2);
     let mut policy = scripted(task, &ctx, &mut rng).unwrap_or_else(|e| panic!("{e}"));
+    let every: u64 = std::env::var("AMSTACK_TRACE_EVERY")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(60)
+        .max(1);
     for step in 0..task.max_steps(120.0) {
         stack.keep_in_front_of(twin.obstacle_face_x());
         let (pose, mut g) = policy.action(step);
@@ -78,7 +84,7 @@ fn trace() {
         let record = stack.act(&m, &Action::Ee(ee.clone()));
         m = twin.step(&record.command).unwrap_or_else(|e| panic!("{e}"));
         let status = twin.task_status().cloned().unwrap_or_default();
-        if step % 60 == 0 || status.success {
+        if step % every == 0 || status.success {
             let p = m.world_from_ee.translation.vector;
             let t = stack.link_target(&ee).translation.vector;
             println!(

@@ -299,19 +299,21 @@ impl Grasp {
         }
     }
 
-    /// One tick of the assisted grasp: release once the gripper opens (action ≥ 0) wider
-    /// than the held object; engage when it is closing and both fingers touch a graspable
-    /// object. `width_m` is the measured gripper width.
+    /// One tick of the assisted grasp: release once the gripper opens (action ≥ 0) and its
+    /// drives no longer squeeze the held object — their targets wider than the object (a
+    /// friction grip lets go when the squeeze is gone, before the fingers have moved); engage
+    /// when it is closing and both fingers touch a graspable object. `width_m` is the measured
+    /// gripper width, `target_width_m` the width its drives are commanded to.
     pub fn update(
         &mut self,
         world: &mut PhysicsWorld,
         ee_body: RigidBodyHandle,
         fingers: &[Vec<ColliderHandle>; 2],
-        (closing, width_m): (bool, f64),
+        (closing, width_m, target_width_m): (bool, f64, f64),
         assisted: bool,
     ) {
         if !closing {
-            if width_m > self.release_width_m {
+            if target_width_m > self.release_width_m {
                 self.release(world);
             }
             return;
