@@ -419,6 +419,14 @@ fn bench_writes_the_documented_results_and_one_log_per_rollout() {
         for i in 0..2 {
             let log = out_dir.join(format!("rollouts/{task}/rollout-{i:03}.mcap"));
             assert!(log.is_file(), "{} missing", log.display());
+            // Each rollout's log carries the task's state channel (its record is in the
+            // file's summary, uncompressed).
+            let bytes = std::fs::read(&log).unwrap_or_default();
+            assert!(
+                bytes.windows(11).any(|w| w == b"/task/state"),
+                "{} has no /task/state channel",
+                log.display()
+            );
         }
     }
 }

@@ -29,7 +29,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use sim_twin::{TaskId, Twin, TwinConfig, TwinError};
 
-use crate::flight_log::{FlightLog, rotors_saturated};
+use crate::flight_log::{FlightLog, TaskCriterion, TaskState, TaskValue, rotors_saturated};
 use crate::metrics::{
     CriteriaLatch, RolloutSummary, RunSummary, TrackingRecord, summarize_rollout, summarize_run,
 };
@@ -312,6 +312,35 @@ pub fn run_rollout(
         });
         if let Some(status) = twin.task_status() {
             latch.observe(&status.criteria);
+            if let Some(log) = &mut log {
+                let state = TaskState {
+                    task: task.name().to_owned(),
+                    step: twin.steps(),
+                    success: status.success,
+                    criteria: criteria_names
+                        .iter()
+                        .zip(&status.criteria)
+                        .zip(latch.reached())
+                        .map(|((name, now), reached)| TaskCriterion {
+                            name: (*name).to_owned(),
+                            now: *now,
+                            reached: *reached,
+                        })
+                        .collect(),
+                    observation: twin
+                        .task_observation()
+                        .unwrap_or_default()
+                        .entries
+                        .into_iter()
+                        .map(|(name, values)| TaskValue {
+                            name: name.to_owned(),
+                            values,
+                        })
+                        .collect(),
+                    holding: twin.holding(),
+                };
+                log.task_state(measurement.time_s, &state)?;
+            }
             if status.success {
                 termination = Termination::Success;
                 break;

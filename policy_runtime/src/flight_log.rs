@@ -116,6 +116,44 @@ pub struct ControllerStatus {
     pub input: String,
 }
 
+/// A task's state after one env step (benchmark rollouts): its criteria at this step and
+/// latched, and its observation keys (AMBENCH_SPEC §5.1), world frame.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct TaskState {
+    /// Task name (`press-button`, …).
+    pub task: String,
+    /// Env steps since reset.
+    pub step: u64,
+    /// The success criterion at this step.
+    pub success: bool,
+    /// Each criterion: name, at this step, reached at some step so far.
+    pub criteria: Vec<TaskCriterion>,
+    /// The task's observation keys and values.
+    pub observation: Vec<TaskValue>,
+    /// The grasp constraint holds an object.
+    pub holding: bool,
+}
+
+/// One criterion of a [`TaskState`].
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct TaskCriterion {
+    /// Name (`slider_engaged`, …).
+    pub name: String,
+    /// True at this step.
+    pub now: bool,
+    /// True at some step so far.
+    pub reached: bool,
+}
+
+/// One observation key of a [`TaskState`].
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct TaskValue {
+    /// Key (`goal_pos`, …).
+    pub name: String,
+    /// Values (positions in m, world frame).
+    pub values: Vec<f64>,
+}
+
 /// The whole-body MPC's report of one tick (flights with `--controller mpc`): who flew, the
 /// fallback's events, and the RTI step.
 #[derive(Debug, Clone, Serialize, JsonSchema)]
@@ -157,6 +195,7 @@ macro_rules! schema_names {
     ($($t:ident),*) => {$(impl SchemaName for $t { const SCHEMA_NAME: &'static str = concat!("amstack.", stringify!($t)); })*};
 }
 schema_names!(
+    TaskState,
     BaseState,
     BodyWrench,
     Rotors,
@@ -183,6 +222,8 @@ pub struct FlightLog {
     status: Channel<ControllerStatus>,
     /// Opened on the first tick that carries an MPC report.
     mpc: Option<Channel<MpcStatus>>,
+    /// Opened on the first task state logged.
+    task: Option<Channel<TaskState>>,
     joint_names: Vec<String>,
     limits: (f64, f64),
 }
@@ -207,6 +248,7 @@ impl FlightLog {
             disturbances: recorder.channel("/disturbances")?,
             status: recorder.channel("/controller/status")?,
             mpc: None,
+            task: None,
             joint_names: (0..vehicle.model.dof())
                 .map(|d| vehicle.model.dof_joint(d).name.clone())
                 .collect(),
@@ -325,6 +367,17 @@ impl FlightLog {
             logged?;
         }
         Ok(())
+    }
+
+    /// Logs a task's state at simulated time `time_s` on `/task/state`.
+    pub fn task_state(&mut self, time_s: f64, state: &TaskState) -> Result<(), RecordError> {
+        let channel = match self.task.take() {
+            Some(c) => c,
+            None => self.recorder.channel("/task/state")?,
+        };
+        let logged = self.recorder.log(&channel, nanos(time_s), state);
+        self.task = Some(channel);
+        logged
     }
 
     /// Logs what the rotors and disturbances did over the period that ended at `m.time_s`.
