@@ -4,7 +4,8 @@
 //! A rollout (AMBENCH_SPEC §4.0, §6):
 //! 1. the twin is built with the task scene at rollout seed s = run seed + rollout index
 //!    (the reference seeds batch b with base seed + b's first index); the scene's
-//!    randomisation, the noise and the policy's offsets are separate streams of s;
+//!    randomisation, the observation noise, the policy's offsets and the action noise are
+//!    separate streams of s;
 //! 2. the scripted policy is built from the reset observation; every env step it gives an
 //!    end-effector target (command frame) and a gripper action; with the base + joint
 //!    interface the target goes through the stack's whole-body IK first and the base + joint
@@ -23,9 +24,11 @@ use std::time::Instant;
 
 use allocation::AllocationMethod;
 use controllers::ControllerConfig;
+use nalgebra::{Isometry3, Quaternion, UnitQuaternion};
 use platform::Vehicle;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 use sim_twin::{TaskId, Twin, TwinConfig, TwinError};
 
@@ -237,6 +240,15 @@ pub fn run_rollout(
     policy_rng.set_stream(2);
     let mut policy = scripted(task, &context, &mut policy_rng)
         .map_err(|message| BenchError::Policy { task, message })?;
+    // Action noise (AMBENCH_SPEC §3.1: N(0, σ²) on the whole action vector), its own stream.
+    let action_noise = config
+        .twin
+        .disturbances
+        .action_noise
+        .then(|| Normal::new(0.0, config.twin.noise.action_std).ok())
+        .flatten();
+    let mut noise_rng = ChaCha8Rng::seed_from_u64(seed);
+    noise_rng.set_stream(3);
     let criteria_names = task.criteria_names();
     let mut latch = CriteriaLatch::new(criteria_names.len());
     let mut log = match &config.mcap_dir {
@@ -262,9 +274,12 @@ pub fn run_rollout(
             break;
         }
         stack.keep_in_front_of(twin.obstacle_face_x());
-        let (command_pose, mut gripper) = policy.action(steps);
+        let (mut command_pose, mut gripper) = policy.action(steps);
         if let Some(g) = gripper_override(task) {
             gripper = g;
+        }
+        if let Some(noise) = &action_noise {
+            add_action_noise(&mut command_pose, &mut gripper, &mut noise_rng, noise);
         }
         let ee = EeTarget {
             world_from_ee_command: command_pose,
@@ -279,7 +294,7 @@ pub fn run_rollout(
         if let Some(log) = &mut log {
             log.tick(&measurement, &record, &ee_desired)?;
         }
-        let before = measurement.clone();
+        let (ee_actual, base_actual) = (measurement.world_from_ee, measurement.base.pose());
         // A physics engine panic (NaN inside rapier) ends this rollout as diverged, not the run.
         let stepped =
             std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| twin.step(&record.command)))
@@ -304,9 +319,9 @@ pub fn run_rollout(
         }
         records.push(TrackingRecord {
             ee_desired,
-            ee_actual: before.world_from_ee,
+            ee_actual,
             base_desired: record.base_target,
-            base_actual: before.base.pose(),
+            base_actual,
             saturated: has_rotors
                 .then(|| record.allocation_saturated || rotors_saturated(&measurement, limits_n)),
         });
@@ -369,6 +384,26 @@ pub fn run_rollout(
         wall_time_s: started.elapsed().as_secs_f64(),
         mcap,
     })
+}
+
+/// Adds N(0, σ²) to every element of the end-effector action: position, quaternion
+/// (renormalised) and gripper.
+fn add_action_noise(
+    pose: &mut Isometry3<f64>,
+    gripper: &mut f64,
+    rng: &mut ChaCha8Rng,
+    noise: &Normal<f64>,
+) {
+    for x in pose.translation.vector.iter_mut() {
+        *x += noise.sample(rng);
+    }
+    let q = pose
+        .rotation
+        .into_inner()
+        .coords
+        .map(|c| c + noise.sample(rng));
+    pose.rotation = UnitQuaternion::new_normalize(Quaternion::from(q));
+    *gripper += noise.sample(rng);
 }
 
 /// The arm reach the errors are normalised by: the vehicle's, or ‖p_ee − p_base‖ at the

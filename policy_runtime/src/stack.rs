@@ -190,13 +190,15 @@ impl FlightStack {
             })
             .collect();
         let vehicle_initial = vehicle.initial_configuration();
-        let vehicle_id = vehicle.id.clone();
+        // The vehicle's IK profile: the EE interface's solver, and the margin the base keeps
+        // from obstacle faces (also for the MPC, which has no IK).
+        let ik_config = IkConfig::for_vehicle(&vehicle.id).unwrap_or_default();
+        let safety_margin_m = ik_config.safety_margin_m;
         // The EE interface needs IK unless the end effector is the controlled body.
         let ee = if vehicle.ee_link == vehicle.base_link {
             None
         } else {
-            let config = IkConfig::for_vehicle(&vehicle.id).unwrap_or_default();
-            let ik = WholeBodyIk::new(&vehicle, config)
+            let ik = WholeBodyIk::new(&vehicle, ik_config)
                 .map_err(|e| StackError(format!("whole-body IK: {e}")))?;
             Some(EeInterface {
                 ik,
@@ -218,9 +220,7 @@ impl FlightStack {
             initial: vehicle_initial,
             ee,
             mpc,
-            safety_margin_m: IkConfig::for_vehicle(&vehicle_id)
-                .unwrap_or_default()
-                .safety_margin_m,
+            safety_margin_m,
             dt_s,
         })
     }
@@ -244,10 +244,7 @@ impl FlightStack {
     /// `None` keeps it above the ground only. Called every tick by the benchmark, as the
     /// reference recomputes the limits every step.
     pub fn keep_in_front_of(&mut self, face_x_m: Option<f64>) {
-        let margin = self
-            .ee
-            .as_ref()
-            .map_or(self.safety_margin_m, |e| e.ik.config().safety_margin_m);
+        let margin = self.safety_margin_m;
         self.set_base_limits(face_x_m.map_or_else(BaseLimits::above_ground, |x| {
             BaseLimits::in_front_of_face_x(x, margin)
         }));

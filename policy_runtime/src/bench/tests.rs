@@ -122,3 +122,23 @@ fn rollouts_do_not_depend_on_threads() {
     assert_eq!(key(&one), key(&two));
     assert_eq!(one.env_steps, two.env_steps);
 }
+
+#[test]
+fn action_noise_perturbs_every_element_by_its_standard_deviation() {
+    // 1000 draws of σ = 1e-2: the sample std of the x offset is σ within 10 %, the
+    // quaternion stays unit and the gripper moves too.
+    let noise = Normal::new(0.0, 1e-2).unwrap_or_else(|e| panic!("{e}"));
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut dx = Vec::new();
+    for _ in 0..1000 {
+        let mut pose = Isometry3::translation(1.0, 0.0, 1.0);
+        let mut gripper = -1.0;
+        add_action_noise(&mut pose, &mut gripper, &mut rng, &noise);
+        dx.push(pose.translation.x - 1.0);
+        assert!((pose.rotation.norm() - 1.0).abs() < 1e-12);
+        assert!(gripper != -1.0);
+    }
+    let mean = dx.iter().sum::<f64>() / dx.len() as f64;
+    let std = (dx.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (dx.len() - 1) as f64).sqrt();
+    assert!((std - 1e-2).abs() < 1e-3, "std {std}");
+}

@@ -3,33 +3,19 @@
 //! the goal along the wall normal (x̂, the wall being moved out of the way), then the goal
 //! 1 cm lower. Identity orientations; the gripper closes on the way to the approach.
 
-use nalgebra::Vector3;
 use rand_chacha::ChaCha8Rng;
 
-use super::{PolicyContext, WallFrame, identity, uniform, wp};
+use super::PolicyContext;
 use crate::scripted::WaypointPolicy;
 
-/// Waypoint times (env steps).
-const TIMES: (u64, u64, u64) = (200, 800, 1200);
-
+/// The Press Button script (same times, offsets and waypoints) toward this task's `goal_pos`.
 pub(crate) fn policy(ctx: &PolicyContext, rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
-    let wall = WallFrame::of(ctx)?;
-    let goal = ctx.task.vec3("goal_pos", 0)?;
-    let approach = goal - wall.n * uniform(rng, 0.3, 0.5);
-    let press = goal + Vector3::new(0.0, 0.0, -0.01);
-    let wp1 = ctx.init + uniform(rng, 0.2, 0.5) * (approach - ctx.init);
-    let (t0, t1, t2) = TIMES;
-    WaypointPolicy::new(vec![
-        wp(0, ctx.init, identity(), 1.0),
-        wp(t0, wp1, identity(), 1.0),
-        wp(t1, approach, identity(), -1.0),
-        wp(t2, press, identity(), -1.0),
-    ])
+    super::press_button::policy(ctx, rng)
 }
 
 #[cfg(test)]
 mod tests {
-    use nalgebra::Isometry3;
+    use nalgebra::{Isometry3, Vector3};
     use rand::SeedableRng;
     use sim_twin::TaskObservation;
 
