@@ -342,7 +342,7 @@ impl Twin {
             self.advance_drives(substep);
             self.world.step();
             // A non-finite body state would make rapier panic on the next step: stop here.
-            if !self.vehicle_is_finite() {
+            if !self.bodies_are_physical() {
                 self.diverged_at = Some(self.time_s);
                 return Err(TwinError::Diverged(format!(
                     "the simulation diverged at t = {:.3} s (a body state is not finite); reset the twin",
@@ -359,7 +359,7 @@ impl Twin {
     /// True when every free body (vehicle and scene) is finite and within physical bounds:
     /// a jammed multibody blows up over a few steps before its state turns NaN (and rapier
     /// panics on NaN), so speeds and positions no flight reaches count as divergence too.
-    fn vehicle_is_finite(&self) -> bool {
+    fn bodies_are_physical(&self) -> bool {
         const MAX_POSITION_M: f64 = 1.0e4;
         const MAX_SPEED_MPS: f64 = 200.0;
         const MAX_ANGULAR_SPEED_RADPS: f64 = 2.0e3;
