@@ -45,7 +45,7 @@ pub use model::{
     Shape, UNIT_AXIS_TOLERANCE,
 };
 pub use parts::{CameraMount, Gripper, JointDrive};
-pub use rotor::{Rotor, RotorLayout, Spin, Tilt};
+pub use rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 pub use state::RigidBodyState;
 pub use vehicle::{GRAVITY_MPS2, Vehicle};
 pub use vehicle_file::{VEHICLE_SCHEMA, VehicleFile};

@@ -96,6 +96,59 @@ pub struct RotorLayout {
     pub reaction_torque_ratio_m: f64,
     /// Propeller radius r_p, m (ground and near-wall effect models).
     pub propeller_radius_m: f64,
+    /// Normalised command ↔ thrust of the motors (what an autopilot's outputs mean).
+    pub thrust_curve: ThrustCurve,
+}
+
+/// The motor thrust curve of PX4's `THR_MDL_FAC`: a normalised motor command u ∈ [0, 1]
+/// produces the relative thrust
+///
+/// ```text
+/// t = k·u² + (1 − k)·u,      T = T_min + t·(T_max − T_min)
+/// ```
+///
+/// k = 0 is linear in thrust, k = 1 is thrust ∝ u² (u proportional to rotor speed).
+/// The inverse is `u = (−(1 − k) + √((1 − k)² + 4·k·t)) / (2k)` for k > 0.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ThrustCurve {
+    /// k ∈ [0, 1] (PX4's `THR_MDL_FAC`).
+    pub model_factor: f64,
+    /// T at u = 0, N.
+    pub thrust_min_n: f64,
+    /// T at u = 1, N.
+    pub thrust_max_n: f64,
+}
+
+impl ThrustCurve {
+    /// Thrust, N, of a normalised command (clamped to [0, 1]; a non-finite command gives
+    /// `thrust_min_n`).
+    pub fn thrust_n(&self, command: f64) -> f64 {
+        let u = if command.is_finite() {
+            command.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let k = self.model_factor;
+        let t = k * u * u + (1.0 - k) * u;
+        self.thrust_min_n + t * (self.thrust_max_n - self.thrust_min_n)
+    }
+
+    /// Normalised command in [0, 1] that produces `thrust_n` (clamped to the thrust range; a
+    /// non-finite thrust gives 0).
+    pub fn command(&self, thrust_n: f64) -> f64 {
+        let span = self.thrust_max_n - self.thrust_min_n;
+        if !thrust_n.is_finite() || span <= 0.0 {
+            return 0.0;
+        }
+        let t = ((thrust_n - self.thrust_min_n) / span).clamp(0.0, 1.0);
+        let k = self.model_factor;
+        if k <= f64::EPSILON {
+            return t;
+        }
+        let linear = 1.0 - k;
+        let u = (-linear + (linear * linear + 4.0 * k * t).sqrt()) / (2.0 * k);
+        u.clamp(0.0, 1.0)
+    }
 }
 
 impl RotorLayout {

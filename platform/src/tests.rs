@@ -776,3 +776,37 @@ fn urdf_structure_errors_are_refused() {
         "{e}"
     );
 }
+
+mod thrust_curve {
+    use crate::ThrustCurve;
+
+    const CURVE: ThrustCurve = ThrustCurve {
+        model_factor: 0.3,
+        thrust_min_n: 0.0,
+        thrust_max_n: 23.0,
+    };
+
+    #[test]
+    fn half_command_gives_the_px4_relative_thrust() {
+        // t(0.5) = 0.3·0.25 + 0.7·0.5 = 0.425 → 0.425 · 23 N.
+        assert!((CURVE.thrust_n(0.5) - 0.425 * 23.0).abs() < 1e-12);
+        assert_eq!(CURVE.thrust_n(0.0), 0.0);
+        assert!((CURVE.thrust_n(1.0) - 23.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn command_inverts_thrust_and_clamps() {
+        for u in [0.0, 0.1, 0.37, 0.5, 0.99, 1.0] {
+            assert!((CURVE.command(CURVE.thrust_n(u)) - u).abs() < 1e-12, "{u}");
+        }
+        assert_eq!(CURVE.command(-5.0), 0.0);
+        assert_eq!(CURVE.command(100.0), 1.0);
+        assert_eq!(CURVE.command(f64::NAN), 0.0);
+        assert_eq!(CURVE.thrust_n(f64::NAN), 0.0);
+        let linear = ThrustCurve {
+            model_factor: 0.0,
+            ..CURVE
+        };
+        assert!((linear.command(11.5) - 0.5).abs() < 1e-12);
+    }
+}

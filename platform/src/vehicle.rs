@@ -12,7 +12,7 @@ use crate::actuation::Actuation;
 use crate::error::{DescriptionError, Problem};
 use crate::model::{JointId, JointKind, KinematicModel, LinkId, UNIT_AXIS_TOLERANCE};
 use crate::parts::{CameraMount, Gripper, JointDrive};
-use crate::rotor::{Rotor, RotorLayout, Spin, Tilt};
+use crate::rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 use crate::vehicle_file::{Initial, VehicleFile};
 
 /// Standard gravity used throughout the stack, m/s² (AMBENCH_SPEC §0).
@@ -378,6 +378,11 @@ impl Assembler<'_> {
                 thrust_max_n: 0.0,
                 reaction_torque_ratio_m: 0.0,
                 propeller_radius_m: 0.0,
+                thrust_curve: ThrustCurve {
+                    model_factor: 0.0,
+                    thrust_min_n: 0.0,
+                    thrust_max_n: 0.0,
+                },
             });
         };
         if f.actuation == Actuation::FloatingEndEffector {
@@ -414,6 +419,12 @@ impl Assembler<'_> {
                     "{} must be finite and above thrust_min_n {}",
                     r.thrust_max_n, r.thrust_min_n
                 ),
+            ));
+        }
+        if !(r.thrust_model_factor.is_finite() && (0.0..=1.0).contains(&r.thrust_model_factor)) {
+            return Err(self.invalid(
+                "rotors.thrust_model_factor",
+                format!("{} must be within [0, 1]", r.thrust_model_factor),
             ));
         }
         if !(r.reaction_torque_ratio_m.is_finite() && r.reaction_torque_ratio_m >= 0.0) {
@@ -551,6 +562,11 @@ impl Assembler<'_> {
             thrust_max_n: r.thrust_max_n,
             reaction_torque_ratio_m: r.reaction_torque_ratio_m,
             propeller_radius_m: r.propeller_radius_m,
+            thrust_curve: ThrustCurve {
+                model_factor: r.thrust_model_factor,
+                thrust_min_n: r.thrust_min_n,
+                thrust_max_n: r.thrust_max_n,
+            },
         })
     }
 

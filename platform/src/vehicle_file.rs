@@ -83,6 +83,10 @@ pub struct RotorsFile {
     pub reaction_torque_ratio_m: f64,
     /// m.
     pub propeller_radius_m: f64,
+    /// PX4's `THR_MDL_FAC` k ∈ [0, 1]: the thrust curve of a normalised motor command u,
+    /// t = k·u² + (1 − k)·u (default 0: linear).
+    #[serde(default)]
+    pub thrust_model_factor: f64,
     /// One entry per rotor, in actuator order.
     pub rotor: Vec<RotorFile>,
 }
