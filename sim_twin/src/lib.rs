@@ -30,6 +30,6 @@ mod tests;
 
 pub use config::{Disturbances, MotorConfig, NoiseConfig, TiltThrust, TwinConfig};
 pub use error::TwinError;
-pub use tasks::{GraspMode, TaskId, TaskObservation, TaskStatus};
+pub use tasks::{GraspMode, TaskId, TaskObservation, TaskSnapshot, TaskStatus};
 pub use twin::Twin;
 pub use vehicle_body::{ROBOT_GROUP, WORLD_GROUP};

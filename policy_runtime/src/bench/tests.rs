@@ -22,6 +22,7 @@ fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> Be
         jobs: 1,
         episode: EpisodeLength::Script,
         mcap_dir: None,
+        link: BenchLink::InProcess,
     }
 }
 

@@ -14,8 +14,8 @@ use platform::{ActuatorCommand, GRAVITY_MPS2, Measurement, Vehicle};
 use super::handshake::{Offer, check_hello};
 use super::messages::{
     COMMAND_END_OF_SESSION, CommandMsg, Hello, ImuMsg, MEASUREMENT_FAILSAFE, MEASUREMENT_HOLDING,
-    MEASUREMENT_SESSION_FAILED, MeasurementMsg, TooLarge, Welcome, join_id, joint_role, put_str,
-    split_id,
+    MEASUREMENT_SESSION_FAILED, MeasurementMsg, TaskMsg, TooLarge, Welcome, get_str, join_id,
+    joint_role, put_str, split_id,
 };
 use super::wait::Waiter;
 use super::{
@@ -23,7 +23,7 @@ use super::{
     cleanup_dead_nodes_now, command_service, handshake_service, measurement_service, node,
     node_alive,
 };
-use crate::{Twin, TwinConfig, TwinError};
+use crate::{TaskId, Twin, TwinConfig, TwinError};
 
 /// How the twin's time advances.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -90,6 +90,10 @@ pub struct ServeConfig {
     pub after_failsafe_s: f64,
     /// Return after this many sessions have ended (None: serve until stopped).
     pub max_sessions: Option<u64>,
+    /// Each flight process chooses its session's episode — the task scene and the seed —
+    /// in its hello (`amstack bench --link ipc` runs every rollout as a session); the rest
+    /// of the configuration must still match. Off: the served `task` and `seed` must match.
+    pub flight_chooses_episode: bool,
 }
 
 impl ServeConfig {
@@ -103,6 +107,7 @@ impl ServeConfig {
             stall_timeout: Duration::from_secs(5),
             after_failsafe_s: 3.0,
             max_sessions: None,
+            flight_chooses_episode: false,
         }
     }
 }
@@ -364,6 +369,13 @@ impl fmt::Debug for TwinServer {
     }
 }
 
+/// The task and seed a flight process asks for in its hello's configuration.
+fn episode_of(hello: &Hello) -> Option<(Option<TaskId>, u64)> {
+    let json = get_str(&hello.config_json, hello.config_len);
+    let config: TwinConfig = serde_json::from_str(&json).ok()?;
+    Some((config.task, config.seed))
+}
+
 /// How often the flight process's node is looked at while no command comes.
 const LIVENESS_PERIOD: Duration = Duration::from_millis(20);
 
@@ -485,7 +497,8 @@ impl TwinServer {
             handled = true;
             let hello = *request.payload();
             let mut welcome = self.welcome();
-            let verdict = check_hello(&hello, &self.offer).and_then(|()| self.busy(&hello));
+            let verdict = check_hello(&hello, &self.offer, self.config.flight_chooses_episode)
+                .and_then(|()| self.busy(&hello));
             match verdict {
                 Err(reason) => {
                     welcome.reason_len = put_str(&mut welcome.reason, &reason);
@@ -557,7 +570,14 @@ impl TwinServer {
     }
 
     fn open_session(&mut self, hello: &Hello) -> Result<u64, ServeError> {
-        self.twin.reset(self.seed)?;
+        match self.config.flight_chooses_episode {
+            // The hello passed the check, so its configuration parses.
+            true => match episode_of(hello) {
+                Some((task, seed)) => self.twin.reset_episode(task, seed)?,
+                None => self.twin.reset(self.seed)?,
+            },
+            false => self.twin.reset(self.seed)?,
+        }
         self.previous_velocity = self.twin.truth().base.velocity_in_world_mps;
         // As the in-process link: the state at the start is the exact one.
         self.observed = self.twin.truth().clone();
@@ -840,6 +860,7 @@ impl TwinServer {
         let truth = self.twin.truth();
         msg.imu = self.imu(truth);
         msg.gripper_opening = gripper_opening(self.twin.vehicle(), truth);
+        msg.task = TaskMsg::from_snapshot(self.twin.task_snapshot().as_ref())?;
         self.previous_velocity = truth.base.velocity_in_world_mps;
         msg.twin_busy_ns = started.elapsed().as_nanos() as u64;
         let sample = self
