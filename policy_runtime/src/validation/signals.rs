@@ -246,7 +246,7 @@ pub fn extract(
 ) -> Result<Series, SignalError> {
     let mut series = Series::default();
     for m in recording.messages.iter().filter(|m| m.topic == path.topic) {
-        let t = m.log_time_ns as f64 * 1e-9;
+        let t = m.log_time_ns as f64 / 1e9;
         let bad = |reason: String| SignalError::Missing {
             path: path.to_string(),
             file: file_name(file),
