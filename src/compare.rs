@@ -81,8 +81,8 @@ pub fn run(args: &Args) -> Result<()> {
             check_writable(flag, p)?;
         }
     }
-    let a = read_flight_log(&args.a, args.allow_truncated).map_err(log_error)?;
-    let b = read_flight_log(&args.b, args.allow_truncated).map_err(log_error)?;
+    let a = read_flight_log(&args.a, args.allow_truncated).map_err(|e| log_error(&e))?;
+    let b = read_flight_log(&args.b, args.allow_truncated).map_err(|e| log_error(&e))?;
     if args.signals.iter().any(|s| s == "list") {
         let in_a = available_signals(&a.recording);
         let in_b = available_signals(&b.recording);

@@ -68,7 +68,7 @@ pub struct Args {
 }
 
 /// An unusable log is bad input (exit 2), its message naming the file.
-pub(crate) fn log_error(e: LogFileError) -> anyhow::Error {
+pub(crate) fn log_error(e: &LogFileError) -> anyhow::Error {
     bad_input(e.to_string())
 }
 
@@ -77,7 +77,7 @@ pub fn run(args: &Args) -> Result<()> {
     if let Some(p) = &args.json {
         check_writable("--json", p)?;
     }
-    let file = read_flight_log(&args.log, args.allow_truncated).map_err(log_error)?;
+    let file = read_flight_log(&args.log, args.allow_truncated).map_err(|e| log_error(&e))?;
     let logged = LoggedFlight::from_log(&file).map_err(|e| bad_input(e.to_string()))?;
     let name = args.log.display();
     let run = &logged.run;
