@@ -15,7 +15,7 @@
 #    without the ground-effect model, and each replay is compared with it over the two shaded
 #    intervals of the paper, z_ref <= 0.7 m and z_ref >= 0.9 m.
 # 2. Wrench-limit step responses: a 1 m x step (t = 1 s) with rotor limits, under two
-#    wrench-space limits of the PID (I: |F| <= 70 N, II: |F| <= 90 N; hover needs 65 N), compared
+#    wrench-space limits of the PID (I: |F| <= 80 N, II: |F| <= 100 N; hover needs 65 N), compared
 #    with each other; which rotors saturate and when (scripts/rotor_saturation.py, read with
 #    the independent PyPI mcap reader).
 set -euo pipefail
@@ -42,7 +42,7 @@ for which in with without; do
 done
 
 echo "== wrench-limit step responses"
-for setting in "I 70" "II 90"; do
+for setting in "I 80" "II 100"; do
     read -r name force <<< "$setting"
     "${AM[@]}" track --platform fa-hexa --trajectory step --duration 6 --settle 0 \
         --disturbances saturation --max-force "$force" --seed 0 \

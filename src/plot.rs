@@ -161,9 +161,15 @@ where
             .collect()
     };
     chart
-        .draw_series(LineSeries::new(pairs(&al.a), A_COLOR.stroke_width(2)))?
+        // A wide and pale under B: where the two agree, A shows as a halo around B.
+        .draw_series(LineSeries::new(
+            pairs(&al.a),
+            A_COLOR.mix(0.6).stroke_width(6),
+        ))?
         .label(format!("A: {}", file_name(&report.a)))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], A_COLOR.stroke_width(2)));
+        .legend(|(x, y)| {
+            PathElement::new(vec![(x, y), (x + 20, y)], A_COLOR.mix(0.6).stroke_width(6))
+        });
     chart
         .draw_series(LineSeries::new(pairs(&al.b), B_COLOR.stroke_width(2)))?
         .label(format!(
@@ -214,7 +220,7 @@ where
 
 fn fmt(x: Option<f64>) -> String {
     x.filter(|v| v.is_finite())
-        .map_or_else(|| "N/A".to_owned(), |v| format!("{v:.4}"))
+        .map_or_else(|| "N/A".to_owned(), crate::compare::significant)
 }
 
 /// Draws `report` into the PNG `path` (the first [`MAX_PANELS`] signals).
