@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use comfy_table::{Table, presets};
 use policy_runtime::validation::{
-    CompareError, ErrorStats, available_signals, compare_logs, read_flight_log,
+    CompareError, ErrorStats, available_signals, compare_logs, read_flight_log, start_shift_s,
 };
 
 use crate::cli_error::bad_input;
@@ -22,7 +22,8 @@ A path naming an array (/rotors.realised_n) stands for each element. `--signal l
 every signal of the logs.
 
 Alignment: A's times are the grid; B is linearly interpolated at A's times inside B's span
-(only the overlap counts). Error = B - A: RMSE, max |error|, bias (mean error).
+(only the overlap counts), after --shift-b. Error = B - A: RMSE, max |error|, bias (mean
+error).
 
 Intervals (--interval, repeatable; clauses joined with &):
   t=A..B                      a time window, s
@@ -49,6 +50,10 @@ pub struct Args {
     /// Write the figures as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
+    /// Shift B's times by this many seconds before aligning, or `start` to put B's first
+    /// message at A's first (logs on clocks with different origins, a known delay).
+    #[arg(long, value_name = "S|start", allow_hyphen_values = true)]
+    shift_b: Option<String>,
     /// Use the readable part of a truncated or damaged log.
     #[arg(long)]
     allow_truncated: bool,
@@ -116,11 +121,28 @@ pub fn run(args: &Args) -> Result<()> {
         }
         return Ok(());
     }
-    let report = compare_logs(&a, &b, &args.signals, &args.intervals).map_err(|e| match e {
-        CompareError::Signal(_) | CompareError::Interval(_) | CompareError::NoOverlap { .. } => {
-            bad_input(e.to_string())
-        }
-    })?;
+    let shift = match args.shift_b.as_deref() {
+        None => 0.0,
+        Some("start") => start_shift_s(&a, &b),
+        Some(text) => text
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| {
+                bad_input(format!(
+                    "--shift-b {text}: expected seconds (e.g. -0.25) or `start`"
+                ))
+            })?,
+    };
+    if shift != 0.0 {
+        eprintln!("B's times shifted by {shift:+.6} s");
+    }
+    let report =
+        compare_logs(&a, &b, &args.signals, &args.intervals, shift).map_err(|e| match e {
+            CompareError::Signal(_)
+            | CompareError::Interval(_)
+            | CompareError::NoOverlap { .. } => bad_input(e.to_string()),
+        })?;
     let mut table = Table::new();
     table.load_style(presets::ASCII_MARKDOWN).set_header([
         "signal",

@@ -80,8 +80,25 @@ pub struct CompareReport {
     pub b: PathBuf,
     /// The interval expressions.
     pub intervals: Vec<String>,
+    /// Added to B's times before aligning, s.
+    pub b_shift_s: f64,
     /// Per signal (array paths expanded to their elements).
     pub signals: Vec<SignalReport>,
+}
+
+/// The shift that puts B's first message at A's first message time, s (for logs on clocks
+/// with different origins, e.g. a flight's monotonic clock and its replay's simulated time).
+pub fn start_shift_s(a: &FlightLogFile, b: &FlightLogFile) -> f64 {
+    let first = |f: &FlightLogFile| {
+        f.recording
+            .messages
+            .iter()
+            .map(|m| m.log_time_ns)
+            .min()
+            .unwrap_or(0) as f64
+            / 1e9
+    };
+    first(a) - first(b)
 }
 
 fn span(series: &signals::Series) -> String {
@@ -92,12 +109,14 @@ fn span(series: &signals::Series) -> String {
 }
 
 /// Compares `signals` (paths; arrays expand to their elements) of `b` against `a`, over the
-/// whole overlap and over each of `intervals`.
+/// whole overlap and over each of `intervals`. `b_shift_s` is added to B's times before
+/// aligning (0 for logs on the same clock).
 pub fn compare_logs(
     a: &FlightLogFile,
     b: &FlightLogFile,
     signal_paths: &[String],
     intervals: &[String],
+    b_shift_s: f64,
 ) -> Result<CompareReport, CompareError> {
     let parsed: Vec<Interval> = intervals
         .iter()
@@ -152,7 +171,10 @@ pub fn compare_logs(
         }
         for path in paths_a {
             let sa = signals::extract(&a.recording, &a_name, &path)?;
-            let sb = signals::extract(&b.recording, &b_name, &path)?;
+            let mut sb = signals::extract(&b.recording, &b_name, &path)?;
+            for t in &mut sb.times_s {
+                *t += b_shift_s;
+            }
             let aligned = compare::align(&sa, &sb);
             if aligned.times_s.is_empty() {
                 return Err(CompareError::NoOverlap {
@@ -190,6 +212,7 @@ pub fn compare_logs(
         a: a.path.clone(),
         b: b.path.clone(),
         intervals: intervals.to_vec(),
+        b_shift_s,
         signals: reports,
     })
 }

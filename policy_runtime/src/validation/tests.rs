@@ -53,7 +53,7 @@ fn hand_log(
 
 fn one(a: &FlightLogFile, b: &FlightLogFile, intervals: &[&str]) -> SignalReport {
     let intervals: Vec<String> = intervals.iter().map(|s| (*s).to_owned()).collect();
-    let mut report = compare_logs(a, b, &["/test.value_m".to_owned()], &intervals).unwrap();
+    let mut report = compare_logs(a, b, &["/test.value_m".to_owned()], &intervals, 0.0).unwrap();
     assert_eq!(report.signals.len(), 1);
     report.signals.remove(0)
 }
@@ -131,6 +131,48 @@ fn a_delay_on_a_ramp_and_on_a_sine_gives_the_derived_error() {
 }
 
 #[test]
+fn a_shift_of_b_removes_a_known_delay_and_start_lines_up_clocks() {
+    // B = 2(t − 0.25) sampled at t: shifted by −0.25 s, its sample at τ = t − 0.25 holds 2τ,
+    // A's value there: zero error over the overlap [0, 9.75] s (976 samples of A).
+    let dir = tempfile::tempdir().unwrap();
+    let a = hand_log(dir.path(), "a.mcap", 100.0, (0, 1000), |t| 2.0 * t, |_| 1.0);
+    let b = hand_log(
+        dir.path(),
+        "b.mcap",
+        100.0,
+        (0, 1000),
+        |t| 2.0 * (t - 0.25),
+        |_| 1.0,
+    );
+    let s = compare_logs(&a, &b, &["/test.value_m".to_owned()], &[], -0.25).unwrap();
+    assert_eq!(s.signals[0].whole.samples, 976);
+    assert!(
+        close(s.signals[0].whole.max_abs, 0.0, EXACT),
+        "{:?}",
+        s.signals[0].whole
+    );
+    // A log starting at 3 s (a flight clock) against one starting at 0 s (its replay).
+    let late = hand_log(
+        dir.path(),
+        "late.mcap",
+        100.0,
+        (300, 1300),
+        |t| t - 3.0,
+        |_| 1.0,
+    );
+    let early = hand_log(dir.path(), "early.mcap", 100.0, (0, 1000), |t| t, |_| 1.0);
+    let shift = start_shift_s(&late, &early);
+    assert!(close(Some(shift), 3.0, EXACT), "{shift}");
+    let s = compare_logs(&late, &early, &["/test.value_m".to_owned()], &[], shift).unwrap();
+    assert_eq!(s.signals[0].whole.samples, 1001);
+    assert!(
+        close(s.signals[0].whole.max_abs, 0.0, EXACT),
+        "{:?}",
+        s.signals[0].whole
+    );
+}
+
+#[test]
 fn interpolating_a_slower_log_of_a_parabola_errs_by_theta_one_minus_theta_h_squared() {
     // A = t² every 0.1 s over [0, 3] (31 samples); B = t² every h = 0.3 s. At A's times
     // between B's samples, θ = 1/3 or 2/3 of the way, the chord lies above the parabola by
@@ -169,7 +211,7 @@ fn only_the_overlap_is_compared() {
     assert!(close(s.whole.rmse, 0.0, EXACT));
     // Logs that do not overlap at all are refused, naming both spans.
     let c = hand_log(dir.path(), "c.mcap", 100.0, (1100, 1200), |t| t, |_| 1.0);
-    let err = compare_logs(&a, &c, &["/test.value_m".to_owned()], &[]).unwrap_err();
+    let err = compare_logs(&a, &c, &["/test.value_m".to_owned()], &[], 0.0).unwrap_err();
     assert!(err.to_string().contains("do not overlap"), "{err}");
     assert!(err.to_string().contains("11.000..12.000 s"), "{err}");
 }
@@ -243,7 +285,7 @@ fn a_missing_signal_is_named_with_the_available_ones() {
         ("/test.value_m[0]", "not an array"),
         ("/ee/reference.pose.position.w", "no field 'w'"),
     ] {
-        let err = compare_logs(&a, &a, &[path.to_owned()], &[])
+        let err = compare_logs(&a, &a, &[path.to_owned()], &[], 0.0)
             .unwrap_err()
             .to_string();
         assert!(
@@ -256,7 +298,7 @@ fn a_missing_signal_is_named_with_the_available_ones() {
         );
         assert!(err.contains("/test.value_m"), "{err}");
     }
-    let err = compare_logs(&a, &a, &["base.z".to_owned()], &[])
+    let err = compare_logs(&a, &a, &["base.z".to_owned()], &[], 0.0)
         .unwrap_err()
         .to_string();
     assert!(err.contains("starts with its channel's topic"), "{err}");
@@ -378,7 +420,7 @@ fn a_reference_replay_of_a_twin_flight_reproduces_it_bit_for_bit() {
     let mut signals: Vec<String> = STATE.iter().map(|s| (*s).to_owned()).collect();
     signals.push("/rotors.applied_n".to_owned());
     signals.push("/control/wrench.force_n".to_owned());
-    let report = compare_logs(&a, &b, &signals, &[]).unwrap();
+    let report = compare_logs(&a, &b, &signals, &[], 0.0).unwrap();
     for s in &report.signals {
         assert!(s.whole.samples >= 239, "{}: {:?}", s.signal, s.whole);
         assert_eq!(s.whole.max_abs, Some(0.0), "{}: {:?}", s.signal, s.whole);
@@ -415,7 +457,14 @@ fn a_commands_replay_is_exact_on_the_same_plant_and_drifts_open_loop_on_another(
         replay_of(&log, &same, ReplayMode::Commands, None).replayed_ticks,
         240
     );
-    let report = compare_logs(&a, &read_flight_log(&same, false).unwrap(), &signals, &[]).unwrap();
+    let report = compare_logs(
+        &a,
+        &read_flight_log(&same, false).unwrap(),
+        &signals,
+        &[],
+        0.0,
+    )
+    .unwrap();
     for s in &report.signals {
         assert_eq!(s.whole.max_abs, Some(0.0), "{}: {:?}", s.signal, s.whole);
     }
@@ -433,6 +482,7 @@ fn a_commands_replay_is_exact_on_the_same_plant_and_drifts_open_loop_on_another(
         &read_flight_log(&drift, false).unwrap(),
         &["/base/state.position_m".to_owned()],
         &["t=0..0.5".to_owned()],
+        0.0,
     )
     .unwrap();
     let worst_early = report
@@ -450,6 +500,49 @@ fn a_commands_replay_is_exact_on_the_same_plant_and_drifts_open_loop_on_another(
         worst > worst_early,
         "whole {worst} m, first 0.5 s {worst_early} m"
     );
+}
+
+#[test]
+fn a_log_without_the_action_channel_replays_from_its_references() {
+    // Logs written before `/action` existed (or by a writer without it): the action is
+    // rebuilt from /ee/reference (EE interface) or /base/reference + /joints.target, with the
+    // gripper closed as the track references have it; the replay is still exact.
+    for interface in [Interface::Ee, Interface::BaseJoint] {
+        let dir = tempfile::tempdir().unwrap();
+        let log = twin_flight(dir.path(), "flight.mcap", "reference", interface);
+        let mut file = read_flight_log(&log, false).unwrap();
+        file.recording.messages.retain(|m| m.topic != "/action");
+        let logged = LoggedFlight::from_log(&file).unwrap();
+        assert!(logged.actions.is_none());
+        let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+        let out = dir.path().join("replay.mcap");
+        let config = ReplayConfig {
+            controller: logged.controller_config(&vehicle).unwrap(),
+            twin: logged.twin_config().unwrap(),
+            vehicle,
+            mode: ReplayMode::Reference,
+            out: out.clone(),
+        };
+        let result = replay_flight(&logged, &config).unwrap();
+        assert!(!result.actions_from_action_channel);
+        let report = compare_logs(
+            &file,
+            &read_flight_log(&out, false).unwrap(),
+            &STATE.iter().map(|s| (*s).to_owned()).collect::<Vec<_>>(),
+            &[],
+            0.0,
+        )
+        .unwrap();
+        for s in &report.signals {
+            assert_eq!(
+                s.whole.max_abs,
+                Some(0.0),
+                "{interface:?} {}: {:?}",
+                s.signal,
+                s.whole
+            );
+        }
+    }
 }
 
 #[test]
