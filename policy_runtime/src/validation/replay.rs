@@ -29,8 +29,9 @@ use serde::{Deserialize, Serialize};
 use sim_twin::{Twin, TwinConfig, TwinError};
 
 use super::FlightLogFile;
-use crate::flight_log::{ActionMessage, FlightLog};
+use crate::flight_log::{ActionMessage, FlightLog, TaskCriterion, TaskState, TaskValue};
 use crate::link::{Link, LinkError, TwinLink};
+use crate::metrics::CriteriaLatch;
 use crate::record::foxglove::PoseInFrame;
 use crate::record::{McapRecorder, RecordError, RecordedMessage, RunMetadata};
 use crate::stack::{
@@ -510,6 +511,9 @@ pub fn replay_flight(
     stack.reset_at(&measurement.base, &measurement.joint_positions);
     let mut stopped_early = None;
     let mut replayed = 0;
+    let task = link.twin().task();
+    let criteria_names = task.map(|t| t.criteria_names()).unwrap_or_default();
+    let mut latch = CriteriaLatch::new(criteria_names.len());
     for k in 0..ticks {
         if link.twin().task().is_some() {
             stack.keep_in_front_of(link.twin().obstacle_face_x());
@@ -546,6 +550,38 @@ pub fn replay_flight(
             }
         }
         log.outcome(&measurement)?;
+        // A task scene's state, as a bench rollout logs it: the replay's own success.
+        if let (Some(task), Some(status)) = (task, link.twin().task_status()) {
+            latch.observe(&status.criteria);
+            let twin = link.twin();
+            let state = TaskState {
+                task: task.name().to_owned(),
+                step: twin.steps(),
+                success: status.success,
+                criteria: criteria_names
+                    .iter()
+                    .zip(&status.criteria)
+                    .zip(latch.reached())
+                    .map(|((name, now), reached)| TaskCriterion {
+                        name: (*name).to_owned(),
+                        now: *now,
+                        reached: *reached,
+                    })
+                    .collect(),
+                observation: twin
+                    .task_observation()
+                    .unwrap_or_default()
+                    .entries
+                    .into_iter()
+                    .map(|(name, values)| TaskValue {
+                        name: name.to_owned(),
+                        values,
+                    })
+                    .collect(),
+                holding: twin.holding(),
+            };
+            log.task_state(measurement.time_s, &state)?;
+        }
         replayed += 1;
     }
     let out = log.finish()?.path;

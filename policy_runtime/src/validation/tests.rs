@@ -574,3 +574,55 @@ fn a_replay_starts_from_the_logged_initial_state() {
     .unwrap();
     assert!((z.values[0] - 1.4).abs() < 1e-9, "{}", z.values[0]);
 }
+
+#[test]
+fn a_bench_rollout_replays_with_its_scene_and_the_same_task_outcome() {
+    // A rollout of the benchmark (task scene, IK limits in front of obstacles, scripted
+    // actions with noise): the replay re-flies it in the same scene and logs the task's
+    // state, identical to the rollout's.
+    let dir = tempfile::tempdir().unwrap();
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let config = crate::bench::BenchConfig {
+        controller: profile(&vehicle, ControllerKind::Pid).unwrap(),
+        controller_name: "ik-pid".to_owned(),
+        vehicle,
+        interface: Interface::Ee,
+        tasks: vec![sim_twin::TaskId::parse("press-button").unwrap()],
+        rollouts: 1,
+        seed: 5,
+        twin: TwinConfig {
+            disturbances: Disturbances::parse_list("reference,noise").unwrap(),
+            ..TwinConfig::default()
+        },
+        jobs: 1,
+        episode: crate::bench::EpisodeLength::Script,
+        mcap_dir: Some(dir.path().to_path_buf()),
+    };
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    crate::bench::run_bench(&config, &|_| {}, &stop).unwrap();
+    let log = crate::bench::rollout_log_path(
+        dir.path(),
+        sim_twin::TaskId::parse("press-button").unwrap(),
+        0,
+    );
+    let out = dir.path().join("replay.mcap");
+    let result = replay_of(&log, &out, ReplayMode::Reference, None);
+    assert_eq!(result.replayed_ticks, result.logged_ticks);
+    let (a, b) = (
+        read_flight_log(&log, false).unwrap(),
+        read_flight_log(&out, false).unwrap(),
+    );
+    let payloads = |f: &FlightLogFile, topic: &str| -> Vec<Vec<u8>> {
+        f.recording
+            .messages
+            .iter()
+            .filter(|m| m.topic == topic)
+            .map(|m| m.data.clone())
+            .collect()
+    };
+    for topic in ["/task/state", "/base/state", "/joints", "/rotors"] {
+        let logged = payloads(&a, topic);
+        assert!(!logged.is_empty(), "{topic}");
+        assert_eq!(logged, payloads(&b, topic), "{topic}");
+    }
+}
