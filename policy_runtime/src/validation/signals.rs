@@ -260,6 +260,16 @@ pub fn extract(
         series.times_s.push(t);
         series.values.push(x);
     }
+    // amstack writes each channel in time order; a foreign writer may not: sort (stable, so
+    // samples at equal times keep their file order and the later one wins interpolation).
+    if !series.times_s.is_sorted() {
+        let mut order: Vec<usize> = (0..series.times_s.len()).collect();
+        order.sort_by(|&i, &j| series.times_s[i].total_cmp(&series.times_s[j]));
+        series = Series {
+            times_s: order.iter().map(|&i| series.times_s[i]).collect(),
+            values: order.iter().map(|&i| series.values[i]).collect(),
+        };
+    }
     Ok(series)
 }
 

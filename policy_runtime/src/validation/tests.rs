@@ -626,3 +626,28 @@ fn a_bench_rollout_replays_with_its_scene_and_the_same_task_outcome() {
         assert_eq!(logged, payloads(&b, topic), "{topic}");
     }
 }
+
+#[test]
+fn samples_out_of_time_order_are_sorted_and_interpolation_keeps_the_later_of_equal_times() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("shuffled.mcap");
+    let mut rec = McapRecorder::create(&path, &RunMetadata::new("fa-hexa", "pid6", 0)).unwrap();
+    let ch = rec.channel::<Sample>("/test").unwrap();
+    for (t_s, v) in [(2.0, 20.0), (0.0, 0.0), (1.0, 5.0), (1.0, 10.0)] {
+        rec.log(&ch, (t_s * 1e9) as u64, &Sample { value_m: v })
+            .unwrap();
+    }
+    rec.finish().unwrap();
+    let log = read_flight_log(&path, false).unwrap();
+    let path = signals::parse_signal_path("/test.value_m", ["/test"]).unwrap();
+    let s = signals::extract(&log.recording, "shuffled.mcap", &path).unwrap();
+    assert_eq!(s.times_s, [0.0, 1.0, 1.0, 2.0]);
+    assert_eq!(s.values, [0.0, 5.0, 10.0, 20.0]);
+    // At t = 1 s: the later of the two samples; between 1 and 2 s: from it to 20.
+    assert_eq!(compare::interpolate(&s, 1.0), Some(10.0));
+    assert_eq!(compare::interpolate(&s, 1.5), Some(15.0));
+    assert_eq!(compare::interpolate(&s, 0.5), Some(2.5));
+    assert_eq!(compare::interpolate(&s, 2.0), Some(20.0));
+    assert_eq!(compare::interpolate(&s, 2.0 + 1e-9), None);
+    assert_eq!(compare::interpolate(&s, -1e-9), None);
+}
