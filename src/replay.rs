@@ -77,6 +77,14 @@ pub fn run(args: &Args) -> Result<()> {
     if let Some(p) = &args.json {
         check_writable("--json", p)?;
     }
+    if std::fs::canonicalize(&args.out).ok() == std::fs::canonicalize(&args.log).ok()
+        && args.out.exists()
+    {
+        return Err(bad_input(format!(
+            "--out {}: is the log being replayed; choose another file",
+            args.out.display()
+        )));
+    }
     let file = read_flight_log(&args.log, args.allow_truncated).map_err(|e| log_error(&e))?;
     let logged = LoggedFlight::from_log(&file).map_err(|e| bad_input(e.to_string()))?;
     let name = args.log.display();

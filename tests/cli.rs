@@ -531,6 +531,8 @@ fn replay_then_compare_reports_zero_error_and_refuses_bad_logs_and_signals() {
     assert!(std::fs::write(&cut, &bytes[..bytes.len() / 2]).is_ok());
     let out = amstack(&["replay", &cut, "--out", &p("x.mcap")]);
     assert_bad_input(&out, &["cut.mcap", "truncated"]);
+    let out = amstack(&["replay", &real, "--out", &real]);
+    assert_bad_input(&out, &["is the log being replayed"]);
     let out = amstack(&["compare", &real, &p("none.mcap"), "--signal", "list"]);
     assert_bad_input(&out, &["none.mcap", "cannot read"]);
 }

@@ -147,6 +147,8 @@ struct WrenchMsg {
 /// The ticks of a logged flight: what replay needs, one entry per control tick.
 #[derive(Debug, Clone)]
 pub struct LoggedFlight {
+    /// The log it was read from.
+    pub path: PathBuf,
     /// The run's metadata.
     pub run: RunMetadata,
     /// Initial base pose, `world_from_base`.
@@ -303,6 +305,7 @@ impl LoggedFlight {
                 })
                 .collect(),
             run,
+            path: log.path.clone(),
         })
     }
 
@@ -447,7 +450,7 @@ pub fn replay_flight(
     let rotors = vehicle.rotors.len();
     let dof = vehicle.model.dof();
     let log_error = |reason: String| ReplayError::Log {
-        file: format!("replay of {}", logged.run.vehicle_id),
+        file: logged.path.display().to_string(),
         reason,
     };
     if config.mode == ReplayMode::Commands {
