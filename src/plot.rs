@@ -68,6 +68,25 @@ fn file_name(path: &Path) -> String {
     )
 }
 
+/// Tick labels that stay distinct for the axis span `(lo, hi)`: enough decimals for about
+/// three significant digits of the span, scientific notation for tiny or huge values.
+fn tick_label(lo: f64, hi: f64) -> impl Fn(&f64) -> String {
+    let span = (hi - lo).abs().max(f64::MIN_POSITIVE);
+    let magnitude = lo.abs().max(hi.abs());
+    let scientific = span < 1e-3 || magnitude >= 1e6;
+    let decimals = (2.0 - span.log10().floor()).clamp(0.0, 9.0) as usize;
+    move |v: &f64| {
+        // A tick at zero computed as lo + k·step lands a rounding error away from it.
+        if v.abs() <= span * 1e-9 {
+            "0".to_owned()
+        } else if scientific {
+            format!("{v:.2e}")
+        } else {
+            format!("{v:.decimals$}")
+        }
+    }
+}
+
 fn with_unit(label: &str, unit: &str) -> String {
     if unit.is_empty() {
         label.to_owned()
@@ -142,12 +161,13 @@ where
         .caption(caption, ("sans-serif", 20))
         .margin(8)
         .x_label_area_size(36)
-        .y_label_area_size(80)
+        .y_label_area_size(95)
         .build_cartesian_2d(t0..t1, y.0..y.1)?;
     chart
         .configure_mesh()
         .x_desc("time (s)")
         .y_desc(with_unit("value", &signal.unit))
+        .y_label_formatter(&tick_label(y.0, y.1))
         .axis_desc_style(("sans-serif", 16))
         .label_style(("sans-serif", 14))
         .draw()?;
@@ -190,12 +210,13 @@ where
     let mut chart = ChartBuilder::on(&bottom)
         .margin(8)
         .x_label_area_size(40)
-        .y_label_area_size(80)
+        .y_label_area_size(95)
         .build_cartesian_2d(t0..t1, dy.0..dy.1)?;
     chart
         .configure_mesh()
         .x_desc("time (s)")
         .y_desc(with_unit("B - A", &signal.unit))
+        .y_label_formatter(&tick_label(dy.0, dy.1))
         .axis_desc_style(("sans-serif", 16))
         .label_style(("sans-serif", 14))
         .draw()?;
