@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use policy_runtime::validation::replay::{LoggedFlight, controller_profile};
+use policy_runtime::validation::replay::{LoggedFlight, check_replay, controller_profile};
 use policy_runtime::validation::{
     LogFileError, ReplayConfig, ReplayError, ReplayMode, read_flight_log, replay_flight,
 };
@@ -106,6 +106,9 @@ pub fn run(args: &Args) -> Result<()> {
             overrides.push(format!("controller {} -> {c}", run.controller));
             controller_profile(&vehicle, c).map_err(|e| bad_input(format!("--controller: {e}")))?
         }
+        // Another vehicle flies its own reference gains for the logged controller.
+        None if vehicle.id != run.vehicle_id => controller_profile(&vehicle, &run.controller)
+            .map_err(|e| bad_input(format!("--platform {}: {e}", vehicle.id)))?,
         None => logged
             .controller_config(&vehicle)
             .map_err(|e| bad_input(format!("{name}: {e}")))?,
@@ -138,6 +141,14 @@ pub fn run(args: &Args) -> Result<()> {
     } else {
         ReplayMode::Reference
     };
+    let config = ReplayConfig {
+        vehicle,
+        controller,
+        twin,
+        mode,
+        out: args.out.clone(),
+    };
+    check_replay(&logged, &config).map_err(|e| bad_input(e.to_string()))?;
     eprintln!(
         "replaying {} ({} ticks, {} on {}, {} interface) in {} mode, disturbances: {}",
         name,
@@ -146,18 +157,11 @@ pub fn run(args: &Args) -> Result<()> {
         run.vehicle_id,
         run.interface.as_deref().unwrap_or("unknown"),
         mode.name(),
-        names(&twin.disturbances)
+        names(&config.twin.disturbances)
     );
     for o in &overrides {
         eprintln!("  override: {o}");
     }
-    let config = ReplayConfig {
-        vehicle,
-        controller,
-        twin,
-        mode,
-        out: args.out.clone(),
-    };
     let result = replay_flight(&logged, &config).map_err(|e| match e {
         ReplayError::Log { .. } | ReplayError::Stack(_) => bad_input(e.to_string()),
         other => anyhow::Error::new(other),
@@ -170,10 +174,9 @@ pub fn run(args: &Args) -> Result<()> {
     if result.initial_state_from_log {
         eprintln!("  the twin starts from the logged initial state");
     }
-    if result.initial_joint_mismatch > 1e-6 {
+    if let Some(m) = result.initial_joint_mismatch.filter(|m| *m > 1e-6) {
         eprintln!(
-            "  note: the twin's initial joints differ from the logged ones by up to {:.4} rad",
-            result.initial_joint_mismatch
+            "  note: the twin's initial joints differ from the logged ones by up to {m:.4} rad or m"
         );
     }
     if let Some(why) = &result.stopped_early {

@@ -531,6 +531,33 @@ fn replay_then_compare_reports_zero_error_and_refuses_bad_logs_and_signals() {
     assert!(std::fs::write(&cut, &bytes[..bytes.len() / 2]).is_ok());
     let out = amstack(&["replay", &cut, "--out", &p("x.mcap")]);
     assert_bad_input(&out, &["cut.mcap", "truncated"]);
+    // Another vehicle flies the logged actions with its own gains; open-loop rotor commands
+    // of another rotor count are refused.
+    let out = amstack(&[
+        "replay",
+        &real,
+        "--platform",
+        "omni-hexa",
+        "--out",
+        &p("omni.mcap"),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("override: platform fa-hexa -> omni-hexa"),
+        "{}",
+        stderr(&out)
+    );
+    let out = amstack(&[
+        "replay",
+        &real,
+        "--platform",
+        "ua-quad",
+        "--mode",
+        "commands",
+        "--out",
+        &p("q.mcap"),
+    ]);
+    assert_bad_input(&out, &["real.mcap", "6 thrusts", "4 rotors"]);
     let out = amstack(&["replay", &real, "--out", &real]);
     assert_bad_input(&out, &["is the log being replayed"]);
     let out = amstack(&["compare", &real, &p("none.mcap"), "--signal", "list"]);

@@ -14,7 +14,9 @@ use serde::Serialize;
 
 pub use compare::{Aligned, ErrorStats, Interval, IntervalError, parse_interval};
 pub use log_file::{FlightLogFile, LogFileError, OLDEST_READABLE_FORMAT_VERSION, read_flight_log};
-pub use replay::{ReplayConfig, ReplayError, ReplayMode, ReplayResult, replay_flight};
+pub use replay::{
+    ReplayConfig, ReplayError, ReplayMode, ReplayResult, check_replay, replay_flight,
+};
 pub use signals::{SignalError, SignalPath, available_signals};
 
 /// What stops a comparison. Every variant names the file, the signal or the interval.

@@ -114,8 +114,9 @@ pub struct ReplayResult {
     /// Whether the twin was moved to the logged initial pose/velocity (false: its reset
     /// state already matched within 1e-9).
     pub initial_state_from_log: bool,
-    /// Largest |logged − twin| initial joint position, rad or m.
-    pub initial_joint_mismatch: f64,
+    /// Largest |logged − twin| initial joint position, rad or m (null when another vehicle
+    /// than the logged one flies the replay).
+    pub initial_joint_mismatch: Option<f64>,
     /// The log written.
     pub out: PathBuf,
 }
@@ -440,11 +441,9 @@ fn open_loop_record(
     }
 }
 
-/// Re-flies `logged` in the twin as `config` says and writes the flight log `config.out`.
-pub fn replay_flight(
-    logged: &LoggedFlight,
-    config: &ReplayConfig,
-) -> Result<ReplayResult, ReplayError> {
+/// Checks that `logged` can be replayed as `config` says (rotor and joint counts of the
+/// commands that will be flown), before anything is flown or written.
+pub fn check_replay(logged: &LoggedFlight, config: &ReplayConfig) -> Result<(), ReplayError> {
     let vehicle = &config.vehicle;
     let ticks = logged.ticks();
     let rotors = vehicle.rotors.len();
@@ -467,21 +466,43 @@ pub fn replay_flight(
             )));
         }
     }
-    if let Some(bad) = logged.joint_targets.iter().find(|t| t.len() != dof) {
+    // Joint targets are flown as logged in commands mode, and read by vehicle dof for the
+    // arm targets of a reference replay without `/action`: they must fit the vehicle.
+    let joints_used = config.mode == ReplayMode::Commands || logged.actions.is_none();
+    if let Some(bad) = logged
+        .joint_targets
+        .iter()
+        .find(|t| joints_used && t.len() != dof)
+    {
         return Err(log_error(format!(
             "/joints holds {} targets, vehicle {} has {dof} joints",
             bad.len(),
             vehicle.id
         )));
     }
+    Ok(())
+}
+
+/// Re-flies `logged` in the twin as `config` says and writes the flight log `config.out`.
+pub fn replay_flight(
+    logged: &LoggedFlight,
+    config: &ReplayConfig,
+) -> Result<ReplayResult, ReplayError> {
+    check_replay(logged, config)?;
+    let vehicle = &config.vehicle;
+    let ticks = logged.ticks();
+    let rotors = vehicle.rotors.len();
     let (twin, moved) = twin_at_initial_state(vehicle, &config.twin, logged)?;
-    let initial_joint_mismatch = twin
-        .truth()
-        .joint_positions
-        .iter()
-        .zip(&logged.initial_joints)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
+    let twin_joints = &twin.truth().joint_positions;
+    let initial_joint_mismatch = (vehicle.id == logged.run.vehicle_id
+        && twin_joints.len() == logged.initial_joints.len())
+    .then(|| {
+        twin_joints
+            .iter()
+            .zip(&logged.initial_joints)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+    });
     let mut link = TwinLink::new(twin);
     let dt = config.twin.control_dt_s();
     let limits = if config.twin.disturbances.saturation {
