@@ -166,7 +166,8 @@ pub struct LoggedFlight {
     pub base_references: Vec<Isometry3<f64>>,
     /// Per tick: `/joints.target`.
     pub joint_targets: Vec<Vec<f64>>,
-    /// Per tick: the rotor commands (`/rotors.commanded_n`), empty without rotors.
+    /// Per tick: the rotor commands (`/rotors.commanded_n`; NaN where the log holds null),
+    /// empty without rotors.
     pub rotor_commands: Vec<Vec<f64>>,
     /// Per tick: the requested wrench (`/control/wrench`).
     pub wrenches: Vec<Wrench>,
@@ -265,23 +266,18 @@ impl LoggedFlight {
         let first = &states[0];
         let [w, x, y, z] = first.orientation_wxyz;
         let [px, py, pz] = first.position_m;
+        // A null (non-finite) command is kept as NaN: only commands mode flies it, and
+        // `check_replay` refuses it there.
         let rotor_commands = rotors
             .iter()
             .take(ticks)
-            .enumerate()
-            .map(|(k, r)| {
+            .map(|r| {
                 r.commanded_n
                     .iter()
-                    .map(|x| {
-                        x.filter(|x| x.is_finite()).ok_or_else(|| {
-                            bad(format!(
-                                "/rotors message {k}: a commanded thrust is not a number"
-                            ))
-                        })
-                    })
-                    .collect::<Result<Vec<f64>, _>>()
+                    .map(|x| x.unwrap_or(f64::NAN))
+                    .collect()
             })
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect();
         Ok(Self {
             initial_pose: Isometry3::from_parts(
                 Translation3::new(px, py, pz),
@@ -463,6 +459,15 @@ pub fn check_replay(logged: &LoggedFlight, config: &ReplayConfig) -> Result<(), 
                 "/rotors holds {} thrusts, vehicle {} has {rotors} rotors",
                 bad.len(),
                 vehicle.id
+            )));
+        }
+        if let Some(k) = logged
+            .rotor_commands
+            .iter()
+            .position(|c| c.iter().any(|x| !x.is_finite()))
+        {
+            return Err(log_error(format!(
+                "/rotors message {k}: a commanded thrust is not a number; commands mode cannot fly it"
             )));
         }
     }

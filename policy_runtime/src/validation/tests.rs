@@ -651,3 +651,39 @@ fn samples_out_of_time_order_are_sorted_and_interpolation_keeps_the_later_of_equ
     assert_eq!(compare::interpolate(&s, 2.0 + 1e-9), None);
     assert_eq!(compare::interpolate(&s, -1e-9), None);
 }
+
+#[test]
+fn a_non_finite_logged_command_is_refused_in_commands_mode_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = twin_flight(dir.path(), "flight.mcap", "none", Interface::BaseJoint);
+    let mut file = read_flight_log(&log, false).unwrap();
+    // The 4th /rotors message's first command becomes null (a NaN as JSON writes it).
+    let m = file
+        .recording
+        .messages
+        .iter_mut()
+        .filter(|m| m.topic == "/rotors")
+        .nth(3)
+        .unwrap();
+    let mut value: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+    value["commanded_n"][0] = serde_json::Value::Null;
+    m.data = serde_json::to_vec(&value).unwrap();
+    let logged = LoggedFlight::from_log(&file).unwrap();
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let mut config = ReplayConfig {
+        controller: logged.controller_config(&vehicle).unwrap(),
+        twin: logged.twin_config().unwrap(),
+        vehicle,
+        mode: ReplayMode::Reference,
+        out: dir.path().join("out.mcap"),
+    };
+    assert!(check_replay(&logged, &config).is_ok());
+    config.mode = ReplayMode::Commands;
+    let err = check_replay(&logged, &config).unwrap_err().to_string();
+    assert!(
+        err.contains("flight.mcap")
+            && err.contains("/rotors message 3")
+            && err.contains("not a number"),
+        "{err}"
+    );
+}
