@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Result;
 use comfy_table::{Table, presets};
-use controllers::{ControllerKind, profile};
+use controllers::{ControllerConfig, ControllerKind, profile};
 use policy_runtime::{Interface, TrackConfig, TrackResult, Trajectory, run_track};
 
 use crate::cli_error::bad_input;
@@ -50,6 +50,13 @@ pub struct Args {
     /// Start transient excluded from the error metrics, s.
     #[arg(long, value_name = "S", default_value_t = 2.0)]
     settle: f64,
+    /// Wrench-space limit of the PID controller: largest norm of its force, N (gravity
+    /// compensation included; default none, as the reference).
+    #[arg(long, value_name = "N")]
+    max_force: Option<f64>,
+    /// Wrench-space limit of the PID controller: largest norm of its torque, N·m.
+    #[arg(long, value_name = "NM")]
+    max_torque: Option<f64>,
     #[command(flatten)]
     twin: TwinFlags,
     #[command(flatten)]
@@ -76,8 +83,25 @@ fn config(args: &Args) -> Result<TrackConfig> {
         "mpc" => ControllerKind::Mpc,
         _ => ControllerKind::Pid,
     };
-    let controller = profile(&vehicle, kind)
+    let mut controller = profile(&vehicle, kind)
         .map_err(|e| bad_input(format!("--controller {}: {e}", args.controller)))?;
+    if args.max_force.is_some() || args.max_torque.is_some() {
+        let (force, torque) = match &mut controller {
+            ControllerConfig::Pid6(g) => (&mut g.max_force_n, &mut g.max_torque_nm),
+            ControllerConfig::Pid4(g) => (&mut g.max_force_n, &mut g.max_torque_nm),
+            _ => {
+                return Err(bad_input(format!(
+                    "--max-force/--max-torque: wrench limits are the PID controller's, not {}'s",
+                    args.controller
+                )));
+            }
+        };
+        *force = args.max_force.or(*force);
+        *torque = args.max_torque.or(*torque);
+        controller
+            .validate()
+            .map_err(|e| bad_input(format!("--max-force/--max-torque: {e}")))?;
+    }
     if kind == ControllerKind::Mpc && args.interface != "ee" {
         return Err(bad_input(
             "--controller mpc: the whole-body MPC tracks end-effector targets; add --interface ee",

@@ -281,7 +281,8 @@ pub fn run_rollout(
             let run = RunMetadata::new(&vehicle.id, &config.controller_name, seed)
                 .with_interface(config.interface.name())
                 .with_trajectory(format!("task:{}", task.name()))
-                .with_config(&twin_config)?;
+                .with_config(&twin_config)?
+                .with_controller_config(&config.controller)?;
             Some(FlightLog::new(McapRecorder::create(&path, &run)?, vehicle)?)
         }
     };
@@ -315,6 +316,7 @@ pub fn run_rollout(
         };
         let record = stack.act(&measurement, &action);
         if let Some(log) = &mut log {
+            log.action(measurement.time_s, &action)?;
             log.tick(&measurement, &record, &ee_desired)?;
         }
         let (ee_actual, base_actual) = (measurement.world_from_ee, measurement.base.pose());

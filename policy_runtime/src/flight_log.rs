@@ -14,6 +14,10 @@
 //! | `/joints` | amstack.Joints | every movable joint: target and measured |
 //! | `/disturbances` | amstack.Disturbances | drag, wind, ground and near-wall forces, `base` frame |
 //! | `/controller/status` | amstack.ControllerStatus | errors, integrators, adaptive terms |
+//! | `/action` | amstack.Action | the action handed to the flight stack (what `replay` re-flies) |
+//!
+//! The complete description, with units, frames and the compatibility rule, is
+//! `docs/mcap-format.md`.
 
 use nalgebra::Isometry3;
 use platform::{Measurement, Vehicle};
@@ -22,7 +26,7 @@ use serde::Serialize;
 
 use crate::record::foxglove::{FrameTransform, FrameTransforms, PoseInFrame};
 use crate::record::{Channel, McapRecorder, RecordError, SchemaName};
-use crate::stack::TickRecord;
+use crate::stack::{Action, BaseJointTarget, EeTarget, TickRecord};
 
 fn v3(v: &nalgebra::Vector3<f64>) -> [f64; 3] {
     [v.x, v.y, v.z]
@@ -39,6 +43,70 @@ pub struct BaseState {
     pub velocity_world_mps: [f64; 3],
     /// Angular velocity in `base`, rad/s.
     pub angular_velocity_body_radps: [f64; 3],
+}
+
+/// The action handed to the flight stack at one tick, exactly as given: what
+/// `amstack replay --mode reference` feeds the stack again.
+#[derive(Debug, Clone, Serialize, serde::Deserialize, JsonSchema)]
+pub struct ActionMessage {
+    /// `ee` (an end-effector target in the command frame) or `base-joint` (a base pose and
+    /// arm joint targets).
+    pub interface: String,
+    /// `ee`: `world_from_ee_command` translation; `base-joint`: `world_from_base`
+    /// translation; world frame, m.
+    pub position_m: [f64; 3],
+    /// The pose's orientation in `world`, w x y z.
+    pub orientation_wxyz: [f64; 4],
+    /// Arm joint targets in the vehicle's command order, rad (empty for `ee`).
+    pub arm_joints_rad: Vec<f64>,
+    /// Gripper action in [−1, 1]: −1 closed, +1 open.
+    pub gripper: f64,
+}
+
+impl ActionMessage {
+    /// The message of `action`.
+    pub fn of(action: &Action) -> Self {
+        let (interface, pose, arm, gripper) = match action {
+            Action::Ee(ee) => ("ee", &ee.world_from_ee_command, &[][..], ee.gripper),
+            Action::BaseJoint(t) => (
+                "base-joint",
+                &t.world_from_base,
+                t.arm_joints.as_slice(),
+                t.gripper,
+            ),
+        };
+        let q = pose.rotation;
+        Self {
+            interface: interface.to_owned(),
+            position_m: v3(&pose.translation.vector),
+            orientation_wxyz: [q.w, q.i, q.j, q.k],
+            arm_joints_rad: arm.to_vec(),
+            gripper,
+        }
+    }
+
+    /// The action again, bit for bit (the quaternion is taken as stored, not renormalised);
+    /// `None` for an unknown interface name.
+    pub fn to_action(&self) -> Option<Action> {
+        let [w, x, y, z] = self.orientation_wxyz;
+        let [px, py, pz] = self.position_m;
+        let pose = Isometry3::from_parts(
+            nalgebra::Translation3::new(px, py, pz),
+            nalgebra::UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(w, x, y, z)),
+        );
+        match self.interface.as_str() {
+            "ee" => Some(Action::Ee(EeTarget {
+                world_from_ee_command: pose,
+                gripper: self.gripper,
+            })),
+            "base-joint" => Some(Action::BaseJoint(BaseJointTarget {
+                world_from_base: pose,
+                arm_joints: self.arm_joints_rad.clone(),
+                gripper: self.gripper,
+            })),
+            _ => None,
+        }
+    }
 }
 
 /// The controller's wrench, `base` frame, about the base origin.
@@ -194,6 +262,9 @@ fn name_of<T: Serialize>(value: &T) -> String {
 macro_rules! schema_names {
     ($($t:ident),*) => {$(impl SchemaName for $t { const SCHEMA_NAME: &'static str = concat!("amstack.", stringify!($t)); })*};
 }
+impl SchemaName for ActionMessage {
+    const SCHEMA_NAME: &'static str = "amstack.Action";
+}
 schema_names!(
     TaskState,
     BaseState,
@@ -220,6 +291,8 @@ pub struct FlightLog {
     joints: Channel<Joints>,
     disturbances: Channel<Disturbances>,
     status: Channel<ControllerStatus>,
+    /// Opened on the first action logged.
+    action: Option<Channel<ActionMessage>>,
     /// Opened on the first tick that carries an MPC report.
     mpc: Option<Channel<MpcStatus>>,
     /// Opened on the first task state logged.
@@ -248,6 +321,7 @@ impl FlightLog {
             disturbances: recorder.channel("/disturbances")?,
             status: recorder.channel("/controller/status")?,
             mpc: None,
+            action: None,
             task: None,
             joint_names: (0..vehicle.model.dof())
                 .map(|d| vehicle.model.dof_joint(d).name.clone())
@@ -367,6 +441,20 @@ impl FlightLog {
             logged?;
         }
         Ok(())
+    }
+
+    /// Logs the action handed to the stack at simulated time `time_s` on `/action` (call it
+    /// with the tick's measurement time, before or after [`Self::tick`]).
+    pub fn action(&mut self, time_s: f64, action: &Action) -> Result<(), RecordError> {
+        let channel = match self.action.take() {
+            Some(c) => c,
+            None => self.recorder.channel("/action")?,
+        };
+        let logged = self
+            .recorder
+            .log(&channel, nanos(time_s), &ActionMessage::of(action));
+        self.action = Some(channel);
+        logged
     }
 
     /// Logs a task's state at simulated time `time_s` on `/task/state`.

@@ -25,6 +25,8 @@
 //!   transform types ([`record::foxglove`]), timestamps from the caller's (simulated) clock,
 //!   chunks flushed as they fill so a killed run leaves a readable file.
 //!   [`record::Recording`] reads a file back by streaming, complete or cut short.
+//! - [`validation`]: sim-to-real validation — replay a logged flight in the twin, compare two
+//!   logs signal by signal (RMSE, max error, bias, over intervals).
 
 pub mod bench;
 pub mod flight_log;
@@ -37,6 +39,7 @@ pub mod stack;
 pub mod task_policies;
 pub mod track;
 pub mod trajectory;
+pub mod validation;
 
 pub use ipc_link::{IpcLink, IpcLinkConfig, IpcLinkError};
 pub use link::{Link, LinkError, TwinLink};

@@ -236,7 +236,8 @@ pub fn run_track_with_link(
             let run = RunMetadata::new(&vehicle.id, config.controller.name(), config.twin.seed)
                 .with_interface(config.interface.name())
                 .with_trajectory(config.trajectory.name())
-                .with_config(&config.twin)?;
+                .with_config(&config.twin)?
+                .with_controller_config(&config.controller)?;
             Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
         }
     };
@@ -276,6 +277,7 @@ pub fn run_track_with_link(
         };
         let record = stack.act(&measurement, &action);
         if let Some(log) = &mut log {
+            log.action(measurement.time_s, &action)?;
             log.tick(&measurement, &record, &ee_reference)?;
         }
         if t >= config.settle_s {
