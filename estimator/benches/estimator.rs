@@ -54,16 +54,16 @@ fn estimator(c: &mut Criterion) {
         return;
     };
     c.bench_function("pose update, current", |b| {
-        b.iter_batched(
+        b.iter_batched_ref(
             || est.clone(),
-            |mut e| e.correct(black_box(&pose(t))),
+            |e| e.correct(black_box(&pose(t))),
             criterion::BatchSize::SmallInput,
         )
     });
     c.bench_function("pose update, 20 ms late (4 samples re-integrated)", |b| {
-        b.iter_batched(
+        b.iter_batched_ref(
             || est.clone(),
-            |mut e| e.correct(black_box(&pose(t - 0.02))),
+            |e| e.correct(black_box(&pose(t - 0.02))),
             criterion::BatchSize::SmallInput,
         )
     });
