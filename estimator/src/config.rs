@@ -23,7 +23,9 @@ pub struct EstimatorConfig {
     pub gyro_bias_walk_radps2_per_sqrt_hz: f64,
     /// Initial standard deviation of each position component, m. Default 0.05.
     pub initial_position_std_m: f64,
-    /// Initial standard deviation of each velocity component, m/s. Default 0.2.
+    /// Initial standard deviation of each velocity component, m/s. Default 0.05: a vehicle
+    /// starting at rest (motion capture on the ground, the twin at its reset); raise it for a
+    /// start in motion.
     pub initial_velocity_std_mps: f64,
     /// Initial standard deviation of each attitude-error component, rad. Default 0.05.
     pub initial_attitude_std_rad: f64,
@@ -54,7 +56,7 @@ impl Default for EstimatorConfig {
             accel_bias_walk_mps3_per_sqrt_hz: 0.0005,
             gyro_bias_walk_radps2_per_sqrt_hz: 0.00005,
             initial_position_std_m: 0.05,
-            initial_velocity_std_mps: 0.2,
+            initial_velocity_std_mps: 0.05,
             initial_attitude_std_rad: 0.05,
             initial_accel_bias_std_mps2: 0.2,
             initial_gyro_bias_std_radps: 0.02,

@@ -195,6 +195,23 @@ impl Estimator {
     /// Starts (or restarts) the estimate at `state` at `time_s` with zero biases and the
     /// configured initial uncertainty. The history and the waiting measurements are dropped.
     pub fn initialize(&mut self, time_s: f64, state: &RigidBodyState) -> Result<(), Rejection> {
+        let c = &self.config;
+        let stds = (
+            c.initial_position_std_m,
+            c.initial_velocity_std_mps,
+            c.initial_attitude_std_rad,
+        );
+        self.start(time_s, state, stds)
+    }
+
+    /// Starts the estimate at `state` with the given deviations of position (m), velocity
+    /// (m/s) and attitude (rad); the biases' from the configuration.
+    fn start(
+        &mut self,
+        time_s: f64,
+        state: &RigidBodyState,
+        (position_std, velocity_std, attitude_std): (f64, f64, f64),
+    ) -> Result<(), Rejection> {
         if !time_s.is_finite() {
             return Err(Rejection::NonFinite { field: "time_s" });
         }
@@ -204,9 +221,9 @@ impl Estimator {
         let c = &self.config;
         let mut cov = Covariance::zeros();
         for (block, std) in [
-            (P, c.initial_position_std_m),
-            (V, c.initial_velocity_std_mps),
-            (TH, c.initial_attitude_std_rad),
+            (P, position_std),
+            (V, velocity_std),
+            (TH, attitude_std),
             (BA, c.initial_accel_bias_std_mps2),
             (BG, c.initial_gyro_bias_std_radps),
         ] {
@@ -361,7 +378,8 @@ impl Estimator {
 
     /// A pose or odometry measurement: fused at its capture time (reaching back into the
     /// history if it is older than the newest IMU sample), queued if it is ahead of the IMU,
-    /// or the start of the estimate if there is none yet.
+    /// or the start of the estimate if there is none yet (with the measurement's deviations
+    /// for what it measures, the configured initial ones for the rest).
     pub fn correct(&mut self, m: &Measurement) -> Result<Accepted, Rejection> {
         if let Some(field) = m.bad_field() {
             return self.reject(Rejection::NonFinite { field });
@@ -369,9 +387,9 @@ impl Estimator {
         let t = m.time_s();
         let Some(newest) = self.history.back().map(|n| n.time_s) else {
             let pose = m.pose();
-            let velocity = match m {
-                Measurement::Odometry(o) => o.velocity_in_world_mps,
-                Measurement::Pose(_) => Vector3::zeros(),
+            let (velocity, velocity_std) = match m {
+                Measurement::Odometry(o) => (o.velocity_in_world_mps, o.velocity_std_mps),
+                Measurement::Pose(_) => (Vector3::zeros(), self.config.initial_velocity_std_mps),
             };
             let state = RigidBodyState {
                 position_in_world_m: pose.position_in_world_m,
@@ -379,7 +397,9 @@ impl Estimator {
                 velocity_in_world_mps: velocity,
                 angular_velocity_in_body_radps: Vector3::zeros(),
             };
-            self.initialize(t, &state)?;
+            // Position and attitude as well known as the measurement says.
+            let stds = (pose.position_std_m, velocity_std, pose.attitude_std_rad);
+            self.start(t, &state, stds)?;
             return Ok(Accepted::Initialized);
         };
         let latest_used = self

@@ -729,3 +729,48 @@ fn sensor_models_have_their_stated_statistics() {
         );
     }
 }
+
+/// Started from a pose, the estimate knows position and attitude as well as the pose says
+/// (σ = 1 cm, 0.01 rad here), velocity and biases as the configuration says; started from
+/// odometry, velocity as the odometry says.
+#[test]
+fn the_first_measurement_sets_what_it_measures_and_its_uncertainty() {
+    let config = EstimatorConfig::default();
+    let mut est = Estimator::new(config).unwrap();
+    assert_eq!(
+        est.correct(&pose_at(2.0, Vector3::new(1.0, 2.0, 3.0))),
+        Ok(Accepted::Initialized)
+    );
+    let sd = est.std_devs().unwrap();
+    assert_eq!(sd.position_m, Vector3::repeat(0.01));
+    assert_eq!(sd.attitude_rad, Vector3::repeat(0.01));
+    assert_eq!(
+        sd.velocity_mps,
+        Vector3::repeat(config.initial_velocity_std_mps)
+    );
+    assert_eq!(
+        sd.accel_bias_mps2,
+        Vector3::repeat(config.initial_accel_bias_std_mps2)
+    );
+    assert_eq!(est.time_s(), Some(2.0));
+    assert_eq!(
+        est.state().unwrap().position_in_world_m,
+        Vector3::new(1.0, 2.0, 3.0)
+    );
+
+    let Measurement::Pose(pose) = pose_at(0.0, Vector3::zeros()) else {
+        unreachable!()
+    };
+    let mut est = Estimator::new(config).unwrap();
+    est.correct(&Measurement::Odometry(OdometryMeasurement {
+        pose,
+        velocity_in_world_mps: Vector3::new(0.5, 0.0, 0.0),
+        velocity_std_mps: 0.03,
+    }))
+    .unwrap();
+    assert_eq!(est.std_devs().unwrap().velocity_mps, Vector3::repeat(0.03));
+    assert_eq!(
+        est.state().unwrap().velocity_in_world_mps,
+        Vector3::new(0.5, 0.0, 0.0)
+    );
+}
