@@ -302,6 +302,32 @@ fn mpc_bench_reports_both_qp_paths_and_refuses_bad_input() {
 }
 
 #[test]
+fn bad_sensor_settings_are_bad_input_naming_flag_file_and_field() {
+    assert_bad_input(
+        &amstack(&["track", "--pose-latency", "0.03"]),
+        &["--pose-latency", "--state-source estimator"],
+    );
+    assert_bad_input(
+        &amstack(&["track", "--state-source", "estimator", "--pose-rate", "0"]),
+        &["pose.rate_hz = 0", "positive"],
+    );
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let file = dir.path().join("sensors.toml");
+    std::fs::write(&file, "[imu]\naccel_noise_mps2_per_sqrt_hz = -1\n")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let path = file.to_string_lossy().into_owned();
+    assert_bad_input(
+        &amstack(&["track", "--state-source", "estimator", "--sensors", &path]),
+        &["sensors.toml", "imu.accel_noise_mps2_per_sqrt_hz = -1"],
+    );
+    std::fs::write(&file, "[pose]\nlatncy_s = 0.1\n").unwrap_or_else(|e| panic!("{e}"));
+    assert_bad_input(
+        &amstack(&["track", "--state-source", "estimator", "--sensors", &path]),
+        &["sensors.toml", "unknown field `latncy_s`"],
+    );
+}
+
+#[test]
 fn track_with_mpc_is_refused_off_the_fa_hexa_and_off_the_ee_interface() {
     assert_bad_input(
         &amstack(&[

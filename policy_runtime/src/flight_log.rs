@@ -15,6 +15,7 @@
 //! | `/disturbances` | amstack.Disturbances | drag, wind, ground and near-wall forces, `base` frame |
 //! | `/controller/status` | amstack.ControllerStatus | errors, integrators, adaptive terms |
 //! | `/action` | amstack.Action | the action handed to the flight stack (what `replay` re-flies) |
+//! | `/estimator/state` | amstack.EstimatorState | the estimate the controllers flew on (`--state-source estimator`), its deviations, biases, innovations |
 //!
 //! The complete description, with units, frames and the compatibility rule, is
 //! `docs/mcap-format.md`.
@@ -251,6 +252,88 @@ pub struct MpcStatus {
     pub predicted_terminal_position_m: [f64; 3],
 }
 
+/// The state estimator's tick (flights with `--state-source estimator`): the estimate handed
+/// to the controllers next to the measurement logged on `/base/state`.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct EstimatorState {
+    /// Estimated position in `world`, m.
+    pub position_m: [f64; 3],
+    /// Estimated orientation `world_from_base`, w x y z.
+    pub orientation_wxyz: [f64; 4],
+    /// Estimated velocity in `world`, m/s.
+    pub velocity_world_mps: [f64; 3],
+    /// Estimated angular velocity in `base` (gyro − bias), rad/s.
+    pub angular_velocity_body_radps: [f64; 3],
+    /// Estimate − measured position, `world`, m.
+    pub position_error_m: [f64; 3],
+    /// One standard deviation of position, `world`, m.
+    pub position_std_m: [f64; 3],
+    /// One standard deviation of velocity, `world`, m/s.
+    pub velocity_std_mps: [f64; 3],
+    /// One standard deviation of the attitude error, `base`, rad.
+    pub attitude_std_rad: [f64; 3],
+    /// Estimated accelerometer bias, `base`, m/s².
+    pub accel_bias_mps2: [f64; 3],
+    /// Estimated gyroscope bias, `base`, rad/s.
+    pub gyro_bias_radps: [f64; 3],
+    /// The simulated IMU's accelerometer bias, `base`, m/s².
+    pub true_accel_bias_mps2: [f64; 3],
+    /// The simulated IMU's gyroscope bias, `base`, rad/s.
+    pub true_gyro_bias_radps: [f64; 3],
+    /// The measurements fused this tick.
+    pub innovations: Vec<EstimatorInnovation>,
+    /// Why inputs were refused this tick (one line each).
+    pub rejections: Vec<String>,
+}
+
+/// One fused measurement of an [`EstimatorState`].
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct EstimatorInnovation {
+    /// Capture time, s.
+    pub time_s: f64,
+    /// How far it was behind the newest IMU sample, s.
+    pub delay_s: f64,
+    /// Position residual, `world`, m.
+    pub position_m: [f64; 3],
+    /// Attitude residual, `base`, rad.
+    pub attitude_rad: [f64; 3],
+    /// Normalised innovation squared.
+    pub nis: f64,
+}
+
+impl EstimatorState {
+    /// The log message of an estimator report.
+    pub fn from_report(r: &crate::state_source::EstimateReport) -> Self {
+        let q = r.state.world_from_body;
+        Self {
+            position_m: v3(&r.state.position_in_world_m),
+            orientation_wxyz: [q.w, q.i, q.j, q.k],
+            velocity_world_mps: v3(&r.state.velocity_in_world_mps),
+            angular_velocity_body_radps: v3(&r.state.angular_velocity_in_body_radps),
+            position_error_m: v3(&r.position_error_m),
+            position_std_m: v3(&r.position_std_m),
+            velocity_std_mps: v3(&r.velocity_std_mps),
+            attitude_std_rad: v3(&r.attitude_std_rad),
+            accel_bias_mps2: v3(&r.accel_bias_mps2),
+            gyro_bias_radps: v3(&r.gyro_bias_radps),
+            true_accel_bias_mps2: v3(&r.true_accel_bias_mps2),
+            true_gyro_bias_radps: v3(&r.true_gyro_bias_radps),
+            innovations: r
+                .innovations
+                .iter()
+                .map(|i| EstimatorInnovation {
+                    time_s: i.time_s,
+                    delay_s: i.delay_s,
+                    position_m: v3(&i.position_m),
+                    attitude_rad: v3(&i.attitude_rad),
+                    nis: i.nis,
+                })
+                .collect(),
+            rejections: r.rejections.iter().map(ToString::to_string).collect(),
+        }
+    }
+}
+
 /// A serde enum's name as a string.
 fn name_of<T: Serialize>(value: &T) -> String {
     serde_json::to_value(value)
@@ -273,7 +356,8 @@ schema_names!(
     Joints,
     Disturbances,
     ControllerStatus,
-    MpcStatus
+    MpcStatus,
+    EstimatorState
 );
 
 /// The open channels of one flight log.
@@ -297,6 +381,8 @@ pub struct FlightLog {
     mpc: Option<Channel<MpcStatus>>,
     /// Opened on the first task state logged.
     task: Option<Channel<TaskState>>,
+    /// Opened on the first estimate logged.
+    estimate: Option<Channel<EstimatorState>>,
     joint_names: Vec<String>,
     limits: (f64, f64),
 }
@@ -323,6 +409,7 @@ impl FlightLog {
             mpc: None,
             action: None,
             task: None,
+            estimate: None,
             joint_names: (0..vehicle.model.dof())
                 .map(|d| vehicle.model.dof_joint(d).name.clone())
                 .collect(),
@@ -465,6 +552,17 @@ impl FlightLog {
         };
         let logged = self.recorder.log(&channel, nanos(time_s), state);
         self.task = Some(channel);
+        logged
+    }
+
+    /// Logs the state estimator's tick at simulated time `time_s` on `/estimator/state`.
+    pub fn estimate(&mut self, time_s: f64, state: &EstimatorState) -> Result<(), RecordError> {
+        let channel = match self.estimate.take() {
+            Some(c) => c,
+            None => self.recorder.channel("/estimator/state")?,
+        };
+        let logged = self.recorder.log(&channel, nanos(time_s), state);
+        self.estimate = Some(channel);
         logged
     }
 

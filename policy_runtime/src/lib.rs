@@ -15,6 +15,8 @@
 //!   actuator command, with the allocator's unallocated wrench fed back to the controller.
 //! - [`trajectory`] and [`track`]: the reference trajectories of `amstack track` and the
 //!   flight that scores them.
+//! - [`state_source`]: `--state-source truth|estimator`: the controllers fly on the link's
+//!   measurement, or on the estimator fed by the twin's simulated IMU and pose sensor.
 //! - [`flight_log`]: the channels of a flight's MCAP log.
 //! - [`metrics`]: the benchmark's metrics (AMBENCH_SPEC §6): per-tick records, rollout and
 //!   run summaries, latched subtask criteria, the reference's N/A rules.
@@ -36,6 +38,7 @@ pub mod metrics;
 pub mod record;
 pub mod scripted;
 pub mod stack;
+pub mod state_source;
 pub mod task_policies;
 pub mod track;
 pub mod trajectory;
@@ -46,5 +49,6 @@ pub use link::{Link, LinkError, TwinLink};
 pub use stack::{
     Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits, TickRecord,
 };
+pub use state_source::{EstimatorSettings, EstimatorSummary, StateSource};
 pub use track::{Interface, TrackConfig, TrackError, TrackResult, run_track, run_track_with_link};
 pub use trajectory::Trajectory;

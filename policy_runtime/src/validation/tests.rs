@@ -377,6 +377,7 @@ fn twin_flight(dir: &Path, name: &str, disturbances: &str, interface: Interface)
             ..TwinConfig::default()
         },
         mcap: Some(path.clone()),
+        state_source: crate::StateSource::Truth,
     };
     run_track(&config, |_| std::ops::ControlFlow::Continue(())).unwrap();
     path

@@ -99,16 +99,18 @@ pub struct RotorMsg {
 }
 
 /// A simulated IMU at the base origin, from the twin's truth (no noise): what an
-/// accelerometer and a gyro fixed to the base would read.
+/// integrating accelerometer and gyro fixed to the base read over the last control period
+/// ([`crate::sensors::ideal_imu`]).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[type_name("amstack.sitl.Imu.v2")]
 pub struct ImuMsg {
     /// Specific force f = Rᵀ(a − g), base frame, m/s², with a the base origin's world
-    /// acceleration averaged over the last control period and g = (0, 0, −9.81) m/s²
-    /// (at rest, level: (0, 0, +9.81)).
+    /// acceleration averaged over the last control period, R the attitude at mid-period and
+    /// g = (0, 0, −9.81) m/s² (at rest, level: (0, 0, +9.81)).
     pub specific_force_in_body_mps2: [f64; 3],
-    /// Angular velocity, base frame, rad/s.
+    /// Angular velocity, base frame, rad/s: the mean over the last control period (its
+    /// delta angle over its length).
     pub angular_velocity_in_body_radps: [f64; 3],
 }
 

@@ -8,8 +8,7 @@ use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::server::Server;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use nalgebra::Vector3;
-use platform::{ActuatorCommand, GRAVITY_MPS2, Measurement, Vehicle};
+use platform::{ActuatorCommand, Measurement, RigidBodyState, Vehicle};
 
 use super::handshake::{Offer, check_hello};
 use super::messages::{
@@ -23,6 +22,7 @@ use super::{
     cleanup_dead_nodes_now, command_service, handshake_service, measurement_service, node,
     node_alive,
 };
+use crate::sensors::ideal_imu;
 use crate::{TaskId, Twin, TwinConfig, TwinError};
 
 /// How the twin's time advances.
@@ -353,7 +353,8 @@ pub struct TwinServer {
     session: Option<Session>,
     phase: Phase,
     next_session: u64,
-    previous_velocity: Vector3<f64>,
+    /// The base at the previous measurement: the IMU's period starts there.
+    previous_base: RigidBodyState,
     /// The measurement handed out last (with observation noise when on).
     observed: Measurement,
     summary: ServeSummary,
@@ -411,7 +412,7 @@ impl TwinServer {
             .subscriber_builder()
             .create()
             .map_err(|e| IpcError::new("creating the command subscriber", e))?;
-        let previous_velocity = twin.truth().base.velocity_in_world_mps;
+        let previous_base = twin.truth().base;
         let observed = twin.truth().clone();
         Ok(Self {
             twin,
@@ -427,7 +428,7 @@ impl TwinServer {
             session: None,
             phase: Phase::Idle,
             next_session: u64::from(std::process::id()) << 32,
-            previous_velocity,
+            previous_base,
             observed,
             summary: ServeSummary::default(),
             config,
@@ -578,7 +579,7 @@ impl TwinServer {
             },
             false => self.twin.reset(self.seed)?,
         }
-        self.previous_velocity = self.twin.truth().base.velocity_in_world_mps;
+        self.previous_base = self.twin.truth().base;
         // As the in-process link: the state at the start is the exact one.
         self.observed = self.twin.truth().clone();
         // Commands of earlier sessions still queued are stale.
@@ -861,7 +862,7 @@ impl TwinServer {
         msg.imu = self.imu(truth);
         msg.gripper_opening = gripper_opening(self.twin.vehicle(), truth);
         msg.task = TaskMsg::from_snapshot(self.twin.task_snapshot().as_ref())?;
-        self.previous_velocity = truth.base.velocity_in_world_mps;
+        self.previous_base = truth.base;
         msg.twin_busy_ns = started.elapsed().as_nanos() as u64;
         let sample = self
             .measurements
@@ -874,24 +875,18 @@ impl TwinServer {
         Ok(())
     }
 
-    /// The IMU over the last period: acceleration of the base origin from its velocity change.
+    /// The IMU over the last period ([`crate::sensors::ideal_imu`], as the flight stack's
+    /// simulated IMU reads it, without noise).
     fn imu(&self, truth: &Measurement) -> ImuMsg {
         let dt = 1.0 / self.offer.control_rate_hz;
-        let base = &truth.base;
-        let acceleration = if truth.time_s > 0.0 {
-            (base.velocity_in_world_mps - self.previous_velocity) / dt
-        } else {
-            Vector3::zeros()
-        };
-        let specific =
-            base.world_from_body.inverse() * (acceleration + Vector3::new(0.0, 0.0, GRAVITY_MPS2));
+        let s = ideal_imu(&self.previous_base, &truth.base, truth.time_s, dt);
+        let (f, w) = (
+            s.specific_force_in_body_mps2,
+            s.angular_velocity_in_body_radps,
+        );
         ImuMsg {
-            specific_force_in_body_mps2: [specific.x, specific.y, specific.z],
-            angular_velocity_in_body_radps: [
-                base.angular_velocity_in_body_radps.x,
-                base.angular_velocity_in_body_radps.y,
-                base.angular_velocity_in_body_radps.z,
-            ],
+            specific_force_in_body_mps2: [f.x, f.y, f.z],
+            angular_velocity_in_body_radps: [w.x, w.y, w.z],
         }
     }
 }
