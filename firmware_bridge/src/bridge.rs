@@ -188,6 +188,9 @@ enum Transport {
     Stream {
         reader: Box<dyn AsyncRead + Unpin + Send>,
         writer: Box<dyn AsyncWrite + Unpin + Send>,
+        /// A read of 0 bytes is the end of the stream (TCP), or only "no data" (a serial
+        /// port with VMIN = 0, a pseudo-terminal whose other end is between writes).
+        zero_is_end: bool,
     },
 }
 
@@ -239,6 +242,7 @@ async fn open(config: &BridgeConfig) -> Result<Transport, String> {
             Ok(Transport::Stream {
                 reader: Box::new(r),
                 writer: Box::new(w),
+                zero_is_end: true,
             })
         }
         Address::Serial { device, baud } => {
@@ -250,6 +254,7 @@ async fn open(config: &BridgeConfig) -> Result<Transport, String> {
             Ok(Transport::Stream {
                 reader: Box::new(r),
                 writer: Box::new(w),
+                zero_is_end: false,
             })
         }
     }
@@ -604,7 +609,11 @@ impl Io {
                         }
                     }
                 }
-                Transport::Stream { reader, .. } => {
+                Transport::Stream {
+                    reader,
+                    zero_is_end,
+                    ..
+                } => {
                     tokio::select! {
                         out = outgoing.recv() => match out {
                             Some(Outgoing::Messages(m)) => m,
@@ -613,7 +622,11 @@ impl Io {
                         _ = heartbeat.tick() => vec![self.heartbeat()],
                         got = reader.read(&mut buf) => {
                             match got {
-                                Ok(0) => return Some("the autopilot closed the connection".to_owned()),
+                                Ok(0) if *zero_is_end => {
+                                    return Some("the autopilot closed the connection".to_owned());
+                                }
+                                // Serial: no data now; do not spin on the device.
+                                Ok(0) => tokio::time::sleep(Duration::from_millis(1)).await,
                                 Ok(n) => decoder.push_stream(&buf[..n], &self.counters, &mut frames),
                                 Err(e) => return Some(format!("read failed: {e}")),
                             }
