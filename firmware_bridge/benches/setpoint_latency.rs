@@ -59,7 +59,14 @@ fn run(rate_hz: f64, seconds: f64) -> Result<(), Box<dyn std::error::Error>> {
     let mut sent_ns = Vec::with_capacity(ticks as usize);
     let start = Instant::now();
     for k in 0..ticks {
+        // Sleep to within 200 µs of the tick, then spin: a pure spin would take a core
+        // from the bridge's and the peer's threads on a small machine.
         let due = start + period * k as u32;
+        if let Some(wait) = due.checked_duration_since(Instant::now())
+            && wait > Duration::from_micros(200)
+        {
+            std::thread::sleep(wait - Duration::from_micros(200));
+        }
         while Instant::now() < due {
             std::hint::spin_loop();
         }
