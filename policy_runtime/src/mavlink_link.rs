@@ -89,6 +89,21 @@ pub enum MavlinkLinkError {
     /// The bridge failed (open, command refused or unanswered, no telemetry, bad setpoint).
     #[error(transparent)]
     Bridge(#[from] BridgeError),
+    /// The autopilot disarmed or left OFFBOARD during the flight (its failsafe, a pilot
+    /// taking over): the flight stops.
+    #[error(
+        "the autopilot {what} during the flight (tick {tick}): now {mode}, {armed}; the flight stack stopped sending"
+    )]
+    Dropped {
+        /// `disarmed` or `left OFFBOARD`.
+        what: String,
+        /// The tick it was noticed at.
+        tick: u64,
+        /// The mode its last HEARTBEAT gave.
+        mode: String,
+        /// `armed` or `disarmed`.
+        armed: String,
+    },
     /// The attitude level needs the tick's controller output ([`Link::send_tick`]).
     #[error("the attitude level needs the controller's wrench: send through send_tick")]
     NeedsTickRecord,
@@ -114,9 +129,15 @@ pub struct MavlinkLink {
     codec: SetpointCodec,
     latest: Measurement,
     started: bool,
+    /// Heartbeats received when the start sequence finished: later ones describe the flight.
+    heartbeats_at_start: u64,
     ticks: u64,
     sent_at: Option<std::time::Instant>,
     round_trips_ns: Vec<u64>,
+    /// The rotor thrusts of the last actuator-level command, N (the autopilot reports only
+    /// the realised ones).
+    commanded_n: Option<Vec<f64>>,
+    thrust_range_n: (f64, f64),
 }
 
 impl MavlinkLink {
@@ -140,9 +161,12 @@ impl MavlinkLink {
             codec,
             latest,
             started: false,
+            heartbeats_at_start: 0,
             ticks: 0,
             sent_at: None,
             round_trips_ns: Vec::new(),
+            commanded_n: None,
+            thrust_range_n: (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n),
         })
     }
 
@@ -195,6 +219,7 @@ impl MavlinkLink {
         self.bridge.set_offboard()?;
         self.bridge.arm()?;
         self.started = true;
+        self.heartbeats_at_start = self.bridge.autopilot().heartbeats;
         Ok(())
     }
 
@@ -209,6 +234,36 @@ impl MavlinkLink {
         self.bridge.send(messages)?;
         self.ticks += 1;
         Ok(())
+    }
+}
+
+impl MavlinkLink {
+    /// An error if a HEARTBEAT since the start says the autopilot disarmed or left OFFBOARD.
+    fn check_still_flying(&self) -> Result<(), MavlinkLinkError> {
+        let state = self.bridge.autopilot();
+        if !self.started || state.heartbeats <= self.heartbeats_at_start {
+            return Ok(());
+        }
+        let what = if !state.armed {
+            "disarmed"
+        } else if !state.in_offboard() {
+            "left OFFBOARD"
+        } else {
+            return Ok(());
+        };
+        Err(MavlinkLinkError::Dropped {
+            what: what.to_owned(),
+            tick: self.ticks,
+            mode: state.mode_name(),
+            armed: if state.armed { "armed" } else { "disarmed" }.to_owned(),
+        })
+    }
+
+    /// Keeps the commanded rotor thrusts for the next measurement's rotor reports (actuator
+    /// level; at the attitude level the autopilot chooses them).
+    fn remember(&mut self, command: &ActuatorCommand) {
+        self.commanded_n =
+            (self.config.level == Level::Actuator).then(|| command.rotor_thrusts_n.clone());
     }
 }
 
@@ -250,29 +305,49 @@ impl Link for MavlinkLink {
         if self.sent_at.is_none() {
             return Ok(self.latest.clone());
         }
+        self.check_still_flying()?;
         let what = format!("ODOMETRY for tick {}", self.ticks);
-        let m = self.bridge.next_measurement(
+        let m = match self.bridge.next_measurement(
             Some(self.latest.time_s),
             self.config.tick_timeout,
             &what,
-        )?;
+        ) {
+            Ok(m) => m,
+            Err(e) => {
+                // A silent autopilot that said why (disarmed, failsafe mode) is reported so.
+                self.check_still_flying()?;
+                return Err(e.into());
+            }
+        };
         if let (true, Some(t)) = (self.config.record_timing, self.sent_at) {
             self.round_trips_ns
                 .push(u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX));
         }
         self.sent_at = None;
+        let mut m = m;
+        if let Some(commanded) = &self.commanded_n {
+            let (lo, hi) = self.thrust_range_n;
+            for (r, &c) in m.rotors.iter_mut().zip(commanded) {
+                r.commanded_n = c;
+                r.saturated = c < lo || c > hi;
+            }
+        }
         self.latest = m.clone();
         Ok(m)
     }
 
     fn send(&mut self, command: &ActuatorCommand) -> Result<(), LinkError> {
         let messages = self.messages(command, None)?;
-        self.send_messages(messages)
+        self.send_messages(messages)?;
+        self.remember(command);
+        Ok(())
     }
 
     fn send_tick(&mut self, record: &TickRecord) -> Result<(), LinkError> {
         let messages = self.messages(&record.command, Some(record))?;
-        self.send_messages(messages)
+        self.send_messages(messages)?;
+        self.remember(&record.command);
+        Ok(())
     }
 
     fn name(&self) -> String {

@@ -51,6 +51,8 @@ struct Autopilot {
     offboard: bool,
     armed: bool,
     steps: u64,
+    /// Disarm after this many steps (a failsafe, say), announcing it in a HEARTBEAT.
+    disarm_after: Option<u64>,
 }
 
 #[allow(clippy::cast_possible_truncation, reason = "MAVLink carries f32")]
@@ -124,6 +126,18 @@ impl Autopilot {
         }));
     }
 
+    fn heartbeat(&self) -> MavMessage {
+        let mut base_mode = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
+        if self.armed {
+            base_mode |= MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
+        }
+        MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            custom_mode: if self.offboard { 6 << 16 } else { 0 },
+            base_mode,
+            ..HEARTBEAT_DATA::default()
+        })
+    }
+
     fn ack(&mut self, command: MavCmd, result: MavResult) {
         self.send(&MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
             command,
@@ -164,6 +178,12 @@ impl Autopilot {
                         let command = self.command.clone();
                         let m = self.twin.step(&command).unwrap();
                         self.steps += 1;
+                        if self.disarm_after == Some(self.steps) {
+                            self.armed = false;
+                            let hb = self.heartbeat();
+                            self.send(&hb);
+                            return; // this tick is never answered
+                        }
                         self.telemetry(&m);
                     }
                 }
@@ -173,7 +193,7 @@ impl Autopilot {
     }
 }
 
-fn fixture(vehicle: &Vehicle, config: &TwinConfig) -> Fixture {
+fn fixture(vehicle: &Vehicle, config: &TwinConfig, disarm_after: Option<u64>) -> Fixture {
     let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
     socket
         .set_read_timeout(Some(Duration::from_millis(100)))
@@ -195,6 +215,7 @@ fn fixture(vehicle: &Vehicle, config: &TwinConfig) -> Fixture {
         offboard: false,
         armed: false,
         steps: 0,
+        disarm_after,
     };
     let flag = stop.clone();
     let thread = std::thread::spawn(move || {
@@ -211,10 +232,8 @@ fn fixture(vehicle: &Vehicle, config: &TwinConfig) -> Fixture {
             // Idle telemetry at 10 Hz while not stepping, with a heartbeat.
             if !(ap.armed && ap.offboard) && idle.elapsed() >= Duration::from_millis(100) {
                 idle = Instant::now();
-                ap.send(&MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-                    base_mode: MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-                    ..HEARTBEAT_DATA::default()
-                }));
+                let hb = ap.heartbeat();
+                ap.send(&hb);
                 let m = ap.twin.truth().clone();
                 ap.telemetry(&m);
             }
@@ -250,7 +269,7 @@ fn track_config(vehicle: &Vehicle, trajectory: Trajectory, duration_s: f64) -> T
 fn a_step_flown_over_mavlink_in_lockstep_matches_the_in_process_flight() {
     let vehicle = Vehicle::builtin("fa-hexa").unwrap();
     let config = track_config(&vehicle, Trajectory::Step, 2.0);
-    let fixture = fixture(&vehicle, &config.twin);
+    let fixture = fixture(&vehicle, &config.twin, None);
     let address = Address::Udp {
         host: "127.0.0.1".into(),
         port: fixture.port,
@@ -293,6 +312,33 @@ fn a_step_flown_over_mavlink_in_lockstep_matches_the_in_process_flight() {
     assert_eq!(
         counters.bad_crc + counters.unknown_id + counters.truncated,
         0
+    );
+}
+
+#[test]
+fn an_autopilot_that_disarms_mid_flight_stops_it_naming_why() {
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let config = track_config(&vehicle, Trajectory::Hover, 2.0);
+    let fixture = fixture(&vehicle, &config.twin, Some(50));
+    let address = Address::Udp {
+        host: "127.0.0.1".into(),
+        port: fixture.port,
+    };
+    let mut link = MavlinkLink::connect(
+        &vehicle,
+        MavlinkLinkConfig {
+            tick_timeout: Duration::from_millis(300),
+            ..MavlinkLinkConfig::new(BridgeConfig::new(address), Level::Actuator)
+        },
+    )
+    .unwrap();
+    let e = run_track_with_link(&config, &mut link, |_| std::ops::ControlFlow::Continue(()))
+        .unwrap_err();
+    let e = e.to_string();
+    assert!(
+        e.starts_with("the autopilot disarmed during the flight (tick 5")
+            && e.ends_with("now OFFBOARD, disarmed; the flight stack stopped sending"),
+        "{e}"
     );
 }
 
