@@ -889,6 +889,9 @@ where
                 stream.write_all(&bytes).await.unwrap();
             }
             if done {
+                // Keep the stream open a moment: a pseudo-terminal whose master closes
+                // discards what its slave has not read yet (the ack).
+                tokio::time::sleep(Duration::from_millis(300)).await;
                 return heard;
             }
         }
@@ -936,10 +939,6 @@ fn the_bridge_works_over_tcp() {
 }
 
 #[test]
-#[ignore = "known broken: after the first frames the bridge's write to the pty slave fails \
-            with EIO (os error 5); a plain write/read through the same pair opened by path works \
-            within one runtime, so the fault is in how the bridge's thread and the peer share \
-            the pair; the serial path is unverified"]
 fn the_bridge_works_over_a_pseudo_terminal_pair() {
     use tokio_serial::SerialPort;
     let (name_tx, name_rx) = std::sync::mpsc::channel();
