@@ -188,6 +188,13 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
             connect_timeout: Duration::from_millis(args.connect_timeout_ms),
             ..IpcLinkConfig::new(service)
         }),
+        LinkChoice::Mavlink(_) => {
+            return Err(bad_input(format!(
+                "--link {}: the benchmark runs in the twin (`twin` or `ipc:<service>`); to fly over \
+                 MAVLink use `amstack fly --link mavlink:...`",
+                args.link
+            )));
+        }
     };
     let jobs = match (&link, args.jobs) {
         (BenchLink::Ipc(_), Some(j)) if j > 1 => {

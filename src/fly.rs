@@ -1,13 +1,16 @@
 //! `amstack fly`: the flight stack of `amstack track` against a chosen link — the twin in this
-//! process, or the twin in another process over iceoryx2.
+//! process, the twin in another process over iceoryx2, or a PX4-style autopilot over MAVLink
+//! (the twin's, `amstack twin serve --mavlink ...`, or a real vehicle).
 
 use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Result;
+use firmware_bridge::{Address, BridgeConfig, Signing, SigningKey};
 use policy_runtime::ipc_link::TickTiming;
 use policy_runtime::{
-    IpcLink, IpcLinkConfig, IpcLinkError, LinkError, TrackError, TrackResult, run_track_with_link,
+    IpcLink, IpcLinkConfig, IpcLinkError, Level, LinkError, MavlinkLink, MavlinkLinkConfig,
+    MavlinkLinkError, TrackError, TrackResult, run_track_with_link,
 };
 use serde::Serialize;
 
@@ -18,8 +21,24 @@ use crate::track;
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 Links:
-  twin            the twin in this process (as amstack track)
-  ipc:<service>   the twin in another process: amstack twin serve --ipc <service> ...
+  twin                   the twin in this process (as amstack track)
+  ipc:<service>          the twin in another process: amstack twin serve --ipc <service> ...
+  mavlink:udp:HOST:PORT  a PX4-style autopilot; we send to its UDP port (the twin's:
+                         amstack twin serve --mavlink udp:HOST:PORT ...)
+  mavlink:udpin:HOST:PORT  listen on HOST:PORT for the autopilot (PX4 companion style)
+  mavlink:tcp:HOST:PORT  connect to the autopilot's TCP server
+  mavlink:serial:DEVICE:BAUD  a serial port (mavlink:serial:/dev/ttyACM0:921600)
+
+Over MAVLink (docs/mavlink.md) the bridge is system 1, component 191. It waits for the
+autopilot's first ODOMETRY, streams the first setpoint, switches to OFFBOARD, arms, and then
+sends one setpoint per control tick and waits for the ODOMETRY that closes it. --level
+actuator sends rotor thrusts (SET_ACTUATOR_CONTROL_TARGET through the vehicle's thrust
+curve, our allocation flies); --level attitude sends the controller's desired attitude and
+body force (SET_ATTITUDE_TARGET, the autopilot's attitude loop and allocation fly). Arm and
+gripper go in group 2 at both levels. A refused or unanswered command (arming, offboard)
+stops the flight with the autopilot's answer, exit 1. At the end the bridge stops sending;
+it never disarms (the autopilot's offboard-loss failsafe holds, then lands).
+With --signing-key every frame is signed and unsigned or badly signed frames are refused.
 
 Over ipc the twin must serve the same vehicle and settings (disturbances, motor model, seed):
 the handshake refuses a mismatch naming both values (exit 2). If the twin stops answering
@@ -27,21 +46,43 @@ within --link-timeout-ms, the flight stops, its MCAP log is closed and amstack e
 
 Example (lockstep SITL, the results equal the in-process run's):
   amstack twin serve --ipc sitl --platform fa-hexa --seed 3 &
-  amstack fly --link ipc:sitl --platform fa-hexa --seed 3 --trajectory step --json r.json")]
+  amstack fly --link ipc:sitl --platform fa-hexa --seed 3 --trajectory step --json r.json
+
+Example (the twin's autopilot over MAVLink, lockstep):
+  amstack twin serve --mavlink udp:127.0.0.1:14540 --lockstep --platform fa-hexa &
+  amstack fly --link mavlink:udp:127.0.0.1:14540 --platform fa-hexa --level actuator --timing")]
 pub struct FlyArgs {
-    /// Where the vehicle is: `twin` (in this process) or `ipc:<service>`.
+    /// Where the vehicle is: `twin` (in this process), `ipc:<service>` or
+    /// `mavlink:<udp:HOST:PORT|udpin:HOST:PORT|tcp:HOST:PORT|serial:DEVICE:BAUD>`.
     #[arg(long, value_name = "LINK", default_value = "twin")]
     link: String,
-    /// How long each answer of the twin may take before the flight stops, ms (ipc).
-    #[arg(long, value_name = "MS", default_value_t = 50)]
-    link_timeout_ms: u64,
-    /// How long to wait for the twin to answer the handshake, ms (ipc).
+    /// How long each tick's answer may take before the flight stops, ms [default: 50 over
+    /// ipc, 500 over mavlink].
+    #[arg(long, value_name = "MS")]
+    link_timeout_ms: Option<u64>,
+    /// How long to wait for the twin's handshake (ipc) or the autopilot's first ODOMETRY
+    /// (mavlink), ms.
     #[arg(long, value_name = "MS", default_value_t = 10_000)]
     connect_timeout_ms: u64,
-    /// Print the per-tick round trip over the link (median, p99, p99.9) at the end (ipc).
+    /// MAVLink setpoint level: actuator (rotor thrusts, our allocation) or attitude
+    /// (attitude + body force, the autopilot's allocation).
+    #[arg(long, default_value = "actuator", value_parser = ["actuator", "attitude"])]
+    level: String,
+    /// MAVLink 2 signing key file: 32 raw bytes or 64 hex digits. Frames out are signed;
+    /// unsigned or badly signed frames in are refused (and counted).
+    #[arg(long, value_name = "FILE")]
+    signing_key: Option<PathBuf>,
+    /// Signing link id written into our signatures (0-255).
+    #[arg(long, value_name = "ID", default_value_t = 0)]
+    signing_link_id: u8,
+    /// With --signing-key: also accept unsigned frames (signed ones are still checked).
+    #[arg(long)]
+    signing_optional: bool,
+    /// Print the per-tick round trip over the link (median, p99, p99.9) at the end (ipc,
+    /// mavlink).
     #[arg(long)]
     timing: bool,
-    /// Write the per-tick timing figures as JSON (ipc; implies --timing).
+    /// Write the per-tick timing figures as JSON (implies --timing).
     #[arg(long, value_name = "FILE")]
     timing_json: Option<PathBuf>,
     #[command(flatten)]
@@ -106,6 +147,7 @@ fn timing(link: String, ticks: &[TickTiming], result: &TrackResult) -> Timing {
 pub(crate) enum LinkChoice {
     Twin,
     Ipc(String),
+    Mavlink(Address),
 }
 
 pub(crate) fn link_choice(link: &str) -> Result<LinkChoice> {
@@ -114,8 +156,11 @@ pub(crate) fn link_choice(link: &str) -> Result<LinkChoice> {
         Some(("ipc", service)) if !service.is_empty() && !service.contains(char::is_whitespace) => {
             Ok(LinkChoice::Ipc(service.to_owned()))
         }
+        Some(("mavlink", address)) => Address::parse(address)
+            .map(LinkChoice::Mavlink)
+            .map_err(|e| bad_input(format!("--link {link}: {e}"))),
         _ => Err(bad_input(format!(
-            "--link {link}: expected `twin` or `ipc:<service>`"
+            "--link {link}: expected `twin`, `ipc:<service>` or `mavlink:<address>`"
         ))),
     }
 }
@@ -128,10 +173,11 @@ pub fn run(args: &FlyArgs) -> Result<()> {
     let service = match choice {
         LinkChoice::Twin => return track::run(&args.track),
         LinkChoice::Ipc(service) => service,
+        LinkChoice::Mavlink(address) => return run_mavlink(args, &address),
     };
     let config = track::prepare(&args.track)?;
     let link_config = IpcLinkConfig {
-        answer_timeout: Duration::from_millis(args.link_timeout_ms.max(1)),
+        answer_timeout: Duration::from_millis(args.link_timeout_ms.unwrap_or(50).max(1)),
         connect_timeout: Duration::from_millis(args.connect_timeout_ms),
         record_timing: args.timing || args.timing_json.is_some(),
         ..IpcLinkConfig::new(service)
@@ -171,6 +217,9 @@ pub fn run(args: &FlyArgs) -> Result<()> {
 
 fn report_timing(t: &Timing, json: Option<&std::path::Path>) -> Result<()> {
     let line = |name: &str, p: &Percentiles| {
+        if p.median_us.is_nan() {
+            return; // not known over this link
+        }
         eprintln!(
             "  {name:<34} median {:>8.1} µs   p99 {:>8.1} µs   p99.9 {:>8.1} µs   max {:>8.1} µs",
             p.median_us, p.p99_us, p.p99_9_us, p.max_us
@@ -186,4 +235,95 @@ fn report_timing(t: &Timing, json: Option<&std::path::Path>) -> Result<()> {
         eprintln!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// `amstack fly --link mavlink:...`.
+fn run_mavlink(args: &FlyArgs, address: &Address) -> Result<()> {
+    let config = track::prepare(&args.track)?;
+    let signing = match &args.signing_key {
+        None => None,
+        Some(path) => Some(Signing {
+            key: SigningKey::from_file(path, args.signing_link_id)
+                .map_err(|e| bad_input(format!("--signing-key: {e}")))?,
+            require: !args.signing_optional,
+        }),
+    };
+    let level = if args.level == "attitude" {
+        Level::Attitude
+    } else {
+        Level::Actuator
+    };
+    let record_timing = args.timing || args.timing_json.is_some();
+    let link_config = MavlinkLinkConfig {
+        connect_timeout: Duration::from_millis(args.connect_timeout_ms),
+        tick_timeout: Duration::from_millis(args.link_timeout_ms.unwrap_or(500).max(1)),
+        record_timing,
+        ..MavlinkLinkConfig::new(
+            BridgeConfig {
+                signing,
+                ..BridgeConfig::new(address.clone())
+            },
+            level,
+        )
+    };
+    let mut link = MavlinkLink::connect(&config.vehicle, link_config).map_err(|e| match e {
+        // A vehicle whose commands do not fit MAVLink is bad input; the rest is the link.
+        LinkError::Mavlink(MavlinkLinkError::Bridge(
+            b @ (firmware_bridge::BridgeError::Setpoint(_)
+            | firmware_bridge::BridgeError::Open { .. }),
+        )) => bad_input(b.to_string()),
+        e => anyhow::Error::new(e),
+    })?;
+    let autopilot = link.bridge().autopilot();
+    eprintln!(
+        "connected to the autopilot on {address}: {}, {}, {} level",
+        autopilot.mode_name(),
+        if autopilot.armed { "armed" } else { "disarmed" },
+        level.name()
+    );
+    let mut figures = None;
+    track::run_with(&args.track, &config, |config, progress| {
+        let result = run_track_with_link(config, &mut link, progress)?;
+        figures = Some(mavlink_timing(
+            args.link.clone(),
+            link.round_trips_ns(),
+            &result,
+        ));
+        Ok(result)
+    })?;
+    let c = link.counters();
+    eprintln!(
+        "link counters: {} frames in, {} out; refused {} unsigned, {} bad signature; {} bad CRC, {} unknown id, {} truncated, {} garbage bytes",
+        c.frames_ok,
+        c.frames_sent,
+        c.refused_unsigned,
+        c.refused_bad_signature,
+        c.bad_crc,
+        c.unknown_id,
+        c.truncated,
+        c.garbage_bytes
+    );
+    if let Some(t) = figures.filter(|_| record_timing) {
+        report_timing(&t, args.timing_json.as_deref())?;
+    }
+    Ok(())
+}
+
+/// Timing over MAVLink: the bridge knows the round trip (setpoint queued → its ODOMETRY
+/// decoded), not the autopilot's busy time.
+fn mavlink_timing(link: String, round_trips_ns: &[u64], result: &TrackResult) -> Timing {
+    let nan = Percentiles {
+        median_us: f64::NAN,
+        p99_us: f64::NAN,
+        p99_9_us: f64::NAN,
+        max_us: f64::NAN,
+    };
+    Timing {
+        link,
+        ticks: round_trips_ns.len(),
+        round_trip: percentiles(round_trips_ns.to_vec()),
+        twin_busy: nan,
+        transport: nan,
+        ticks_per_second: result.ticks_per_second,
+    }
 }

@@ -50,7 +50,8 @@ enum Command {
     /// saturation: the validation experiments of the paper.
     Track(Box<track::Args>),
     /// The flight stack of `track` against a chosen link: the twin in this process
-    /// (`--link twin`) or in another process over iceoryx2 (`--link ipc:<service>`).
+    /// (`--link twin`), in another process over iceoryx2 (`--link ipc:<service>`), or a
+    /// PX4-style autopilot over MAVLink (`--link mavlink:udp:HOST:PORT`, `serial:DEV:BAUD`...).
     Fly(Box<fly::FlyArgs>),
     /// The twin on its own: `amstack twin serve` offers it to a flight process over iceoryx2.
     Twin(twin_serve::TwinArgs),

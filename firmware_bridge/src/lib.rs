@@ -1,11 +1,42 @@
 //! MAVLink link between amstack and a PX4-style autopilot.
 //!
-//! This crate owns MAVLink 2 over serial (tokio-serial) and UDP/TCP as a `Link` of the flight
-//! loop — telemetry in, setpoints out (actuator level with SET_ACTUATOR_CONTROL_TARGET, or
-//! attitude level with SET_ATTITUDE_TARGET), heartbeats, arming and offboard mode with
-//! COMMAND_LONG/COMMAND_ACK, failsafes and message signing.
+//! The flight loop is synchronous; MAVLink I/O is not. [`Bridge`] runs one connection (UDP,
+//! TCP or serial, see [`address`]) on a tokio runtime of its own thread and offers a blocking
+//! API: queue messages, send a COMMAND_LONG and wait for its COMMAND_ACK (retries, timeouts,
+//! errors that name the command and the result), wait for the next tick's measurement.
 //!
-//! [`frames`] is the one place where PX4's NED world and FRD body frames are converted to
-//! amstack's ENU-like Z-up world and FLU body (the twin's MAVLink autopilot uses it too).
+//! - [`frames`] is the one place where PX4's NED world and FRD body frames are converted to
+//!   amstack's ENU-like Z-up world and FLU body (the twin's MAVLink autopilot uses it too).
+//! - [`setpoint`]: commands → SET_ACTUATOR_CONTROL_TARGET (actuator level: motors through
+//!   the vehicle's thrust curve, tilt servos, arm joints and gripper normalised over their
+//!   limits) or SET_ATTITUDE_TARGET (attitude level: attitude + `thrust_body`); a non-finite
+//!   value is refused, never sent.
+//! - [`telemetry`]: HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE, HIGHRES_IMU,
+//!   ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ACTUATOR_OUTPUT_STATUS, DEBUG_FLOAT_ARRAY
+//!   "joints" and ODOMETRY (which closes a tick) → a [`platform::Measurement`] and the
+//!   autopilot's state.
+//! - [`wire`]: framing that never panics and counts garbage, bad CRCs, unknown ids,
+//!   truncated frames and frames refused by MAVLink 2 signing.
+//!
+//! The contract with the other end (ids, modes, groups, lockstep) is `docs/mavlink.md`.
 
+pub mod address;
+pub mod bridge;
 pub mod frames;
+pub mod setpoint;
+pub mod telemetry;
+pub mod wire;
+
+pub use address::Address;
+pub use bridge::{Bridge, BridgeConfig, BridgeError};
+pub use setpoint::{AttitudeSetpoint, SetpointCodec, SetpointError};
+pub use telemetry::{AutopilotState, Telemetry};
+pub use wire::{CounterSnapshot, Signing, SigningKey};
+
+#[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "tests: a failed set-up fails loudly"
+)]
+mod tests;

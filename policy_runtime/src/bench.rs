@@ -36,6 +36,7 @@ pub use self::episode::{BenchLink, EpisodeError};
 use self::episode::{Episode, StepFailure};
 use crate::flight_log::{FlightLog, TaskCriterion, TaskState, TaskValue, rotors_saturated};
 use crate::ipc_link::IpcLinkError;
+use crate::link::LinkError;
 use crate::metrics::{
     CriteriaLatch, RolloutSummary, RunSummary, TrackingRecord, summarize_rollout, summarize_run,
 };
@@ -169,6 +170,9 @@ pub enum BenchError {
     /// The twin process refused, failed or stopped answering.
     #[error(transparent)]
     Link(#[from] IpcLinkError),
+    /// Another link failed.
+    #[error(transparent)]
+    OtherLink(LinkError),
 }
 
 impl From<EpisodeError> for BenchError {
@@ -176,6 +180,7 @@ impl From<EpisodeError> for BenchError {
         match e {
             EpisodeError::Twin(e) => Self::Twin(e),
             EpisodeError::Ipc(e) => Self::Link(e),
+            EpisodeError::Link(e) => Self::OtherLink(e),
         }
     }
 }

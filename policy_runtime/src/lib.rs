@@ -11,6 +11,8 @@
 //! - [`link`]: the [`Link`] seam and its first implementation, the in-process twin.
 //! - [`ipc_link`]: the twin in another process over iceoryx2 ([`IpcLink`]), lockstep or
 //!   realtime, with a handshake and a deadline on every answer.
+//! - [`mavlink_link`]: a PX4-style autopilot over MAVLink ([`MavlinkLink`], through
+//!   `firmware_bridge`), at the actuator or the attitude level.
 //! - [`stack`]: one tick of the flight stack — target → base controller → allocation →
 //!   actuator command, with the allocator's unallocated wrench fed back to the controller.
 //! - [`trajectory`] and [`track`]: the reference trajectories of `amstack track` and the
@@ -34,6 +36,7 @@ pub mod bench;
 pub mod flight_log;
 pub mod ipc_link;
 pub mod link;
+pub mod mavlink_link;
 pub mod metrics;
 pub mod record;
 pub mod scripted;
@@ -46,6 +49,7 @@ pub mod validation;
 
 pub use ipc_link::{IpcLink, IpcLinkConfig, IpcLinkError};
 pub use link::{Link, LinkError, TwinLink};
+pub use mavlink_link::{Level, MavlinkLink, MavlinkLinkConfig, MavlinkLinkError};
 pub use stack::{
     Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits, TickRecord,
 };

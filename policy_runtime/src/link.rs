@@ -8,6 +8,8 @@
 use platform::{ActuatorCommand, Measurement};
 use sim_twin::{Twin, TwinError};
 
+use crate::stack::TickRecord;
+
 /// What can go wrong on a link.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LinkError {
@@ -17,6 +19,9 @@ pub enum LinkError {
     /// The twin in another process (iceoryx2) refused, failed or stopped answering.
     #[error(transparent)]
     Ipc(crate::ipc_link::IpcLinkError),
+    /// The MAVLink autopilot refused, failed or stopped answering.
+    #[error(transparent)]
+    Mavlink(crate::mavlink_link::MavlinkLinkError),
 }
 
 /// One side of the flight stack's contact with the vehicle (simulated or real).
@@ -26,6 +31,13 @@ pub trait Link {
 
     /// Applies `command` for one control period.
     fn send(&mut self, command: &ActuatorCommand) -> Result<(), LinkError>;
+
+    /// Applies one tick's decision for one control period. The default sends
+    /// `record.command`; a link that flies at a higher level (a MAVLink autopilot at the
+    /// attitude level) reads the controller's wrench and attitude from the record.
+    fn send_tick(&mut self, record: &TickRecord) -> Result<(), LinkError> {
+        self.send(&record.command)
+    }
 
     /// Short name for logs (`twin`, `ipc:<service>`, `mavlink:<address>`).
     fn name(&self) -> String;

@@ -308,7 +308,7 @@ pub fn run_track_with_link(
         if t >= config.settle_s {
             score(&mut sums, &measurement, &record.base_target, &ee_reference);
         }
-        measurement = match link.send(&record.command).and_then(|()| link.receive()) {
+        measurement = match link.send_tick(&record).and_then(|()| link.receive()) {
             Ok(m) => m,
             Err(e) => {
                 // The world stopped answering (a twin process gone): the log is still closed.

@@ -38,7 +38,7 @@ pub(crate) enum StepFailure {
     /// The simulation diverged.
     Diverged,
     /// The link failed (the twin process stopped answering): the run cannot go on.
-    Link(IpcLinkError),
+    Link(EpisodeError),
 }
 
 /// One episode: the twin it runs in.
@@ -92,8 +92,7 @@ impl Episode {
                 let answered = link.send(command).and_then(|()| link.receive());
                 answered.map_err(|e| match e {
                     LinkError::Ipc(IpcLinkError::TwinFailed { .. }) => StepFailure::Diverged,
-                    LinkError::Ipc(e) => StepFailure::Link(e),
-                    LinkError::Twin(_) => StepFailure::Diverged,
+                    e => StepFailure::Link(EpisodeError::from_link(e)),
                 })
             }
         }
@@ -117,6 +116,9 @@ pub enum EpisodeError {
     /// The twin process refused, failed or is not there.
     #[error(transparent)]
     Ipc(#[from] IpcLinkError),
+    /// Another link failed.
+    #[error(transparent)]
+    Link(LinkError),
 }
 
 impl EpisodeError {
@@ -124,6 +126,7 @@ impl EpisodeError {
         match e {
             LinkError::Twin(e) => Self::Twin(e),
             LinkError::Ipc(e) => Self::Ipc(e),
+            e => Self::Link(e),
         }
     }
 }

@@ -1,0 +1,431 @@
+//! Setpoints out: amstack's commands → MAVLink messages, at the two levels of the contract
+//! (`docs/mavlink.md`), and back (for tests and for whoever receives them).
+//!
+//! **Actuator level** — SET_ACTUATOR_CONTROL_TARGET (id 139), one message per group, sent
+//! back to back with group 0 last (group 0 completes a tick):
+//!
+//! ```text
+//! group 2: arm joint j (command order):  c_j = 2 (q_j − lower_j) / (upper_j − lower_j) − 1
+//!          then the gripper:             c   = 2 (q − closed) / (open − closed) − 1  (mean over fingers)
+//! group 1: tilt joint i (rotor order):   c_i = 2 (α_i − lower_i) / (upper_i − lower_i) − 1
+//! group 0: rotor i:                      u_i = curve⁻¹(T_i),  T = T_min + (k u² + (1 − k) u)(T_max − T_min)
+//! ```
+//!
+//! Controls are clamped to their range ([−1, 1], or [0, 1] for motors); unused controls are 0.
+//!
+//! **Attitude level** — SET_ATTITUDE_TARGET (id 82) with the desired attitude `ned_from_frd`,
+//! `thrust_body` = body force (FRD) / (rotor count · T_max) clamped to [−1, 1] per component,
+//! and the body-rate feed-forward (FRD), preceded by the group-2 arm message.
+//!
+//! A command holding a non-finite number is refused with an error naming the field: the
+//! bridge never sends one.
+
+use mavlink::dialects::common::{
+    AttitudeTargetTypemask, MavMessage, SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA,
+};
+use nalgebra::{UnitQuaternion, Vector3};
+use platform::{ActuatorCommand, ThrustCurve, Vehicle};
+
+use crate::frames;
+
+/// Controls per SET_ACTUATOR_CONTROL_TARGET group.
+pub const CONTROLS_PER_GROUP: usize = 8;
+/// Group of the motors.
+pub const GROUP_MOTORS: u8 = 0;
+/// Group of the tilt servos.
+pub const GROUP_TILT: u8 = 1;
+/// Group of the arm joints and the gripper.
+pub const GROUP_ARM: u8 = 2;
+
+/// A setpoint that cannot be sent.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SetpointError {
+    /// A value was NaN or infinite.
+    #[error("refusing to send a non-finite setpoint: {field} = {value}")]
+    NonFinite {
+        /// Which value (`rotor_thrusts_n[2]`, `joint_targets[5]`, `force_in_body_n.z`).
+        field: String,
+        /// The value.
+        value: f64,
+    },
+    /// The command does not match the vehicle.
+    #[error("setpoint does not fit the vehicle: {0}")]
+    Shape(String),
+}
+
+/// One linear channel: a configuration index and the range mapped onto [−1, 1].
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Channel {
+    dof: usize,
+    lower: f64,
+    upper: f64,
+}
+
+impl Channel {
+    fn to_control(self, q: f64) -> f32 {
+        let span = self.upper - self.lower;
+        let c = if span > 0.0 {
+            2.0 * (q - self.lower) / span - 1.0
+        } else {
+            0.0
+        };
+        // MAVLink carries f32; the narrowing is the protocol's.
+        #[allow(clippy::cast_possible_truncation)]
+        let c = c.clamp(-1.0, 1.0) as f32;
+        c
+    }
+
+    fn position_of(self, c: f32) -> f64 {
+        let c = f64::from(c).clamp(-1.0, 1.0);
+        self.lower + 0.5 * (c + 1.0) * (self.upper - self.lower)
+    }
+}
+
+/// The gripper's finger joints: configuration index, closed and open positions.
+#[derive(Debug, Clone, PartialEq)]
+struct Fingers {
+    fingers: Vec<(usize, f64, f64)>,
+}
+
+/// A desired attitude and body force: the attitude level's setpoint, in amstack's frames.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AttitudeSetpoint {
+    /// Desired attitude `world_from_body` (FLU body in the ENU-like world).
+    pub world_from_body: UnitQuaternion<f64>,
+    /// Desired body force, body frame (FLU), N.
+    pub force_in_body_n: Vector3<f64>,
+    /// Body-rate feed-forward (FLU), rad/s; `None` sets the type mask's rate-ignore bits.
+    pub body_rates_radps: Option<Vector3<f64>>,
+}
+
+/// The vehicle's command layout on the wire, built once from its description.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SetpointCodec {
+    rotor_count: usize,
+    curve: ThrustCurve,
+    thrust_max_n: f64,
+    dof: usize,
+    tilts: Vec<Channel>,
+    arm: Vec<Channel>,
+    gripper: Option<Fingers>,
+    target_system: u8,
+    target_component: u8,
+}
+
+fn check_finite(field: impl FnOnce() -> String, value: f64) -> Result<(), SetpointError> {
+    if value.is_finite() {
+        Ok(())
+    } else {
+        Err(SetpointError::NonFinite {
+            field: field(),
+            value,
+        })
+    }
+}
+
+impl SetpointCodec {
+    /// The layout of `vehicle`, addressed to `target_system`/`target_component` (1/1 for a
+    /// PX4 autopilot). Fails if a group would need more than 8 controls or a joint has no
+    /// limits.
+    pub fn new(
+        vehicle: &Vehicle,
+        target_system: u8,
+        target_component: u8,
+    ) -> Result<Self, SetpointError> {
+        let model = &vehicle.model;
+        let channel = |joint: usize, what: &str| -> Result<Channel, SetpointError> {
+            let j = &model.joints[joint];
+            let dof = j.dof.ok_or_else(|| {
+                SetpointError::Shape(format!("{what} joint '{}' does not move", j.name))
+            })?;
+            let limits = j.limits.ok_or_else(|| {
+                SetpointError::Shape(format!("{what} joint '{}' has no limits", j.name))
+            })?;
+            Ok(Channel {
+                dof,
+                lower: limits.lower,
+                upper: limits.upper,
+            })
+        };
+        let arm = vehicle
+            .arm_joints
+            .iter()
+            .map(|&j| channel(j, "arm"))
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut tilts = Vec::new();
+        for rotor in &vehicle.rotors.rotors {
+            if let Some(t) = &rotor.tilt {
+                let j = model.joint_id(&t.joint).ok_or_else(|| {
+                    SetpointError::Shape(format!("tilt joint '{}' is not in the model", t.joint))
+                })?;
+                let mut c = channel(j, "tilt")?;
+                (c.lower, c.upper) = t.limits_rad;
+                tilts.push(c);
+            }
+        }
+        let gripper = match &vehicle.gripper {
+            None => None,
+            Some(g) => {
+                let mut fingers = Vec::new();
+                for ((&j, &closed), &open) in g.joints.iter().zip(&g.closed).zip(&g.open) {
+                    let dof = model.joints[j].dof.ok_or_else(|| {
+                        SetpointError::Shape(format!(
+                            "gripper joint '{}' does not move",
+                            model.joints[j].name
+                        ))
+                    })?;
+                    fingers.push((dof, closed, open));
+                }
+                Some(Fingers { fingers })
+            }
+        };
+        let rotor_count = vehicle.rotors.len();
+        let group2 = arm.len() + usize::from(gripper.is_some());
+        for (what, n) in [
+            ("rotors (group 0)", rotor_count),
+            ("tilt servos (group 1)", tilts.len()),
+            ("arm joints + gripper (group 2)", group2),
+        ] {
+            if n > CONTROLS_PER_GROUP {
+                return Err(SetpointError::Shape(format!(
+                    "{n} {what} do not fit the {CONTROLS_PER_GROUP} controls of a group"
+                )));
+            }
+        }
+        Ok(Self {
+            rotor_count,
+            curve: vehicle.rotors.thrust_curve,
+            thrust_max_n: vehicle.rotors.thrust_max_n,
+            dof: model.dof(),
+            tilts,
+            arm,
+            gripper,
+            target_system,
+            target_component,
+        })
+    }
+
+    /// Number of rotors.
+    pub fn rotor_count(&self) -> usize {
+        self.rotor_count
+    }
+
+    /// Whether group 1 (tilt servos) is sent.
+    pub fn has_tilt(&self) -> bool {
+        !self.tilts.is_empty()
+    }
+
+    fn check_command(&self, command: &ActuatorCommand, thrusts: bool) -> Result<(), SetpointError> {
+        if command.direct_wrench_in_body.is_some() {
+            return Err(SetpointError::Shape(
+                "a direct wrench (the EE-only oracle) has no MAVLink form".to_owned(),
+            ));
+        }
+        if thrusts && command.rotor_thrusts_n.len() != self.rotor_count {
+            return Err(SetpointError::Shape(format!(
+                "{} rotor thrusts for {} rotors",
+                command.rotor_thrusts_n.len(),
+                self.rotor_count
+            )));
+        }
+        if command.joint_targets.len() != self.dof {
+            return Err(SetpointError::Shape(format!(
+                "{} joint targets for {} movable joints",
+                command.joint_targets.len(),
+                self.dof
+            )));
+        }
+        if thrusts {
+            for (i, &t) in command.rotor_thrusts_n.iter().enumerate() {
+                check_finite(|| format!("rotor_thrusts_n[{i}]"), t)?;
+            }
+        }
+        for (i, &q) in command.joint_targets.iter().enumerate() {
+            check_finite(|| format!("joint_targets[{i}]"), q)?;
+        }
+        Ok(())
+    }
+
+    fn group(&self, time_usec: u64, group: u8, controls: [f32; 8]) -> MavMessage {
+        MavMessage::SET_ACTUATOR_CONTROL_TARGET(SET_ACTUATOR_CONTROL_TARGET_DATA {
+            time_usec,
+            controls,
+            group_mlx: group,
+            target_system: self.target_system,
+            target_component: self.target_component,
+        })
+    }
+
+    fn arm_group(&self, time_usec: u64, joint_targets: &[f64]) -> MavMessage {
+        let mut controls = [0f32; 8];
+        for (c, ch) in controls.iter_mut().zip(&self.arm) {
+            *c = ch.to_control(joint_targets[ch.dof]);
+        }
+        if let Some(g) = &self.gripper {
+            let n = g.fingers.len().max(1) as f64;
+            let mean: f64 = g
+                .fingers
+                .iter()
+                .map(|&(dof, closed, open)| {
+                    Channel {
+                        dof,
+                        lower: closed,
+                        upper: open,
+                    }
+                    .to_control(joint_targets[dof])
+                    .into()
+                })
+                .map(|c: f64| c / n)
+                .sum();
+            // MAVLink carries f32; the narrowing is the protocol's.
+            #[allow(clippy::cast_possible_truncation)]
+            let mean = mean as f32;
+            controls[self.arm.len()] = mean;
+        }
+        self.group(time_usec, GROUP_ARM, controls)
+    }
+
+    /// The actuator-level messages of one tick, in sending order (group 2, group 1 if the
+    /// vehicle tilts, group 0 last). `time_usec` is the flight stack's time of the command.
+    pub fn actuator_messages(
+        &self,
+        time_usec: u64,
+        command: &ActuatorCommand,
+    ) -> Result<Vec<MavMessage>, SetpointError> {
+        self.check_command(command, true)?;
+        let mut out = vec![self.arm_group(time_usec, &command.joint_targets)];
+        if self.has_tilt() {
+            let mut controls = [0f32; 8];
+            for (c, ch) in controls.iter_mut().zip(&self.tilts) {
+                *c = ch.to_control(command.joint_targets[ch.dof]);
+            }
+            out.push(self.group(time_usec, GROUP_TILT, controls));
+        }
+        let mut controls = [0f32; 8];
+        for (c, &t) in controls.iter_mut().zip(&command.rotor_thrusts_n) {
+            // MAVLink carries f32; the narrowing is the protocol's.
+            #[allow(clippy::cast_possible_truncation)]
+            let u = self.curve.command(t) as f32;
+            *c = u;
+        }
+        out.push(self.group(time_usec, GROUP_MOTORS, controls));
+        Ok(out)
+    }
+
+    /// The attitude-level messages of one tick: group 2 (arm and gripper from
+    /// `command.joint_targets`; its rotor thrusts are ignored), then SET_ATTITUDE_TARGET.
+    /// `time_boot_ms` stamps the attitude target.
+    pub fn attitude_messages(
+        &self,
+        time_usec: u64,
+        command: &ActuatorCommand,
+        setpoint: &AttitudeSetpoint,
+    ) -> Result<Vec<MavMessage>, SetpointError> {
+        self.check_command(command, false)?;
+        let q = setpoint.world_from_body.as_ref().coords;
+        for (i, name) in ["x", "y", "z", "w"].iter().enumerate() {
+            check_finite(|| format!("world_from_body.{name}"), q[i])?;
+        }
+        for (i, name) in ["x", "y", "z"].iter().enumerate() {
+            check_finite(
+                || format!("force_in_body_n.{name}"),
+                setpoint.force_in_body_n[i],
+            )?;
+            if let Some(r) = &setpoint.body_rates_radps {
+                check_finite(|| format!("body_rates_radps.{name}"), r[i])?;
+            }
+        }
+        let scale = self.rotor_count as f64 * self.thrust_max_n;
+        if scale <= 0.0 {
+            return Err(SetpointError::Shape(
+                "attitude level needs rotors with a positive T_max".to_owned(),
+            ));
+        }
+        let force_frd = frames::frd_from_flu(&setpoint.force_in_body_n) / scale;
+        // MAVLink carries f32; the narrowing is the protocol's.
+        #[allow(clippy::cast_possible_truncation)]
+        let thrust_body = force_frd.map(|f| f.clamp(-1.0, 1.0) as f32);
+        let (rates, type_mask) = match &setpoint.body_rates_radps {
+            Some(r) => (frames::frd_from_flu(r), AttitudeTargetTypemask::empty()),
+            None => (
+                Vector3::zeros(),
+                AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
+                    | AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
+                    | AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE,
+            ),
+        };
+        let q = frames::quaternion_to_mavlink(&frames::ned_from_frd_attitude(
+            &setpoint.world_from_body,
+        ));
+        // time_boot_ms wraps after 49 days; the protocol's field is 32 bits.
+        #[allow(clippy::cast_possible_truncation)]
+        let time_boot_ms = (time_usec / 1000) as u32;
+        #[allow(clippy::cast_possible_truncation)]
+        let attitude = MavMessage::SET_ATTITUDE_TARGET(SET_ATTITUDE_TARGET_DATA {
+            time_boot_ms,
+            q,
+            body_roll_rate: rates.x as f32,
+            body_pitch_rate: rates.y as f32,
+            body_yaw_rate: rates.z as f32,
+            // Collective thrust (the z component's magnitude, for receivers that ignore
+            // thrust_body).
+            thrust: (-thrust_body[2]).clamp(0.0, 1.0),
+            target_system: self.target_system,
+            target_component: self.target_component,
+            type_mask,
+            thrust_body: [thrust_body.x, thrust_body.y, thrust_body.z],
+        });
+        Ok(vec![
+            self.arm_group(time_usec, &command.joint_targets),
+            attitude,
+        ])
+    }
+
+    /// Rotor thrusts, N, from a group-0 message's controls (the receiver's side).
+    pub fn thrusts_from_controls(&self, controls: &[f32; 8]) -> Vec<f64> {
+        controls
+            .iter()
+            .take(self.rotor_count)
+            .map(|&u| self.curve.thrust_n(f64::from(u)))
+            .collect()
+    }
+
+    /// Writes the joint targets a group-1 or group-2 message commands into `joint_targets`
+    /// (configuration order; the receiver's side). Other groups leave it unchanged.
+    pub fn joint_targets_from_controls(
+        &self,
+        group: u8,
+        controls: &[f32; 8],
+        joint_targets: &mut [f64],
+    ) {
+        let mut set = |dof: usize, v: f64| {
+            if let Some(q) = joint_targets.get_mut(dof) {
+                *q = v;
+            }
+        };
+        match group {
+            GROUP_TILT => {
+                for (ch, &c) in self.tilts.iter().zip(controls) {
+                    set(ch.dof, ch.position_of(c));
+                }
+            }
+            GROUP_ARM => {
+                for (ch, &c) in self.arm.iter().zip(controls) {
+                    set(ch.dof, ch.position_of(c));
+                }
+                if let Some(g) = &self.gripper {
+                    let c = controls[self.arm.len()];
+                    for &(dof, closed, open) in &g.fingers {
+                        let ch = Channel {
+                            dof,
+                            lower: closed,
+                            upper: open,
+                        };
+                        set(dof, ch.position_of(c));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+}

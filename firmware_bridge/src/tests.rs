@@ -1,0 +1,957 @@
+//! The bridge's tests: setpoints encoded by hand-derived numbers, telemetry converted on
+//! hand-made messages, the wire decoder on garbage and signing, and the COMMAND_ACK protocol
+//! against a real UDP peer (a test fixture standing in for a misbehaving autopilot, written
+//! with the mavlink crate's own reader and writer).
+
+use std::net::UdpSocket;
+use std::time::Duration;
+
+use mavlink::dialects::common::{
+    ACTUATOR_OUTPUT_STATUS_DATA, COMMAND_ACK_DATA, DEBUG_FLOAT_ARRAY_DATA, HEARTBEAT_DATA,
+    MavAutopilot, MavCmd, MavFrame, MavMessage, MavModeFlag, MavResult, MavState, MavType,
+    ODOMETRY_DATA,
+};
+use mavlink::{MavHeader, MavlinkReader, MavlinkVersion, SigningConfig, SigningData};
+use nalgebra::{UnitQuaternion, Vector3};
+use platform::{ActuatorCommand, Vehicle};
+
+use crate::address::Address;
+use crate::bridge::{Bridge, BridgeConfig, BridgeError};
+use crate::setpoint::{AttitudeSetpoint, SetpointCodec, SetpointError};
+use crate::telemetry::{Telemetry, px4_mode};
+use crate::wire::{Counters, Decoder, Encoder, Signing, SigningKey};
+
+fn vehicle(id: &str) -> Vehicle {
+    Vehicle::builtin(id).unwrap()
+}
+
+fn hover_command(v: &Vehicle, thrust_n: f64) -> ActuatorCommand {
+    ActuatorCommand {
+        rotor_thrusts_n: vec![thrust_n; v.rotors.len()],
+        joint_targets: v.initial_configuration(),
+        direct_wrench_in_body: None,
+    }
+}
+
+fn groups(messages: &[MavMessage]) -> Vec<(u8, [f32; 8])> {
+    messages
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::SET_ACTUATOR_CONTROL_TARGET(d) => Some((d.group_mlx, d.controls)),
+            _ => None,
+        })
+        .collect()
+}
+
+// ---------------------------------------------------------------- setpoints
+
+#[test]
+fn half_thrust_on_the_fa_hexa_curve_is_the_root_of_the_quadratic() {
+    // FA-Hexa: T_max = 23 N, T_min = 0, k = 0.3. 11.5 N is t = 0.5:
+    // 0.3 u² + 0.7 u = 0.5  →  u = (−0.7 + √(0.49 + 0.6)) / 0.6 = 0.573 384 ...
+    let v = vehicle("fa-hexa");
+    assert_eq!(v.rotors.thrust_max_n, 23.0);
+    assert_eq!(v.rotors.thrust_curve.model_factor, 0.3);
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    let msgs = codec
+        .actuator_messages(1_000, &hover_command(&v, 11.5))
+        .unwrap();
+    let expected = (-0.7 + (0.49_f64 + 0.6).sqrt()) / 0.6;
+    assert!((expected - 0.573_384_4).abs() < 1e-6);
+    let g = groups(&msgs);
+    // No tilt servos: group 2 then group 0, which completes the tick.
+    assert_eq!(g.iter().map(|(n, _)| *n).collect::<Vec<_>>(), vec![2, 0]);
+    let motors = g[1].1;
+    for u in &motors[..6] {
+        assert!((f64::from(*u) - expected).abs() < 1e-6, "{u}");
+    }
+    assert_eq!(&motors[6..], &[0.0, 0.0]);
+    // And back: the receiver's thrusts are 11.5 N within f32 precision.
+    for t in codec.thrusts_from_controls(&motors) {
+        assert!((t - 11.5).abs() < 1e-5, "{t}");
+    }
+    for m in &msgs {
+        let MavMessage::SET_ACTUATOR_CONTROL_TARGET(d) = m else {
+            panic!("{m:?}")
+        };
+        assert_eq!(
+            (d.target_system, d.target_component, d.time_usec),
+            (1, 1, 1_000)
+        );
+    }
+}
+
+#[test]
+fn thrusts_outside_the_rotor_range_are_clamped_to_zero_and_one() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    let mut c = hover_command(&v, 0.0);
+    c.rotor_thrusts_n = vec![-3.0, 0.0, 23.0, 40.0, 5.75, 17.25];
+    let motors = groups(&codec.actuator_messages(0, &c).unwrap())[1].1;
+    // 5.75 N: t = 0.25 → 0.3u² + 0.7u = 0.25; 17.25 N: t = 0.75.
+    let root = |t: f64| (-0.7 + (0.49 + 1.2 * t).sqrt()) / 0.6;
+    let expected = [0.0, 0.0, 1.0, 1.0, root(0.25), root(0.75)];
+    for (u, e) in motors.iter().zip(expected) {
+        assert!((f64::from(*u) - e).abs() < 1e-6, "{u} vs {e}");
+    }
+}
+
+#[test]
+fn arm_joints_and_gripper_map_linearly_onto_minus_one_to_one() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    let mut c = hover_command(&v, 10.0);
+    let limits: Vec<(usize, f64, f64)> = v
+        .arm_joints
+        .iter()
+        .map(|&j| {
+            let joint = &v.model.joints[j];
+            let l = joint.limits.unwrap();
+            (joint.dof.unwrap(), l.lower, l.upper)
+        })
+        .collect();
+    // Joint 0 at its lower limit, joint 1 at its upper, joint 2 at 3/4 of the range,
+    // joint 3 at the middle; the gripper fully open.
+    let fractions = [0.0, 1.0, 0.75, 0.5];
+    for (&(dof, lo, hi), f) in limits.iter().zip(fractions) {
+        c.joint_targets[dof] = lo + f * (hi - lo);
+    }
+    let g = v.gripper.as_ref().unwrap();
+    for ((&j, &open), _) in g.joints.iter().zip(&g.open).zip(&g.closed) {
+        c.joint_targets[v.model.joints[j].dof.unwrap()] = open;
+    }
+    let arm = groups(&codec.actuator_messages(0, &c).unwrap())[0];
+    assert_eq!(arm.0, 2);
+    let expected = [-1.0, 1.0, 0.5, 0.0, 1.0, 0.0, 0.0, 0.0];
+    for (got, e) in arm.1.iter().zip(expected) {
+        assert!((f64::from(*got) - e).abs() < 1e-6, "{:?}", arm.1);
+    }
+    // Back to joint targets: the same positions.
+    let mut back = vec![f64::NAN; c.joint_targets.len()];
+    codec.joint_targets_from_controls(2, &arm.1, &mut back);
+    for &(dof, ..) in &limits {
+        assert!((back[dof] - c.joint_targets[dof]).abs() < 1e-6);
+    }
+    // The gripper closed is −1.
+    for ((&j, &closed), _) in g.joints.iter().zip(&g.closed).zip(&g.open) {
+        c.joint_targets[v.model.joints[j].dof.unwrap()] = closed;
+    }
+    let arm = groups(&codec.actuator_messages(0, &c).unwrap())[0];
+    assert_eq!(arm.1[4], -1.0);
+}
+
+#[test]
+fn a_tilting_vehicle_sends_group_one_between_the_arm_and_the_motors() {
+    let v = vehicle("omni-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    assert!(codec.has_tilt());
+    let mut c = hover_command(&v, 10.0);
+    let tilts: Vec<(usize, (f64, f64))> = v
+        .rotors
+        .rotors
+        .iter()
+        .map(|r| {
+            let t = r.tilt.as_ref().unwrap();
+            let j = v.model.joint_id(&t.joint).unwrap();
+            (v.model.joints[j].dof.unwrap(), t.limits_rad)
+        })
+        .collect();
+    // Tilt 0 at its upper limit, tilt 1 at its lower limit, the rest in the middle.
+    for (i, &(dof, (lo, hi))) in tilts.iter().enumerate() {
+        c.joint_targets[dof] = match i {
+            0 => hi,
+            1 => lo,
+            _ => 0.5 * (lo + hi),
+        };
+    }
+    let g = groups(&codec.actuator_messages(0, &c).unwrap());
+    assert_eq!(g.iter().map(|(n, _)| *n).collect::<Vec<_>>(), vec![2, 1, 0]);
+    let tilt = g[1].1;
+    assert_eq!(tilt[0], 1.0);
+    assert_eq!(tilt[1], -1.0);
+    for x in &tilt[2..6] {
+        assert!(x.abs() < 1e-6);
+    }
+}
+
+#[test]
+fn non_finite_setpoints_are_refused_naming_the_value() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    let mut c = hover_command(&v, 10.0);
+    c.rotor_thrusts_n[2] = f64::NAN;
+    let e = codec.actuator_messages(0, &c).unwrap_err();
+    assert!(
+        matches!(e, SetpointError::NonFinite { ref field, .. } if field == "rotor_thrusts_n[2]")
+    );
+    assert!(e.to_string().contains("non-finite"), "{e}");
+    let mut c = hover_command(&v, 10.0);
+    c.joint_targets[1] = f64::INFINITY;
+    let e = codec.actuator_messages(0, &c).unwrap_err();
+    assert!(e.to_string().contains("joint_targets[1] = inf"), "{e}");
+    let c = hover_command(&v, 10.0);
+    let sp = AttitudeSetpoint {
+        world_from_body: UnitQuaternion::identity(),
+        force_in_body_n: Vector3::new(0.0, f64::NAN, 30.0),
+        body_rates_radps: None,
+    };
+    let e = codec.attitude_messages(0, &c, &sp).unwrap_err();
+    assert!(e.to_string().contains("force_in_body_n.y"), "{e}");
+    // Wrong shape: 5 thrusts for 6 rotors.
+    let mut c = hover_command(&v, 10.0);
+    c.rotor_thrusts_n.pop();
+    assert!(matches!(
+        codec.actuator_messages(0, &c),
+        Err(SetpointError::Shape(_))
+    ));
+}
+
+#[test]
+fn attitude_setpoint_is_ned_frd_with_thrust_over_total_max() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    let c = hover_command(&v, 0.0);
+    // Level, facing east (amstack identity) = PX4 yaw +90°. 69 N up (FLU +z) = FRD −z;
+    // scale 6 · 23 = 138 N → thrust_body z = −0.5. 13.8 N left (FLU +y) = FRD −y → −0.1.
+    let sp = AttitudeSetpoint {
+        world_from_body: UnitQuaternion::identity(),
+        force_in_body_n: Vector3::new(0.0, 13.8, 69.0),
+        body_rates_radps: Some(Vector3::new(0.1, 0.2, 0.3)),
+    };
+    let msgs = codec.attitude_messages(5_000_000, &c, &sp).unwrap();
+    assert_eq!(msgs.len(), 2);
+    assert!(matches!(&msgs[0], MavMessage::SET_ACTUATOR_CONTROL_TARGET(d) if d.group_mlx == 2));
+    let MavMessage::SET_ATTITUDE_TARGET(a) = &msgs[1] else {
+        panic!("{:?}", msgs[1])
+    };
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    let expected_q = [h, 0.0, 0.0, h]; // yaw +90° about NED down
+    for (x, e) in a.q.iter().zip(expected_q) {
+        assert!((x - e).abs() < 1e-6, "{:?}", a.q);
+    }
+    assert!((a.thrust_body[0]).abs() < 1e-7);
+    assert!((a.thrust_body[1] + 0.1).abs() < 1e-6, "{:?}", a.thrust_body);
+    assert!((a.thrust_body[2] + 0.5).abs() < 1e-6, "{:?}", a.thrust_body);
+    assert!((a.thrust - 0.5).abs() < 1e-6);
+    assert_eq!(
+        (a.body_roll_rate, a.body_pitch_rate, a.body_yaw_rate),
+        (0.1, -0.2, -0.3)
+    );
+    assert!(a.type_mask.is_empty());
+    assert_eq!(a.time_boot_ms, 5_000);
+    // A force beyond every rotor's maximum is clamped to −1.
+    let sp = AttitudeSetpoint {
+        force_in_body_n: Vector3::new(0.0, 0.0, 1000.0),
+        body_rates_radps: None,
+        ..sp
+    };
+    let msgs = codec.attitude_messages(0, &c, &sp).unwrap();
+    let MavMessage::SET_ATTITUDE_TARGET(a) = &msgs[1] else {
+        panic!()
+    };
+    assert_eq!(a.thrust_body[2], -1.0);
+    assert!(!a.type_mask.is_empty());
+}
+
+#[test]
+fn every_setpoint_survives_the_wire() {
+    let v = vehicle("omni-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    let c = hover_command(&v, 9.0);
+    let sp = AttitudeSetpoint {
+        world_from_body: UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
+        force_in_body_n: Vector3::new(1.0, -2.0, 40.0),
+        body_rates_radps: Some(Vector3::new(0.0, 0.1, 0.0)),
+    };
+    let mut msgs = codec.actuator_messages(42, &c).unwrap();
+    msgs.extend(codec.attitude_messages(42, &c, &sp).unwrap());
+    let mut encoder = Encoder::new(1, 191, None);
+    let mut decoder = Decoder::new(None);
+    let counters = Counters::default();
+    let mut frames = Vec::new();
+    for m in &msgs {
+        decoder.push_datagram(&encoder.encode(m), &counters, &mut frames);
+    }
+    assert_eq!(frames.len(), msgs.len());
+    for (f, m) in frames.iter().zip(&msgs) {
+        assert_eq!(&f.message, m);
+        assert_eq!((f.header.system_id, f.header.component_id), (1, 191));
+    }
+    // The mavlink crate's own reader agrees.
+    let bytes = encoder.encode(&msgs[0]);
+    let (_, m) = MavlinkReader::new(&bytes[..])
+        .read_message::<MavMessage>(MavlinkVersion::V2)
+        .unwrap();
+    assert_eq!(m, msgs[0]);
+}
+
+// ---------------------------------------------------------------- telemetry
+
+fn odometry(time_usec: u64) -> ODOMETRY_DATA {
+    ODOMETRY_DATA {
+        time_usec,
+        x: 1.0,
+        y: 2.0,
+        z: -3.0,
+        q: [1.0, 0.0, 0.0, 0.0],
+        vx: 0.5,
+        vy: 0.0,
+        vz: -1.0,
+        rollspeed: 0.1,
+        pitchspeed: 0.2,
+        yawspeed: 0.3,
+        frame_id: MavFrame::MAV_FRAME_LOCAL_NED,
+        child_frame_id: MavFrame::MAV_FRAME_BODY_FRD,
+        ..ODOMETRY_DATA::default()
+    }
+}
+
+fn joints_message(v: &Vehicle, q: &[f64]) -> MavMessage {
+    let mut data = [0f32; 58];
+    for (d, x) in data.iter_mut().zip(q) {
+        *d = *x as f32;
+    }
+    for (i, _) in q.iter().enumerate() {
+        data[q.len() + i] = 0.25; // every joint moving at 0.25 rad/s
+    }
+    assert!(2 * v.model.dof() <= 58);
+    MavMessage::DEBUG_FLOAT_ARRAY(DEBUG_FLOAT_ARRAY_DATA {
+        time_usec: 0,
+        name: "joints".into(),
+        array_id: 1,
+        data,
+    })
+}
+
+#[test]
+fn ned_telemetry_becomes_a_measurement_in_our_frames() {
+    let v = vehicle("fa-hexa");
+    let mut t = Telemetry::new(&v);
+    let mut q = v.initial_configuration();
+    let arm0 = v.arm_dofs()[0];
+    q[arm0] = 0.5;
+    assert!(t.apply(&joints_message(&v, &q)).is_none());
+    let mut actuator = [0f32; 32];
+    actuator[..6].copy_from_slice(&[10.0, 11.0, 12.0, 13.0, 14.0, 15.0]);
+    t.apply(&MavMessage::ACTUATOR_OUTPUT_STATUS(
+        ACTUATOR_OUTPUT_STATUS_DATA {
+            time_usec: 0,
+            active: 6,
+            actuator,
+        },
+    ));
+    let m = t
+        .apply(&MavMessage::ODOMETRY(odometry(2_500_000)))
+        .expect("ODOMETRY closes the tick");
+    assert_eq!(m.time_s, 2.5);
+    // NED (1 north, 2 east, 3 up) = world (2 east, 1 north, 3 up).
+    assert_eq!(m.base.position_in_world_m, Vector3::new(2.0, 1.0, 3.0));
+    // NED velocity (0.5 north, 1 up) = world (0, 0.5, 1).
+    assert_eq!(m.base.velocity_in_world_mps, Vector3::new(0.0, 0.5, 1.0));
+    // PX4 identity faces north: amstack yaw +90°.
+    let expected = UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+    assert!(m.base.world_from_body.angle_to(&expected) < 1e-9);
+    // FRD rates (0.1, 0.2, 0.3) = FLU (0.1, −0.2, −0.3).
+    let w = m.base.angular_velocity_in_body_radps;
+    assert!((w - Vector3::new(0.1, -0.2, -0.3)).norm() < 1e-6, "{w}");
+    assert!((m.joint_positions[arm0] - 0.5).abs() < 1e-7);
+    assert!(m.joint_velocities.iter().all(|&x| x == 0.25));
+    let realised: Vec<f64> = m.rotors.iter().map(|r| r.realised_n).collect();
+    assert_eq!(realised, vec![10.0, 11.0, 12.0, 13.0, 14.0, 15.0]);
+    // The end effector by the vehicle's forward kinematics from the reported joints.
+    let ee = m.base.pose() * v.base_from_ee(&m.joint_positions);
+    assert!((ee.translation.vector - m.world_from_ee.translation.vector).norm() < 1e-12);
+    assert!(
+        (m.world_from_ee.translation.vector - m.base.position_in_world_m).norm() > 0.05,
+        "the EE is not at the base"
+    );
+}
+
+#[test]
+fn heartbeat_gives_armed_and_mode_and_bad_values_are_ignored() {
+    let v = vehicle("fa-hexa");
+    let mut t = Telemetry::new(&v);
+    t.apply(&MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        custom_mode: px4_mode::custom_mode(px4_mode::OFFBOARD, 0),
+        mavtype: MavType::MAV_TYPE_HEXAROTOR,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+        base_mode: MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+            | MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED,
+        system_status: MavState::MAV_STATE_ACTIVE,
+        mavlink_version: 3,
+    }));
+    assert!(t.autopilot.armed);
+    assert!(t.autopilot.in_offboard());
+    assert_eq!(t.autopilot.mode_name(), "OFFBOARD");
+    assert_eq!(px4_mode::custom_mode(4, 3), 0x0304_0000);
+    assert_eq!(px4_mode::name(0x0304_0000), "AUTO.LOITER");
+    let mut bad = odometry(1);
+    bad.x = f32::NAN;
+    assert!(t.apply(&MavMessage::ODOMETRY(bad)).is_none());
+    let mut bad = odometry(1);
+    bad.q = [0.5, 0.0, 0.0, 0.0];
+    assert!(t.apply(&MavMessage::ODOMETRY(bad)).is_none());
+    assert_eq!(t.rejected_values, 2);
+    assert_eq!(t.current().base.position_in_world_m, Vector3::zeros());
+}
+
+// ---------------------------------------------------------------- wire
+
+/// xorshift64*: deterministic noise without a dependency.
+fn noise(seed: u64, n: usize) -> Vec<u8> {
+    let mut x = seed.max(1);
+    (0..n)
+        .map(|_| {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            (x.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 56) as u8
+        })
+        .collect()
+}
+
+fn heartbeat_frame(encoder: &mut Encoder) -> Vec<u8> {
+    encoder.encode(&MavMessage::HEARTBEAT(HEARTBEAT_DATA::default()))
+}
+
+#[test]
+fn garbage_is_counted_and_the_stream_resynchronises() {
+    let counters = Counters::default();
+    let mut decoder = Decoder::new(None);
+    let mut encoder = Encoder::new(1, 1, None);
+    let mut frames = Vec::new();
+    // 64 kB of noise as a stream, in odd-sized chunks: no panic.
+    let junk = noise(7, 65_536);
+    for chunk in junk.chunks(97) {
+        decoder.push_stream(chunk, &counters, &mut frames);
+    }
+    // A good frame after the noise still decodes (the noise may have left a false start
+    // in the buffer: a few good frames flush it).
+    for _ in 0..3 {
+        decoder.push_stream(&heartbeat_frame(&mut encoder), &counters, &mut frames);
+    }
+    let good = frames
+        .iter()
+        .filter(|f| {
+            f.header
+                == MavHeader {
+                    system_id: 1,
+                    component_id: 1,
+                    sequence: f.header.sequence,
+                }
+        })
+        .count();
+    assert!(good >= 2, "{good}");
+    let c = counters.snapshot();
+    assert!(c.garbage_bytes > 60_000, "{c:?}");
+
+    // Bad CRC: one payload byte flipped.
+    let counters = Counters::default();
+    let mut decoder = Decoder::new(None);
+    let mut frames = Vec::new();
+    let mut bad = heartbeat_frame(&mut encoder);
+    bad[12] ^= 0x40;
+    decoder.push_datagram(&bad, &counters, &mut frames);
+    assert!(frames.is_empty());
+    assert_eq!(counters.snapshot().bad_crc, 1);
+
+    // Unknown id (0x00FFFF is not in common).
+    let mut unknown = heartbeat_frame(&mut encoder);
+    unknown[7] = 0xFF;
+    unknown[8] = 0xFF;
+    decoder.push_datagram(&unknown, &counters, &mut frames);
+    assert_eq!(counters.snapshot().unknown_id, 1);
+
+    // Truncated: half a frame in a datagram.
+    let whole = heartbeat_frame(&mut encoder);
+    decoder.push_datagram(&whole[..whole.len() / 2], &counters, &mut frames);
+    assert_eq!(counters.snapshot().truncated, 1);
+
+    // Two frames glued in one datagram both decode; the link keeps working.
+    let mut two = heartbeat_frame(&mut encoder);
+    two.extend(heartbeat_frame(&mut encoder));
+    decoder.push_datagram(&two, &counters, &mut frames);
+    assert_eq!(frames.len(), 2);
+    assert_eq!(counters.snapshot().frames_ok, 2);
+}
+
+#[test]
+fn random_datagrams_never_panic() {
+    let counters = Counters::default();
+    let mut decoder = Decoder::new(None);
+    let mut frames = Vec::new();
+    for seed in 1..2_000u64 {
+        let len = (seed as usize * 37) % 300;
+        let mut d = noise(seed, len);
+        if let Some(b) = d.first_mut() {
+            *b = 0xFD; // start like a frame, to reach the header and length paths
+        }
+        decoder.push_datagram(&d, &counters, &mut frames);
+    }
+    let c = counters.snapshot();
+    assert!(
+        c.truncated + c.bad_crc + c.unknown_id + c.garbage_bytes > 0,
+        "{c:?}"
+    );
+}
+
+fn key(byte: u8) -> SigningKey {
+    SigningKey {
+        secret: [byte; 32],
+        link_id: 0,
+    }
+}
+
+#[test]
+fn with_signing_required_unsigned_and_forged_frames_are_refused() {
+    let signing = Signing {
+        key: key(7),
+        require: true,
+    };
+    let counters = Counters::default();
+    let mut decoder = Decoder::new(Some(&signing));
+    let mut frames = Vec::new();
+    // Unsigned.
+    let mut plain = Encoder::new(1, 1, None);
+    decoder.push_datagram(&heartbeat_frame(&mut plain), &counters, &mut frames);
+    // Signed with another key (forged).
+    let mut forger = Encoder::new(1, 1, Some(&key(8)));
+    decoder.push_datagram(&heartbeat_frame(&mut forger), &counters, &mut frames);
+    // Signed with the right key, then one signature byte altered.
+    let mut honest = Encoder::new(1, 1, Some(&key(7)));
+    let mut altered = heartbeat_frame(&mut honest);
+    let last = altered.len() - 1;
+    altered[last] ^= 1;
+    decoder.push_datagram(&altered, &counters, &mut frames);
+    assert!(frames.is_empty());
+    // Honest frames pass, a replay of one does not.
+    let good = heartbeat_frame(&mut honest);
+    decoder.push_datagram(&good, &counters, &mut frames);
+    decoder.push_datagram(&good, &counters, &mut frames);
+    assert_eq!(frames.len(), 1);
+    let c = counters.snapshot();
+    assert_eq!(c.refused_unsigned, 1, "{c:?}");
+    assert_eq!(c.refused_bad_signature, 3, "{c:?}"); // forged, altered, replayed
+    // The mavlink crate's own signer produces frames we accept.
+    let data = SigningData::from_config(SigningConfig::new([7; 32], 3, true, false));
+    let mut bytes = Vec::new();
+    mavlink::write_v2_msg_signed(
+        &mut bytes,
+        MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: 0,
+        },
+        &MavMessage::HEARTBEAT(HEARTBEAT_DATA::default()),
+        Some(&data),
+    )
+    .unwrap();
+    decoder.push_datagram(&bytes, &counters, &mut frames);
+    assert_eq!(frames.len(), 2);
+}
+
+#[test]
+fn signing_keys_read_from_hex_or_raw_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let hex = dir.path().join("key.hex");
+    std::fs::write(&hex, format!("{}\n", "0a".repeat(32))).unwrap();
+    assert_eq!(SigningKey::from_file(&hex, 0).unwrap().secret, [10; 32]);
+    let raw = dir.path().join("key.bin");
+    std::fs::write(&raw, [3u8; 32]).unwrap();
+    assert_eq!(SigningKey::from_file(&raw, 0).unwrap().secret, [3; 32]);
+    let short = dir.path().join("short");
+    std::fs::write(&short, "abcd").unwrap();
+    let e = SigningKey::from_file(&short, 0).unwrap_err();
+    assert!(e.contains("short") && e.contains("found 4 bytes"), "{e}");
+}
+
+// ---------------------------------------------------------------- the bridge over UDP
+
+/// A UDP peer standing in for the autopilot, written with the mavlink crate.
+struct Peer {
+    socket: UdpSocket,
+    bridge_addr: Option<std::net::SocketAddr>,
+    sequence: u8,
+    signing: Option<SigningData>,
+}
+
+impl Peer {
+    fn new() -> Self {
+        let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+        socket
+            .set_read_timeout(Some(Duration::from_millis(20)))
+            .unwrap();
+        Self {
+            socket,
+            bridge_addr: None,
+            sequence: 0,
+            signing: None,
+        }
+    }
+
+    fn address(&self) -> Address {
+        Address::Udp {
+            host: "127.0.0.1".into(),
+            port: self.socket.local_addr().unwrap().port(),
+        }
+    }
+
+    /// The next message from the bridge, if one comes within `wait`.
+    fn recv(&mut self, wait: Duration) -> Option<MavMessage> {
+        let deadline = std::time::Instant::now() + wait;
+        let mut buf = [0u8; 512];
+        while std::time::Instant::now() < deadline {
+            if let Ok((n, from)) = self.socket.recv_from(&mut buf) {
+                self.bridge_addr = Some(from);
+                if let Ok((_, m)) =
+                    MavlinkReader::new(&buf[..n]).read_message::<MavMessage>(MavlinkVersion::V2)
+                {
+                    return Some(m);
+                }
+            }
+        }
+        None
+    }
+
+    /// Waits for the bridge's first datagram (its heartbeat) to learn its address.
+    fn learn_bridge(&mut self) {
+        while self.bridge_addr.is_none() {
+            self.recv(Duration::from_millis(100));
+        }
+    }
+
+    fn send_raw(&self, bytes: &[u8]) {
+        self.socket
+            .send_to(bytes, self.bridge_addr.unwrap())
+            .unwrap();
+    }
+
+    fn send(&mut self, m: &MavMessage) {
+        let mut bytes = Vec::new();
+        let header = MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: self.sequence,
+        };
+        self.sequence = self.sequence.wrapping_add(1);
+        mavlink::write_v2_msg_signed(&mut bytes, header, m, self.signing.as_ref()).unwrap();
+        self.send_raw(&bytes);
+    }
+
+    fn ack(&mut self, command: MavCmd, result: MavResult) {
+        self.send(&MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+            command,
+            result,
+            target_system: 1,
+            target_component: 191,
+            ..COMMAND_ACK_DATA::default()
+        }));
+    }
+}
+
+fn fast_config(address: Address) -> BridgeConfig {
+    BridgeConfig {
+        command_timeout: Duration::from_millis(60),
+        command_retries: 3,
+        heartbeat_period: Duration::from_millis(20),
+        ..BridgeConfig::new(address)
+    }
+}
+
+/// Runs `peer_script` on its own thread while the bridge works on this one.
+fn with_peer<T: Send + 'static>(
+    mut peer: Peer,
+    script: impl FnOnce(&mut Peer) -> T + Send + 'static,
+) -> std::thread::JoinHandle<T> {
+    std::thread::spawn(move || script(&mut peer))
+}
+
+fn command_longs(peer: &mut Peer, n: usize, wait: Duration) -> Vec<(MavCmd, u8)> {
+    let mut seen = Vec::new();
+    let deadline = std::time::Instant::now() + wait;
+    while seen.len() < n && std::time::Instant::now() < deadline {
+        if let Some(MavMessage::COMMAND_LONG(c)) = peer.recv(Duration::from_millis(50)) {
+            seen.push((c.command, c.confirmation));
+        }
+    }
+    seen
+}
+
+#[test]
+fn a_lost_command_is_retried_with_rising_confirmation_until_acked() {
+    let v = vehicle("fa-hexa");
+    let peer = Peer::new();
+    let mut bridge = Bridge::connect(fast_config(peer.address()), &v).unwrap();
+    let script = with_peer(peer, |peer| {
+        // Ignore the first two attempts, answer the third.
+        let seen = command_longs(peer, 3, Duration::from_secs(5));
+        peer.ack(
+            MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+            MavResult::MAV_RESULT_ACCEPTED,
+        );
+        seen
+    });
+    bridge.arm().unwrap();
+    let seen = script.join().unwrap();
+    assert_eq!(
+        seen,
+        vec![
+            (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, 0),
+            (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, 1),
+            (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, 2),
+        ]
+    );
+}
+
+#[test]
+fn an_unanswered_command_times_out_naming_it() {
+    let v = vehicle("fa-hexa");
+    let peer = Peer::new();
+    let mut bridge = Bridge::connect(fast_config(peer.address()), &v).unwrap();
+    let script = with_peer(peer, |peer| command_longs(peer, 4, Duration::from_secs(5)));
+    let e = bridge.set_offboard().unwrap_err();
+    assert_eq!(
+        e,
+        BridgeError::CommandTimeout {
+            what: "switching to offboard".into(),
+            command: "MAV_CMD_DO_SET_MODE".into(),
+            attempts: 4,
+            timeout_ms: 60,
+        }
+    );
+    assert!(
+        e.to_string()
+            .contains("no COMMAND_ACK for MAV_CMD_DO_SET_MODE"),
+        "{e}"
+    );
+    assert_eq!(script.join().unwrap().len(), 4);
+}
+
+#[test]
+fn a_refused_arming_names_the_result() {
+    let v = vehicle("fa-hexa");
+    let peer = Peer::new();
+    let mut bridge = Bridge::connect(fast_config(peer.address()), &v).unwrap();
+    let script = with_peer(peer, |peer| {
+        // An ack for another command first (ignored), then the refusal.
+        let seen = command_longs(peer, 1, Duration::from_secs(5));
+        peer.ack(MavCmd::MAV_CMD_DO_SET_MODE, MavResult::MAV_RESULT_ACCEPTED);
+        peer.ack(
+            MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+            MavResult::MAV_RESULT_DENIED,
+        );
+        seen
+    });
+    let e = bridge.arm().unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "arming refused by the autopilot: MAV_RESULT_DENIED (MAV_CMD_COMPONENT_ARM_DISARM)"
+    );
+    assert_eq!(script.join().unwrap().len(), 1, "no retry after an answer");
+}
+
+#[test]
+fn garbage_into_the_bridge_socket_is_counted_and_telemetry_still_flows() {
+    let v = vehicle("fa-hexa");
+    let mut peer = Peer::new();
+    let bridge = Bridge::connect(fast_config(peer.address()), &v).unwrap();
+    peer.learn_bridge();
+    let mut frame = Vec::new();
+    let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        base_mode: MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED,
+        ..HEARTBEAT_DATA::default()
+    });
+    mavlink::write_v2_msg(
+        &mut frame,
+        MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: 9,
+        },
+        &hb,
+    )
+    .unwrap();
+    for seed in 1..50 {
+        peer.send_raw(&noise(seed, 200));
+    }
+    peer.send_raw(&frame[..frame.len() - 3]); // truncated
+    let mut bad = frame.clone();
+    bad[11] ^= 0xFF; // bad CRC
+    peer.send_raw(&bad);
+    let mut unknown = frame.clone();
+    unknown[9] = 0x7F; // message id 0x7F0000: not in common
+    peer.send_raw(&unknown);
+    // Then real telemetry: the link still works.
+    peer.send(&hb);
+    peer.send(&MavMessage::ODOMETRY(odometry(1_000_000)));
+    let m = bridge
+        .next_measurement(None, Duration::from_secs(2), "ODOMETRY")
+        .unwrap();
+    assert_eq!(m.time_s, 1.0);
+    assert!(bridge.autopilot().armed);
+    assert!(bridge.heartbeat_age().is_some());
+    let c = bridge.counters();
+    assert!(c.garbage_bytes > 0, "{c:?}");
+    assert!(c.truncated >= 1, "{c:?}");
+    assert!(c.bad_crc >= 1, "{c:?}");
+    assert!(c.unknown_id >= 1, "{c:?}");
+    assert!(c.frames_ok >= 2, "{c:?}");
+}
+
+#[test]
+fn a_signing_bridge_refuses_unsigned_telemetry_and_takes_signed() {
+    let v = vehicle("fa-hexa");
+    let mut peer = Peer::new();
+    let config = BridgeConfig {
+        signing: Some(Signing {
+            key: key(5),
+            require: true,
+        }),
+        ..fast_config(peer.address())
+    };
+    let bridge = Bridge::connect(config, &v).unwrap();
+    peer.learn_bridge();
+    peer.send(&MavMessage::ODOMETRY(odometry(1_000_000)));
+    let e = bridge
+        .next_measurement(None, Duration::from_millis(200), "ODOMETRY")
+        .unwrap_err();
+    assert!(matches!(e, BridgeError::NoTelemetry { .. }), "{e}");
+    assert_eq!(bridge.counters().refused_unsigned, 1);
+    peer.signing = Some(SigningData::from_config(SigningConfig::new(
+        [5; 32], 0, true, false,
+    )));
+    peer.send(&MavMessage::ODOMETRY(odometry(2_000_000)));
+    let m = bridge
+        .next_measurement(None, Duration::from_secs(2), "ODOMETRY")
+        .unwrap();
+    assert_eq!(m.time_s, 2.0);
+    // The bridge's own frames are signed: the peer's mavlink reader sees the flag.
+    let mut buf = [0u8; 512];
+    let (n, _) = loop {
+        if let Ok(x) = peer.socket.recv_from(&mut buf) {
+            break x;
+        }
+    };
+    assert_eq!(buf[2] & 0x01, 0x01, "signed flag");
+    assert!(n > 13);
+}
+
+// ---------------------------------------------------------------- TCP and serial
+
+/// An autopilot on a byte stream: once it hears the bridge's HEARTBEAT it sends one
+/// ODOMETRY; it answers ARM with ACCEPTED and then returns what it heard.
+async fn stream_peer<S>(mut stream: S) -> Vec<MavMessage>
+where
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin,
+{
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let counters = Counters::default();
+    let mut decoder = Decoder::new(None);
+    let mut heard = Vec::new();
+    let mut buf = [0u8; 1024];
+    let mut sent_odometry = false;
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    loop {
+        let n = match tokio::time::timeout_at(deadline, stream.read(&mut buf)).await {
+            Ok(Ok(n)) if n > 0 => n,
+            // A pseudo-terminal reads 0 bytes while its other end is between writes.
+            Ok(Ok(_)) => {
+                tokio::time::sleep(Duration::from_millis(1)).await;
+                continue;
+            }
+            _ => return heard,
+        };
+        let mut frames = Vec::new();
+        decoder.push_stream(&buf[..n], &counters, &mut frames);
+        for f in frames {
+            let reply = match &f.message {
+                MavMessage::HEARTBEAT(_) if !sent_odometry => {
+                    sent_odometry = true;
+                    Some(MavMessage::ODOMETRY(odometry(3_000_000)))
+                }
+                MavMessage::COMMAND_LONG(c) => Some(MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+                    command: c.command,
+                    result: MavResult::MAV_RESULT_ACCEPTED,
+                    ..COMMAND_ACK_DATA::default()
+                })),
+                _ => None,
+            };
+            let done = matches!(f.message, MavMessage::COMMAND_LONG(_));
+            heard.push(f.message);
+            if let Some(m) = reply {
+                let mut bytes = Vec::new();
+                let header = MavHeader {
+                    system_id: 1,
+                    component_id: 1,
+                    sequence: 0,
+                };
+                mavlink::write_v2_msg(&mut bytes, header, &m).unwrap();
+                stream.write_all(&bytes).await.unwrap();
+            }
+            if done {
+                // Keep the stream open a moment: a pseudo-terminal whose master closes
+                // discards what its slave has not read yet (the ack).
+                tokio::time::sleep(Duration::from_millis(300)).await;
+                return heard;
+            }
+        }
+    }
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+fn fly_the_peer(config: BridgeConfig, peer: std::thread::JoinHandle<Vec<MavMessage>>) {
+    let v = vehicle("fa-hexa");
+    let mut bridge = Bridge::connect(config, &v).unwrap();
+    let m = bridge
+        .next_measurement(None, Duration::from_secs(5), "ODOMETRY")
+        .unwrap();
+    assert_eq!(m.time_s, 3.0);
+    assert_eq!(m.base.position_in_world_m, Vector3::new(2.0, 1.0, 3.0));
+    bridge.arm().unwrap();
+    let heard = peer.join().unwrap();
+    assert!(heard.iter().any(|m| matches!(m, MavMessage::HEARTBEAT(h)
+        if h.mavtype == MavType::MAV_TYPE_ONBOARD_CONTROLLER)));
+    assert!(heard.iter().any(|m| matches!(m, MavMessage::COMMAND_LONG(c)
+        if c.command == MavCmd::MAV_CMD_COMPONENT_ARM_DISARM && c.param1 == 1.0)));
+}
+
+#[test]
+fn the_bridge_works_over_tcp() {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let peer = std::thread::spawn(move || {
+        let (stream, _) = listener.accept().unwrap();
+        stream.set_nonblocking(true).unwrap();
+        runtime()
+            .block_on(async { stream_peer(tokio::net::TcpStream::from_std(stream).unwrap()).await })
+    });
+    let address = Address::Tcp {
+        host: "127.0.0.1".into(),
+        port,
+    };
+    fly_the_peer(fast_config(address), peer);
+}
+
+#[test]
+fn the_bridge_works_over_a_pseudo_terminal_pair() {
+    use tokio_serial::SerialPort;
+    let (name_tx, name_rx) = std::sync::mpsc::channel();
+    let peer = std::thread::spawn(move || {
+        runtime().block_on(async {
+            let (master, slave) = tokio_serial::SerialStream::pair().unwrap();
+            name_tx.send(slave.name().unwrap()).unwrap();
+            let heard = stream_peer(master).await;
+            drop(slave);
+            heard
+        })
+    });
+    let device = name_rx.recv().unwrap();
+    let address = Address::parse(&format!("serial:{device}:921600")).unwrap();
+    fly_the_peer(fast_config(address), peer);
+}

@@ -1,0 +1,365 @@
+//! A PX4-style autopilot over MAVLink as a [`Link`] of the flight loop: the twin's autopilot
+//! in SITL (`amstack twin serve --mavlink ...`) or a real vehicle.
+//!
+//! [`MavlinkLink::connect`] opens the [`firmware_bridge::Bridge`] and waits for the first
+//! ODOMETRY (the vehicle's state at start). The first [`Link::send`] runs the contract's
+//! start sequence with that tick's setpoint: stream it (≥ 2 Hz, as PX4 requires before
+//! offboard), switch to OFFBOARD, ARM, then send it once more — in lockstep that is the
+//! setpoint that steps the twin from its reset state, as an in-process run starts. Every
+//! [`Link::receive`] after a send waits for an ODOMETRY newer than the last one returned
+//! (in lockstep, the one closing this tick; in real time, the next step), up to
+//! `tick_timeout`; a timeout is an error naming ODOMETRY and the tick.
+//!
+//! Levels: [`Level::Actuator`] sends the rotor thrusts, tilts, arm and gripper
+//! (SET_ACTUATOR_CONTROL_TARGET groups 2, 1, 0). [`Level::Attitude`] sends the arm and gripper
+//! and a SET_ATTITUDE_TARGET derived from the controller's wrench and attitude error
+//! ([`attitude_setpoint`]).
+//!
+//! Dropping the link stops the setpoints and never disarms: the vehicle may be flying, and
+//! the autopilot's offboard-loss failsafe (hold, then land) is the safe end.
+
+use std::time::Duration;
+
+use firmware_bridge::{
+    AttitudeSetpoint, Bridge, BridgeConfig, BridgeError, CounterSnapshot, SetpointCodec,
+};
+use nalgebra::{UnitQuaternion, Vector3};
+use platform::{ActuatorCommand, Measurement, Vehicle};
+
+use crate::link::{Link, LinkError};
+use crate::stack::TickRecord;
+
+/// Which setpoints the flight stack sends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Level {
+    /// Rotor thrusts (our allocation flies the vehicle): SET_ACTUATOR_CONTROL_TARGET.
+    Actuator,
+    /// Attitude + body force (the autopilot's own attitude loop and allocation):
+    /// SET_ATTITUDE_TARGET.
+    Attitude,
+}
+
+impl Level {
+    /// The command-line name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Actuator => "actuator",
+            Self::Attitude => "attitude",
+        }
+    }
+}
+
+/// How the flight side connects and waits.
+#[derive(Debug, Clone)]
+pub struct MavlinkLinkConfig {
+    /// The bridge (address, ids, signing, command retries).
+    pub bridge: BridgeConfig,
+    /// Setpoint level.
+    pub level: Level,
+    /// How long to wait for the first ODOMETRY after connecting (default 10 s).
+    pub connect_timeout: Duration,
+    /// How long each tick's ODOMETRY may take after its setpoint (default 200 ms).
+    pub tick_timeout: Duration,
+    /// Setpoints streamed before switching to offboard (default 6, at `stream_period`).
+    pub stream_count: u32,
+    /// Period of that stream (default 50 ms: 20 Hz, PX4 needs ≥ 2 Hz).
+    pub stream_period: Duration,
+    /// Record per-tick send → telemetry round trips ([`MavlinkLink::round_trips_ns`]).
+    pub record_timing: bool,
+}
+
+impl MavlinkLinkConfig {
+    /// Defaults for a bridge configuration.
+    pub fn new(bridge: BridgeConfig, level: Level) -> Self {
+        Self {
+            bridge,
+            level,
+            connect_timeout: Duration::from_secs(10),
+            tick_timeout: Duration::from_millis(200),
+            stream_count: 6,
+            stream_period: Duration::from_millis(50),
+            record_timing: false,
+        }
+    }
+}
+
+/// What can go wrong on the MAVLink link.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MavlinkLinkError {
+    /// The bridge failed (open, command refused or unanswered, no telemetry, bad setpoint).
+    #[error(transparent)]
+    Bridge(#[from] BridgeError),
+    /// The autopilot disarmed or left OFFBOARD during the flight (its failsafe, a pilot
+    /// taking over): the flight stops.
+    #[error(
+        "the autopilot {what} during the flight (tick {tick}): now {mode}, {armed}; the flight stack stopped sending"
+    )]
+    Dropped {
+        /// `disarmed` or `left OFFBOARD`.
+        what: String,
+        /// The tick it was noticed at.
+        tick: u64,
+        /// The mode its last HEARTBEAT gave.
+        mode: String,
+        /// `armed` or `disarmed`.
+        armed: String,
+    },
+    /// The attitude level needs the tick's controller output ([`Link::send_tick`]).
+    #[error("the attitude level needs the controller's wrench: send through send_tick")]
+    NeedsTickRecord,
+}
+
+impl From<MavlinkLinkError> for LinkError {
+    fn from(e: MavlinkLinkError) -> Self {
+        LinkError::Mavlink(e)
+    }
+}
+
+impl From<BridgeError> for LinkError {
+    fn from(e: BridgeError) -> Self {
+        LinkError::Mavlink(MavlinkLinkError::Bridge(e))
+    }
+}
+
+/// The flight side of a MAVLink autopilot.
+#[derive(Debug)]
+pub struct MavlinkLink {
+    config: MavlinkLinkConfig,
+    bridge: Bridge,
+    codec: SetpointCodec,
+    latest: Measurement,
+    started: bool,
+    /// Heartbeats received when the start sequence finished: later ones describe the flight.
+    heartbeats_at_start: u64,
+    ticks: u64,
+    sent_at: Option<std::time::Instant>,
+    round_trips_ns: Vec<u64>,
+    /// The rotor thrusts of the last actuator-level command, N (the autopilot reports only
+    /// the realised ones).
+    commanded_n: Option<Vec<f64>>,
+    thrust_range_n: (f64, f64),
+}
+
+impl MavlinkLink {
+    /// Connects to the autopilot and waits for its first ODOMETRY.
+    pub fn connect(vehicle: &Vehicle, config: MavlinkLinkConfig) -> Result<Self, LinkError> {
+        let codec = SetpointCodec::new(
+            vehicle,
+            config.bridge.target_system,
+            config.bridge.target_component,
+        )
+        .map_err(BridgeError::from)?;
+        let bridge = Bridge::connect(config.bridge.clone(), vehicle)?;
+        let latest = bridge.next_measurement(
+            None,
+            config.connect_timeout,
+            "ODOMETRY (the vehicle's state at start)",
+        )?;
+        Ok(Self {
+            config,
+            bridge,
+            codec,
+            latest,
+            started: false,
+            heartbeats_at_start: 0,
+            ticks: 0,
+            sent_at: None,
+            round_trips_ns: Vec::new(),
+            commanded_n: None,
+            thrust_range_n: (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n),
+        })
+    }
+
+    /// The bridge (autopilot state, counters).
+    pub fn bridge(&self) -> &Bridge {
+        &self.bridge
+    }
+
+    /// The wire counters.
+    pub fn counters(&self) -> CounterSnapshot {
+        self.bridge.counters()
+    }
+
+    /// Per-tick round trips (setpoint queued → its ODOMETRY decoded), ns, when recorded.
+    pub fn round_trips_ns(&self) -> &[u64] {
+        &self.round_trips_ns
+    }
+
+    fn time_usec(&self) -> u64 {
+        // The flight stack's time of the command: the measurement time it answers, µs.
+        (self.latest.time_s.max(0.0) * 1e6).round() as u64
+    }
+
+    fn messages(
+        &self,
+        command: &ActuatorCommand,
+        record: Option<&TickRecord>,
+    ) -> Result<Vec<mavlink::dialects::common::MavMessage>, LinkError> {
+        let t = self.time_usec();
+        let messages = match self.config.level {
+            Level::Actuator => self.codec.actuator_messages(t, command),
+            Level::Attitude => {
+                let record = record.ok_or(MavlinkLinkError::NeedsTickRecord)?;
+                let setpoint = attitude_setpoint(&self.latest, record);
+                self.codec.attitude_messages(t, command, &setpoint)
+            }
+        };
+        Ok(messages.map_err(BridgeError::from)?)
+    }
+
+    /// The contract's start: stream the first setpoint, OFFBOARD, ARM.
+    fn start(
+        &mut self,
+        messages: &[mavlink::dialects::common::MavMessage],
+    ) -> Result<(), LinkError> {
+        for _ in 0..self.config.stream_count {
+            self.bridge.send(messages.to_vec())?;
+            std::thread::sleep(self.config.stream_period);
+        }
+        self.bridge.set_offboard()?;
+        self.bridge.arm()?;
+        self.started = true;
+        self.heartbeats_at_start = self.bridge.autopilot().heartbeats;
+        Ok(())
+    }
+
+    fn send_messages(
+        &mut self,
+        messages: Vec<mavlink::dialects::common::MavMessage>,
+    ) -> Result<(), LinkError> {
+        if !self.started {
+            self.start(&messages)?;
+        }
+        self.sent_at = Some(std::time::Instant::now());
+        self.bridge.send(messages)?;
+        self.ticks += 1;
+        Ok(())
+    }
+}
+
+impl MavlinkLink {
+    /// An error if a HEARTBEAT since the start says the autopilot disarmed or left OFFBOARD.
+    fn check_still_flying(&self) -> Result<(), MavlinkLinkError> {
+        let state = self.bridge.autopilot();
+        if !self.started || state.heartbeats <= self.heartbeats_at_start {
+            return Ok(());
+        }
+        let what = if !state.armed {
+            "disarmed"
+        } else if !state.in_offboard() {
+            "left OFFBOARD"
+        } else {
+            return Ok(());
+        };
+        Err(MavlinkLinkError::Dropped {
+            what: what.to_owned(),
+            tick: self.ticks,
+            mode: state.mode_name(),
+            armed: if state.armed { "armed" } else { "disarmed" }.to_owned(),
+        })
+    }
+
+    /// Keeps the commanded rotor thrusts for the next measurement's rotor reports (actuator
+    /// level; at the attitude level the autopilot chooses them).
+    fn remember(&mut self, command: &ActuatorCommand) {
+        self.commanded_n =
+            (self.config.level == Level::Actuator).then(|| command.rotor_thrusts_n.clone());
+    }
+}
+
+/// The attitude level's setpoint from one tick of the flight stack.
+///
+/// The body force is the controller's requested force minus what the allocator could not
+/// achieve (the force our allocation would have produced, so the saturation feedback the
+/// controller receives stays true), in the current body frame.
+///
+/// The attitude is the controller's own desired attitude R_d, recovered from its geometric
+/// attitude error e_R = ½(R_dᵀR − RᵀR_d)^∨ = sin θ · ê (R = R_d·exp(θ ê)):
+/// R_d = R · exp(−asin(|e_R|) ê). This is the attitude every base controller steers to —
+/// PID6 and L1 the reference pose's, PID4 the one its thrust direction needs — without a
+/// controller-specific path. (Sending the measured attitude instead would drop the
+/// controller's torque intent entirely, and the base target's rotation is wrong for PID4.)
+/// |θ| ≤ 90° is assumed (asin's range); beyond it the controller has lost the vehicle anyway.
+/// The rate feed-forward is the desired body rate ω_d = ω − e_Ω.
+pub fn attitude_setpoint(measurement: &Measurement, record: &TickRecord) -> AttitudeSetpoint {
+    let e_r = record.controller.attitude_error;
+    let s = e_r.norm().min(1.0);
+    let correction = if s > 0.0 {
+        UnitQuaternion::from_scaled_axis(-e_r / e_r.norm() * s.asin())
+    } else {
+        UnitQuaternion::identity()
+    };
+    let world_from_body = measurement.base.world_from_body * correction;
+    let force: Vector3<f64> = record.wrench.force - record.unallocated.force;
+    let rates = measurement.base.angular_velocity_in_body_radps
+        - record.controller.angular_velocity_error_radps;
+    AttitudeSetpoint {
+        world_from_body,
+        force_in_body_n: force,
+        body_rates_radps: Some(rates),
+    }
+}
+
+impl Link for MavlinkLink {
+    fn receive(&mut self) -> Result<Measurement, LinkError> {
+        if self.sent_at.is_none() {
+            return Ok(self.latest.clone());
+        }
+        self.check_still_flying()?;
+        let what = format!("ODOMETRY for tick {}", self.ticks);
+        let m = match self.bridge.next_measurement(
+            Some(self.latest.time_s),
+            self.config.tick_timeout,
+            &what,
+        ) {
+            Ok(m) => m,
+            Err(e) => {
+                // A silent autopilot that said why (disarmed, failsafe mode) is reported so.
+                self.check_still_flying()?;
+                return Err(e.into());
+            }
+        };
+        if let (true, Some(t)) = (self.config.record_timing, self.sent_at) {
+            self.round_trips_ns
+                .push(u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX));
+        }
+        self.sent_at = None;
+        let mut m = m;
+        if let Some(commanded) = &self.commanded_n {
+            let (lo, hi) = self.thrust_range_n;
+            for (r, &c) in m.rotors.iter_mut().zip(commanded) {
+                r.commanded_n = c;
+                r.saturated = c < lo || c > hi;
+            }
+        }
+        self.latest = m.clone();
+        Ok(m)
+    }
+
+    fn send(&mut self, command: &ActuatorCommand) -> Result<(), LinkError> {
+        let messages = self.messages(command, None)?;
+        self.send_messages(messages)?;
+        self.remember(command);
+        Ok(())
+    }
+
+    fn send_tick(&mut self, record: &TickRecord) -> Result<(), LinkError> {
+        let messages = self.messages(&record.command, Some(record))?;
+        self.send_messages(messages)?;
+        self.remember(&record.command);
+        Ok(())
+    }
+
+    fn name(&self) -> String {
+        format!("mavlink:{}", self.bridge.config().address)
+    }
+}
+
+#[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "tests: a failed set-up fails loudly"
+)]
+#[path = "mavlink_link_tests.rs"]
+mod tests;
