@@ -225,7 +225,8 @@ def cmd_failsafe(args):
     last = {"odo": None}
 
     def setpoint(thrust_z):
-        m.mav.set_attitude_target_send(0, 1, 1, 0, q, 0, 0, 0, 0, [0.0, 0.0, -thrust_z])
+        # pymavlink's common dialect has no thrust_body: the collective thrust (body up).
+        m.mav.set_attitude_target_send(0, 1, 1, 0, q, 0, 0, 0, thrust_z)
 
     def pd_thrust(odo, z_target_ned):
         ez = odo.z - z_target_ned  # > 0: too low (NED z down)

@@ -552,6 +552,9 @@ impl Autopilot {
             transition: t,
             position_m: self.truth().base.position_in_world_m,
         });
+        // The new state at once, as PX4 does.
+        let hb = telemetry::heartbeat(self.mav_type, &self.commander);
+        self.send(&[hb]);
     }
 
     /// The command of a clock step: offboard's latest setpoint, the internal controller, or
@@ -816,9 +819,6 @@ impl Autopilot {
                 self.ack(to, command, MavResult::MAV_RESULT_ACCEPTED);
                 if let Some(t) = t {
                     self.transition(t, on_event);
-                    // The new state at once, as PX4 does.
-                    let hb = telemetry::heartbeat(self.mav_type, &self.commander);
-                    self.send(&[hb]);
                 }
             }
             Err(refusal) => self.refuse(to, command, &refusal, on_event),

@@ -198,15 +198,20 @@ impl SetpointDecoder {
         }
         let ned_from_frd = frames::quaternion_from_mavlink(data.q)
             .ok_or_else(|| format!("q {:?} is not a unit quaternion", data.q))?;
-        let thrust: Vector3<f64> =
+        let mut thrust: Vector3<f64> =
             Vector3::from_iterator(data.thrust_body.iter().map(|&t| f64::from(t)));
+        // A sender without the thrust_body extension (e.g. pymavlink's common dialect) gives
+        // the collective `thrust` along body up, as PX4 takes it for a multicopter.
+        if thrust == Vector3::zeros() && data.thrust != 0.0 {
+            thrust = Vector3::new(0.0, 0.0, -f64::from(data.thrust));
+        }
         if thrust
             .iter()
             .any(|t| !t.is_finite() || t.abs() > 1.0 + f64::from(RANGE_SLACK))
         {
             return Err(format!(
-                "thrust_body {:?} outside [-1, 1]",
-                data.thrust_body
+                "thrust_body {:?} (thrust {}) outside [-1, 1]",
+                data.thrust_body, data.thrust
             ));
         }
         let mask = data.type_mask;
@@ -361,5 +366,13 @@ mod tests {
             ..data.clone()
         };
         assert!(d.attitude(&bad).is_err());
+        // Without thrust_body, the collective thrust pushes along body up.
+        let collective = SET_ATTITUDE_TARGET_DATA {
+            thrust: 0.25,
+            thrust_body: [0.0; 3],
+            ..data.clone()
+        };
+        let sp = d.attitude(&collective).unwrap();
+        assert!((sp.force_in_body_n - Vector3::new(0.0, 0.0, 0.25 * total)).norm() < 1e-6);
     }
 }

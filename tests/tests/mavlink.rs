@@ -1,0 +1,390 @@
+//! The twin's PX4-style autopilot (`amstack twin serve --mavlink udp:…`) against a MAVLink
+//! implementation that is not ours: pymavlink (scripts/mavlink_gcs.py, in the venv of
+//! scripts/setup-python.sh) as a ground station, an offboard sender and a source of garbage.
+//!
+//! The `amstack` binary is the one cargo builds for the root package's CLI test
+//! (`cargo test --workspace`); alone, run `cargo build --bin amstack` first. The first run
+//! installs pymavlink from PyPI into the shared venv.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use platform::{GRAVITY_MPS2, Vehicle};
+use serde_json::Value;
+
+/// Generous: these bound a hang, they are not what a test measures.
+const PATIENCE: Duration = Duration::from_secs(60);
+
+fn amstack() -> PathBuf {
+    let exe = std::env::current_exe().unwrap_or_else(|e| panic!("current_exe: {e}"));
+    let bin = exe
+        .parent()
+        .and_then(Path::parent)
+        .map(|dir| dir.join("amstack"))
+        .unwrap_or_default();
+    assert!(
+        bin.is_file(),
+        "{} is missing: run `cargo build --bin amstack` (cargo test --workspace builds it)",
+        bin.display()
+    );
+    bin
+}
+
+fn scripts() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts")
+}
+
+/// The venv's python with pymavlink (installed on first use).
+fn python() -> PathBuf {
+    static PY: Mutex<Option<PathBuf>> = Mutex::new(None);
+    let mut py = PY.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some(p) = &*py {
+        return p.clone();
+    }
+    let out = Command::new("bash")
+        .arg(scripts().join("setup-python.sh"))
+        .stderr(Stdio::inherit())
+        .output()
+        .unwrap_or_else(|e| panic!("setup-python.sh: {e}"));
+    assert!(out.status.success(), "setup-python.sh failed");
+    let path = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .last()
+        .map(|l| PathBuf::from(l.trim()))
+        .unwrap_or_default();
+    *py = Some(path.clone());
+    path
+}
+
+/// One test at a time (each runs a twin and a Python peer on a small machine).
+fn serial() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// `amstack twin serve --mavlink udp:127.0.0.1:0 …`, its stderr collected line by line.
+struct Autopilot {
+    child: Child,
+    lines: Arc<Mutex<Vec<String>>>,
+    port: u16,
+    rest_z_m: f64,
+}
+
+impl Autopilot {
+    fn start(args: &[&str]) -> Self {
+        let mut child = Command::new(amstack())
+            .args(["twin", "serve", "--mavlink", "udp:127.0.0.1:0"])
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start the autopilot: {e}"));
+        let lines = Arc::new(Mutex::new(Vec::new()));
+        if let Some(stderr) = child.stderr.take() {
+            let sink = Arc::clone(&lines);
+            std::thread::spawn(move || {
+                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                    sink.lock()
+                        .unwrap_or_else(std::sync::PoisonError::into_inner)
+                        .push(line);
+                }
+            });
+        }
+        let mut ap = Self {
+            child,
+            lines,
+            port: 0,
+            rest_z_m: f64::NAN,
+        };
+        // "… on udp:127.0.0.1:PORT (lockstep, …); resting height 0.025 m"
+        let ready = ap.wait_for("serving");
+        ap.port = ready
+            .split("udp:127.0.0.1:")
+            .nth(1)
+            .and_then(|s| s.split(' ').next())
+            .and_then(|p| p.parse().ok())
+            .unwrap_or_else(|| panic!("no port in {ready:?}"));
+        ap.rest_z_m = ready
+            .split("resting height ")
+            .nth(1)
+            .and_then(|s| s.trim_end_matches(" m").parse().ok())
+            .unwrap_or_else(|| panic!("no resting height in {ready:?}"));
+        ap
+    }
+
+    fn stderr(&self) -> String {
+        self.lines
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .join("\n")
+    }
+
+    fn wait_for(&mut self, needle: &str) -> String {
+        let started = Instant::now();
+        loop {
+            if let Some(line) = self.stderr().lines().find(|l| l.contains(needle)) {
+                return line.to_owned();
+            }
+            let exited = matches!(self.child.try_wait(), Ok(Some(_)));
+            if exited || started.elapsed() > PATIENCE {
+                std::thread::sleep(Duration::from_millis(200));
+                if let Some(line) = self.stderr().lines().find(|l| l.contains(needle)) {
+                    return line.to_owned();
+                }
+                panic!("no line with {needle:?}:\n{}", self.stderr());
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    /// Runs the pymavlink peer in `mode`; its JSON.
+    fn peer(&self, mode: &str, args: &[&str]) -> Value {
+        let connect = format!("udpout:127.0.0.1:{}", self.port);
+        let out = Command::new(python())
+            .arg(scripts().join("mavlink_gcs.py"))
+            .args([mode, "--connect", &connect])
+            .args(args)
+            .stderr(Stdio::inherit())
+            .output()
+            .unwrap_or_else(|e| panic!("mavlink_gcs.py: {e}"));
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "mavlink_gcs.py {mode} failed: {text}");
+        serde_json::from_str(text.trim())
+            .unwrap_or_else(|e| panic!("{e}: {text}\nautopilot:\n{}", self.stderr()))
+    }
+
+    /// Ctrl-C, then the exit line with the link's counters.
+    fn stop(&mut self) -> String {
+        let _ = Command::new("kill")
+            .args(["-INT", &self.child.id().to_string()])
+            .status();
+        self.wait_for("stopped after")
+    }
+}
+
+impl Drop for Autopilot {
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(Some(_))) {
+            return;
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// A counter's value in the exit line ("…, bad crc 50, …").
+fn counter(line: &str, name: &str) -> u64 {
+    line.split(&format!("{name} "))
+        .nth(1)
+        .and_then(|s| s.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no counter {name:?} in {line:?}"))
+}
+
+fn rate(report: &Value, message: &str) -> f64 {
+    report["rates_hz"][message]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no rate for {message}: {report}"))
+}
+
+#[test]
+fn a_pymavlink_ground_station_sees_the_vehicle_at_its_rates_and_arms_it() {
+    let _one = serial();
+    let ap = Autopilot::start(&["--platform", "fa-hexa"]);
+    let r = ap.peer("rates", &["--seconds", "4"]);
+    // HEARTBEAT: MAV_TYPE_HEXAROTOR (13), MAV_AUTOPILOT_PX4 (12), custom mode enabled,
+    // disarmed, POSCTL (3 << 16), STANDBY (3), MAVLink 2.
+    let hb = &r["heartbeat"];
+    assert_eq!(hb["type"], 13, "{r}");
+    assert_eq!(hb["autopilot"], 12, "{r}");
+    assert_eq!(hb["base_mode"], 1, "{r}");
+    assert_eq!(hb["custom_mode"], 3 << 16, "{r}");
+    assert_eq!(hb["system_status"], 3, "{r}");
+    assert_eq!(hb["mavlink_version"], true, "{r}");
+    // The configured rates, within 10 % (the twin stands still: per-step messages at 10 Hz).
+    for (message, hz) in [
+        ("HEARTBEAT", 1.0),
+        ("SYS_STATUS", 1.0),
+        ("EXTENDED_SYS_STATE", 1.0),
+        ("ATTITUDE", 50.0),
+        ("GLOBAL_POSITION_INT", 10.0),
+        ("ODOMETRY", 10.0),
+        ("HIGHRES_IMU", 10.0),
+        ("ACTUATOR_OUTPUT_STATUS", 10.0),
+        ("DEBUG_FLOAT_ARRAY", 10.0),
+        ("ATTITUDE_QUATERNION", 10.0),
+        ("LOCAL_POSITION_NED", 10.0),
+    ] {
+        let got = rate(&r, message);
+        assert!(
+            (got - hz).abs() <= 0.1 * hz,
+            "{message}: {got:.2} Hz, configured {hz} Hz\n{r}"
+        );
+    }
+    assert_eq!(r["request_autopilot_version"], "ACCEPTED", "{r}");
+    assert_eq!(r["autopilot_version_received"], true, "{r}");
+    assert_eq!(r["request_home_position"], "ACCEPTED", "{r}");
+    assert_eq!(r["home"]["lat"], 473_977_420, "{r}");
+    assert_eq!(r["home"]["lon"], 85_455_940, "{r}");
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    assert_eq!(r["armed_flag_after_arm"], true, "{r}");
+    // Armed in POSCTL the autopilot holds the vehicle 1 m up: a plain disarm is refused with
+    // the reason (PX4), a forced one (param2 21196) is accepted.
+    assert_eq!(r["disarm"], "DENIED", "{r}");
+    assert!(r["disarm_texts"].to_string().contains("in the air"), "{r}");
+    assert_eq!(r["force_disarm"], "ACCEPTED", "{r}");
+    assert_eq!(r["unsupported_command"], "UNSUPPORTED", "{r}");
+}
+
+#[test]
+fn offboard_loss_holds_then_lands_then_disarms_without_a_crash() {
+    let _one = serial();
+    let mut ap = Autopilot::start(&["--platform", "fa-hexa", "--failsafe-hold-s", "2"]);
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"));
+    let mass = vehicle
+        .mass_properties(&vehicle.initial_configuration())
+        .mass_kg;
+    let hover = mass * GRAVITY_MPS2 / (vehicle.rotors.len() as f64 * vehicle.rotors.thrust_max_n);
+    let r = ap.peer(
+        "failsafe",
+        &[
+            "--hover-thrust",
+            &hover.to_string(),
+            "--hover-s",
+            "1",
+            "--watch-s",
+            "20",
+        ],
+    );
+    // Offboard needs a setpoint stream; arming in offboard too, refused with the reason.
+    assert_eq!(
+        r["offboard_without_setpoints"], "TEMPORARILY_REJECTED",
+        "{r}"
+    );
+    assert_eq!(r["offboard_with_setpoints"], "ACCEPTED", "{r}");
+    assert_eq!(r["arm_without_setpoints"], "DENIED", "{r}");
+    assert!(
+        r["arm_refusal_texts"].to_string().contains("no setpoints"),
+        "{r}"
+    );
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    // Lockstep: 1 s of setpoints is 120 ticks, 1 s of twin time.
+    assert!(
+        (r["stopped_at"]["t_s"].as_f64().unwrap_or(0.0) - 1.0).abs() < 1e-6,
+        "{r}"
+    );
+    // OFFBOARD armed → AUTO.LOITER (CRITICAL) → AUTO.LAND (CRITICAL) → disarmed.
+    let modes: Vec<(u64, u64, bool)> = r["modes"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{r}"))
+        .iter()
+        .map(|m| {
+            (
+                m["main"].as_u64().unwrap_or(0),
+                m["sub"].as_u64().unwrap_or(0),
+                m["armed"].as_bool().unwrap_or(true),
+            )
+        })
+        .collect();
+    assert_eq!(
+        modes,
+        vec![(6, 0, true), (4, 3, true), (4, 6, true), (3, 0, false)],
+        "{r}"
+    );
+    // The hold keeps the vehicle within 5 cm of where the setpoints stopped; nothing tilts
+    // more than 5°; the vehicle ends at its resting height, still.
+    let hold = r["hold_max_deviation_m"].as_f64().unwrap_or(f64::NAN);
+    assert!(hold < 0.05, "hold deviation {hold} m\n{r}");
+    let tilt = r["max_tilt_deg"].as_f64().unwrap_or(f64::NAN);
+    assert!(tilt < 5.0, "tilt {tilt}°\n{r}");
+    let z = -r["final"]["z_ned"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (z - ap.rest_z_m).abs() < 0.02,
+        "final z {z} m, rest {} m\n{r}",
+        ap.rest_z_m
+    );
+    assert!(
+        r["final"]["speed"].as_f64().unwrap_or(f64::NAN) < 0.05,
+        "{r}"
+    );
+    // The hold lasts 2 s of twin time, then a 0.975 m descent at 0.5 m/s (≈ 2 s) and the
+    // landed detection (0.5 s): the disarm comes 4–6 s after the setpoints stopped.
+    let stopped = r["stopped_at"]["t_s"].as_f64().unwrap_or(f64::NAN);
+    let disarmed = r["disarmed_at_s"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (4.0..6.5).contains(&(disarmed - stopped)),
+        "disarmed {disarmed} s after stopping at {stopped} s\n{r}"
+    );
+    // Each transition is logged with the twin time.
+    for needle in [
+        "mode AUTO.LOITER (failsafe: offboard setpoints lost, holding)",
+        "mode AUTO.LAND (failsafe: hold over, landing)",
+        "disarmed (landed)",
+    ] {
+        let line = ap.wait_for(needle);
+        assert!(line.contains("t = "), "{line}");
+    }
+    ap.stop();
+}
+
+#[test]
+fn garbage_is_counted_and_the_link_keeps_working() {
+    let _one = serial();
+    let mut ap = Autopilot::start(&["--platform", "ua-quad"]);
+    let r = ap.peer("robust", &["--rounds", "50", "--seed", "7"]);
+    // After 50 rounds of random bytes, truncated frames, bad CRCs and unknown ids the ground
+    // station still gets its ACKs.
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    assert_eq!(r["force_disarm"], "ACCEPTED", "{r}");
+    let s = &r["sys_status"];
+    let at_least = |field: &str, n: u64| {
+        let v = s[field].as_u64().unwrap_or(0);
+        assert!(v >= n, "{field} = {v} < {n}\n{r}");
+    };
+    // errors_count1–3: bad CRC, unknown id, truncated (random bytes may add to each).
+    at_least("errors_count1", 50);
+    at_least("errors_count2", 50);
+    at_least("errors_count3", 50);
+    at_least("errors_comm", 150);
+    at_least("drop_rate_comm", 1);
+    let exit = ap.stop();
+    assert!(counter(&exit, "bad crc") >= 50, "{exit}");
+    assert!(counter(&exit, "unknown id") >= 50, "{exit}");
+    assert!(counter(&exit, "truncated") >= 50, "{exit}");
+    assert!(counter(&exit, "junk bytes") > 0, "{exit}");
+    // Arm, force disarm, heartbeats and SYS_STATUS polls decoded fine.
+    assert!(counter(&exit, "frames ok") >= 3, "{exit}");
+    assert!(!ap.stderr().contains("panicked"), "{}", ap.stderr());
+}
+
+#[test]
+fn with_signing_required_unsigned_and_forged_frames_are_refused() {
+    let _one = serial();
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let key_hex = "0123456789abcdef".repeat(4);
+    let key = dir.path().join("key.hex");
+    std::fs::write(&key, format!("{key_hex}\n")).unwrap_or_else(|e| panic!("{e}"));
+    let key_arg = key.display().to_string();
+    let mut ap = Autopilot::start(&[
+        "--platform",
+        "fa-hexa",
+        "--signing-key",
+        &key_arg,
+        "--require-signing",
+    ]);
+    let r = ap.peer("signing", &["--key-hex", &key_hex]);
+    // No ACK for the unsigned or forged command; the signed one is accepted, and what the
+    // autopilot sends is signed.
+    assert_eq!(r["unsigned"], Value::Null, "{r}");
+    assert_eq!(r["forged"], Value::Null, "{r}");
+    assert_eq!(r["signed"], "ACCEPTED", "{r}");
+    assert_eq!(r["heartbeat_signed"], true, "{r}");
+    let exit = ap.stop();
+    assert!(counter(&exit, "unsigned refused") >= 2, "{exit}");
+    assert!(counter(&exit, "bad signature") >= 2, "{exit}");
+}
