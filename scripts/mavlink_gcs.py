@@ -10,6 +10,9 @@ scripts/setup-python.sh.
   robust    send random bytes, truncated frames, bad CRCs and unknown message ids, then arm
             and disarm: the ACKs and SYS_STATUS's error counters.
   signing   with --key-hex: a command unsigned, signed with a wrong key, signed with the key.
+  serial    open a pseudo-terminal pair, print "pty PATH" on stderr (start the autopilot on
+            serial:PATH:BAUD), then wait for its heartbeat on the other end, arm and force
+            disarm: the ACKs and how many ODOMETRY arrived in --seconds.
   failsafe  stream SET_ATTITUDE_TARGET (lockstep, a z PD loop on ODOMETRY), offboard, arm,
             hover --hover-s, stop; record the hold, the landing and the disarm.
 """
@@ -199,6 +202,59 @@ def cmd_signing(args):
     return out
 
 
+def cmd_serial(args):
+    import select
+    import tty
+    master, slave = os.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    print("pty " + os.ttyname(slave), file=sys.stderr, flush=True)
+    mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    mav.robust_parsing = True
+
+    def send(msg):
+        os.write(master, msg.pack(mav))
+
+    def receive(timeout):
+        r, _, _ = select.select([master], [], [], timeout)
+        if not r:
+            return []
+        try:
+            data = os.read(master, 4096)
+        except OSError:
+            return []
+        return mav.parse_buffer(data) or []
+
+    def ack(cmd, *params, timeout=5.0):
+        p = list(params) + [0.0] * (7 - len(params))
+        send(mav.command_long_encode(1, 1, cmd, 0, *p))
+        end = time.time() + timeout
+        while time.time() < end:
+            for msg in receive(0.1):
+                if msg.get_type() == "COMMAND_ACK" and msg.command == cmd:
+                    return result_name(msg.result)
+        return None
+
+    out = {"heartbeat": None}
+    end = time.time() + args.watch_s
+    while time.time() < end and out["heartbeat"] is None:
+        send(mav.heartbeat_encode(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+        for msg in receive(0.2):
+            if msg.get_type() == "HEARTBEAT":
+                out["heartbeat"] = {"type": msg.type, "autopilot": msg.autopilot}
+    if out["heartbeat"] is None:
+        return out
+    counts = {}
+    start = time.time()
+    while time.time() - start < args.seconds:
+        for msg in receive(0.1):
+            counts[msg.get_type()] = counts.get(msg.get_type(), 0) + 1
+    out["counts"] = counts
+    out["arm"] = ack(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    out["force_disarm"] = ack(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196)
+    return out
+
+
 def quat_mul(a, b):
     aw, ax, ay, az = a
     bw, bx, by, bz = b
@@ -315,8 +371,8 @@ def cmd_failsafe(args):
 def main():
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("mode", choices=["rates", "robust", "signing", "failsafe"])
-    p.add_argument("--connect", required=True, help="pymavlink address, e.g. udpout:127.0.0.1:14540")
+    p.add_argument("mode", choices=["rates", "robust", "signing", "serial", "failsafe"])
+    p.add_argument("--connect", default="", help="pymavlink address, e.g. udpout:127.0.0.1:14540")
     p.add_argument("--seconds", type=float, default=3.0)
     p.add_argument("--rounds", type=int, default=50)
     p.add_argument("--seed", type=int, default=1)
@@ -327,7 +383,7 @@ def main():
     p.add_argument("--watch-s", type=float, default=20.0)
     args = p.parse_args()
     run = {"rates": cmd_rates, "robust": cmd_robust, "signing": cmd_signing,
-           "failsafe": cmd_failsafe}[args.mode]
+           "serial": cmd_serial, "failsafe": cmd_failsafe}[args.mode]
     print(json.dumps(run(args)))
 
 

@@ -388,3 +388,52 @@ fn with_signing_required_unsigned_and_forged_frames_are_refused() {
     assert!(counter(&exit, "unsigned refused") >= 2, "{exit}");
     assert!(counter(&exit, "bad signature") >= 2, "{exit}");
 }
+
+#[test]
+fn the_serial_path_carries_the_link_over_a_pseudo_terminal() {
+    let _one = serial();
+    // pymavlink's parser on the pty's master end; the autopilot opens the slave's path.
+    let mut peer = Command::new(python())
+        .arg(scripts().join("mavlink_gcs.py"))
+        .args(["serial", "--seconds", "2", "--watch-s", "30"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("mavlink_gcs.py serial: {e}"));
+    let stderr = peer.stderr.take().unwrap_or_else(|| panic!("no stderr"));
+    let mut lines = BufReader::new(stderr).lines();
+    let path = lines
+        .by_ref()
+        .map_while(Result::ok)
+        .find_map(|l| l.strip_prefix("pty ").map(str::to_owned))
+        .unwrap_or_else(|| panic!("the peer printed no pty path"));
+    let device = format!("serial:{path}:115200");
+    let mut child = Command::new(amstack())
+        .args([
+            "twin",
+            "serve",
+            "--mavlink",
+            &device,
+            "--platform",
+            "fa-hexa",
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot start the autopilot: {e}"));
+    let out = peer
+        .wait_with_output()
+        .unwrap_or_else(|e| panic!("mavlink_gcs.py serial: {e}"));
+    let _ = child.kill();
+    let _ = child.wait();
+    let text = String::from_utf8_lossy(&out.stdout);
+    let r: Value = serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"));
+    assert_eq!(r["heartbeat"]["type"], 13, "{r}");
+    assert_eq!(r["heartbeat"]["autopilot"], 12, "{r}");
+    // 2 s of the standing twin's per-step telemetry at 10 Hz.
+    let odometry = r["counts"]["ODOMETRY"].as_u64().unwrap_or(0);
+    assert!((18..=22).contains(&odometry), "{r}");
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    assert_eq!(r["force_disarm"], "ACCEPTED", "{r}");
+}

@@ -403,7 +403,9 @@ impl Autopilot {
                 let got = self
                     .transport
                     .recv(&mut buf, if first { wait } else { Duration::ZERO })
-                    .map_err(|e| AutopilotError::Link(format!("receiving: {e}")))?;
+                    .map_err(|e| {
+                        AutopilotError::Link(format!("the link failed while receiving: {e}"))
+                    })?;
                 first = false;
                 let Some(incoming) = got else { break };
                 received.clear();

@@ -438,7 +438,11 @@ mod tests {
                 x ^= x << 13;
                 x ^= x >> 7;
                 x ^= x << 17;
-                buf.push(if x % 17 == 0 { 0xFD } else { (x >> 24) as u8 });
+                buf.push(if x.is_multiple_of(17) {
+                    0xFD
+                } else {
+                    (x >> 24) as u8
+                });
             }
             rx.datagram(&buf, &mut out);
             rx.stream(&buf, &mut out);
