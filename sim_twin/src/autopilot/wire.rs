@@ -207,17 +207,15 @@ impl Wire {
 
     /// Decodes one datagram (every frame in it; a frame cut short at its end is truncated).
     pub fn datagram(&mut self, bytes: &[u8], out: &mut Vec<Received>) {
-        let consumed = self.parse(bytes, out);
-        if consumed < bytes.len() {
-            self.counters.truncated += 1;
-        }
+        let consumed = self.parse(bytes, out, true);
+        debug_assert_eq!(consumed, bytes.len());
     }
 
     /// Decodes stream bytes (serial): a frame cut short waits for the rest.
     pub fn stream(&mut self, bytes: &[u8], out: &mut Vec<Received>) {
         let mut buf = std::mem::take(&mut self.pending);
         buf.extend_from_slice(bytes);
-        let consumed = self.parse(&buf, out);
+        let consumed = self.parse(&buf, out, false);
         buf.drain(..consumed);
         // A stream never holds more than one frame in waiting.
         if buf.len() > MAX_FRAME {
@@ -228,13 +226,23 @@ impl Wire {
     }
 
     /// Parses whole frames from `buf`; returns the bytes consumed (the rest is a frame cut
-    /// short, or nothing).
-    fn parse(&mut self, buf: &[u8], out: &mut Vec<Received>) -> usize {
+    /// short, or nothing). In a datagram nothing more will come: a frame cut short is
+    /// truncated unless another start byte follows (its length byte may be corrupt and hide
+    /// a good frame: resync).
+    fn parse(&mut self, buf: &[u8], out: &mut Vec<Received>, datagram: bool) -> usize {
         let mut at = 0;
         while at < buf.len() {
             let rest = &buf[at..];
             match rest[0] {
                 STX_V2 => match frame_at(rest) {
+                    Frame::Short if datagram && rest[1..].contains(&STX_V2) => {
+                        self.counters.junk_bytes += 1;
+                        at += 1;
+                    }
+                    Frame::Short if datagram => {
+                        self.counters.truncated += 1;
+                        return buf.len();
+                    }
                     Frame::Short => return at,
                     Frame::Whole(n) => {
                         if self.frame(&rest[..n], out) {
@@ -249,6 +257,10 @@ impl Wire {
                     // MAVLink 1: len + 6 header bytes + payload + CRC; skipped whole.
                     self.counters.unsupported += 1;
                     at += (8 + usize::from(rest[1])).min(rest.len());
+                }
+                STX_V1 if datagram => {
+                    self.counters.unsupported += 1;
+                    return buf.len();
                 }
                 STX_V1 => return at,
                 _ => {
@@ -380,7 +392,7 @@ mod tests {
         let mut mixed = vec![0u8, 0xFD, 7];
         mixed.extend_from_slice(&good);
         rx.datagram(&mixed, &mut out);
-        assert_eq!(out.len(), 2);
+        assert_eq!(out.len(), 2, "{}", rx.counters());
         assert_eq!(rx.counters().frames_ok, 2);
         assert_eq!(rx.counters().bad_crc, 1);
         assert_eq!(rx.counters().unknown_id, 1);
