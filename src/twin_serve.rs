@@ -31,7 +31,7 @@ enum TwinCommand {
 
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
-Lockstep (the default, PX4's SITL contract): the twin advances exactly one control period
+IPC (--ipc). Lockstep (the default, PX4's SITL contract): the twin advances exactly one control period
 when the command for its current tick arrives, so a split-process flight is bit-identical
 to the in-process one. Realtime: the twin steps on the wall clock at the control rate with
 the latest command, as hardware would.
@@ -66,8 +66,9 @@ drop_rate_comm, and a line on stderr at exit. The contract: docs/mavlink.md.
 Example with pymavlink as the ground station (QGroundControl: add a UDP link to server
 127.0.0.1:14540 and it shows the vehicle):
   amstack twin serve --mavlink udp:127.0.0.1:14540 --platform fa-hexa --realtime &
-  python3 scripts/mavlink_gcs.py --connect udpout:127.0.0.1:14540 --seconds 3
-  (its venv: scripts/setup-python.sh; it measures the message rates, arms, disarms)")]
+  PY=$(bash scripts/setup-python.sh)    # a venv with pymavlink
+  $PY scripts/mavlink_gcs.py rates --connect udpout:127.0.0.1:14540 --seconds 3
+  (it measures the message rates, requests AUTOPILOT_VERSION, arms and disarms: JSON)")]
 #[command(group(clap::ArgGroup::new("link").required(true).args(["ipc", "mavlink"])))]
 pub struct ServeArgs {
     /// iceoryx2 service name the flight process connects to (`--link ipc:<NAME>`).
