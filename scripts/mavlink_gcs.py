@@ -13,6 +13,9 @@ scripts/setup-python.sh.
   serial    open a pseudo-terminal pair, print "pty PATH" on stderr (start the autopilot on
             serial:PATH:BAUD), then wait for its heartbeat on the other end, arm and force
             disarm: the ACKs and how many ODOMETRY arrived in --seconds.
+  actuator  lockstep at actuator level: a few ticks while disarmed (must not step), offboard,
+            arm, then --ticks ticks of group 2 (arm joint 0 at --joint-control, gripper open)
+            and group 0 (every motor at --motor-u): the ODOMETRY times, thrusts and joints.
   failsafe  stream SET_ATTITUDE_TARGET (lockstep, a z PD loop on ODOMETRY), offboard, arm,
             hover --hover-s, stop; record the hold, the landing and the disarm.
 """
@@ -255,6 +258,57 @@ def cmd_serial(args):
     return out
 
 
+def cmd_actuator(args):
+    m = connect(args)
+    if wait_heartbeat(m) is None:
+        return {"error": "no heartbeat"}
+    out = {}
+    motors = [args.motor_u] * args.rotors + [0.0] * (8 - args.rotors)
+    arm = [args.joint_control] + [0.0] * 7
+    arm[args.arm_joints] = 1.0  # the gripper, after the arm joints: open
+
+    def tick():
+        m.mav.set_actuator_control_target_send(0, 2, 1, 1, arm)
+        m.mav.set_actuator_control_target_send(0, 0, 1, 1, motors)
+
+    first = m.recv_match(type="ODOMETRY", blocking=True, timeout=2)
+    for _ in range(5):
+        tick()
+        time.sleep(0.05)
+    idle = m.recv_match(type="ODOMETRY", blocking=True, timeout=2)
+    out["disarmed_time_usec"] = [first.time_usec, idle.time_usec]
+    out["offboard"], _ = command(m, mavlink2.MAV_CMD_DO_SET_MODE, 1, 6, 0)
+    out["arm"], _ = command(m, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    times = []
+    last = {"t": 0}
+    thrusts = None
+    joints = None
+    z = []
+    for _ in range(args.ticks):
+        tick()
+        end = time.time() + 2
+        while time.time() < end:
+            msg = m.recv_match(type=["ODOMETRY", "ACTUATOR_OUTPUT_STATUS", "DEBUG_FLOAT_ARRAY"],
+                               blocking=True, timeout=0.2)
+            if msg is None:
+                continue
+            if msg.get_type() == "ACTUATOR_OUTPUT_STATUS":
+                thrusts = list(msg.actuator[:msg.active])
+            elif msg.get_type() == "DEBUG_FLOAT_ARRAY":
+                joints = list(msg.data[:16])
+            elif msg.time_usec > last["t"]:
+                last["t"] = msg.time_usec
+                times.append(msg.time_usec)
+                z.append(-msg.z)
+                break
+    out["times_usec"] = times
+    out["thrusts_n"] = thrusts
+    out["joints"] = joints
+    out["z_m"] = [min(z), max(z)] if z else None
+    out["force_disarm"], _ = command(m, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196)
+    return out
+
+
 def quat_mul(a, b):
     aw, ax, ay, az = a
     bw, bx, by, bz = b
@@ -371,7 +425,13 @@ def cmd_failsafe(args):
 def main():
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("mode", choices=["rates", "robust", "signing", "serial", "failsafe"])
+    p.add_argument("mode", choices=["rates", "robust", "signing", "serial", "actuator",
+                                    "failsafe"])
+    p.add_argument("--rotors", type=int, default=6)
+    p.add_argument("--arm-joints", type=int, default=4)
+    p.add_argument("--motor-u", type=float, default=0.5)
+    p.add_argument("--joint-control", type=float, default=0.5)
+    p.add_argument("--ticks", type=int, default=60)
     p.add_argument("--connect", default="", help="pymavlink address, e.g. udpout:127.0.0.1:14540")
     p.add_argument("--seconds", type=float, default=3.0)
     p.add_argument("--rounds", type=int, default=50)
@@ -383,7 +443,7 @@ def main():
     p.add_argument("--watch-s", type=float, default=20.0)
     args = p.parse_args()
     run = {"rates": cmd_rates, "robust": cmd_robust, "signing": cmd_signing,
-           "serial": cmd_serial, "failsafe": cmd_failsafe}[args.mode]
+           "serial": cmd_serial, "actuator": cmd_actuator, "failsafe": cmd_failsafe}[args.mode]
     print(json.dumps(run(args)))
 
 

@@ -437,3 +437,79 @@ fn the_serial_path_carries_the_link_over_a_pseudo_terminal() {
     assert_eq!(r["arm"], "ACCEPTED", "{r}");
     assert_eq!(r["force_disarm"], "ACCEPTED", "{r}");
 }
+
+#[test]
+fn lockstep_actuator_setpoints_step_the_twin_once_per_tick() {
+    let _one = serial();
+    let mut ap = Autopilot::start(&["--platform", "fa-hexa"]);
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"));
+    let u = 0.55;
+    let arm_joints = vehicle.arm_joints.len().to_string();
+    let r = ap.peer(
+        "actuator",
+        &[
+            "--rotors",
+            "6",
+            "--arm-joints",
+            &arm_joints,
+            "--motor-u",
+            &u.to_string(),
+            "--joint-control",
+            "0.5",
+            "--ticks",
+            "60",
+        ],
+    );
+    // Disarmed, setpoints only refresh the stream: the twin stands still at t = 0.
+    assert_eq!(r["disarmed_time_usec"], serde_json::json!([0, 0]), "{r}");
+    assert_eq!(r["offboard"], "ACCEPTED", "{r}");
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    // Tick k (group 2 then group 0) answers with ODOMETRY at exactly k control periods.
+    let times: Vec<u64> = r["times_usec"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{r}"))
+        .iter()
+        .filter_map(Value::as_u64)
+        .collect();
+    let expected: Vec<u64> = (1..=60u64)
+        .map(|k| (k as f64 * 1e6 / 120.0).round() as u64)
+        .collect();
+    assert_eq!(times, expected, "{r}");
+    // Every rotor realises the thrust curve's thrust for u (ideal rotors: no dynamics).
+    let thrust = vehicle.rotors.thrust_curve.thrust_n(u);
+    let thrusts = r["thrusts_n"].as_array().unwrap_or_else(|| panic!("{r}"));
+    assert_eq!(thrusts.len(), 6, "{r}");
+    for t in thrusts {
+        let t = t.as_f64().unwrap_or(f64::NAN);
+        assert!(
+            (t - thrust).abs() < 1e-4 * thrust,
+            "{t} N vs {thrust} N\n{r}"
+        );
+    }
+    // Group 2: arm joint 0 at control 0.5 → 3/4 of its range; the gripper open.
+    let joints = r["joints"].as_array().unwrap_or_else(|| panic!("{r}"));
+    let j0 = &vehicle.model.joints[vehicle.arm_joints[0]];
+    let limits = j0
+        .limits
+        .unwrap_or_else(|| panic!("arm joint 0 has limits"));
+    let target = limits.lower + 0.75 * (limits.upper - limits.lower);
+    let dof = j0.dof.unwrap_or_else(|| panic!("movable"));
+    let q0 = joints[dof].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (q0 - target).abs() < 0.1,
+        "joint 0 at {q0} rad, target {target} rad\n{r}"
+    );
+    let gripper = vehicle
+        .gripper
+        .as_ref()
+        .unwrap_or_else(|| panic!("a gripper"));
+    for (k, &j) in gripper.joints.iter().enumerate() {
+        let d = vehicle.model.joints[j]
+            .dof
+            .unwrap_or_else(|| panic!("movable"));
+        let q = joints[d].as_f64().unwrap_or(f64::NAN);
+        assert!((q - gripper.open[k]).abs() < 0.01, "finger {k} at {q}\n{r}");
+    }
+    assert_eq!(r["force_disarm"], "ACCEPTED", "{r}");
+    ap.stop();
+}
