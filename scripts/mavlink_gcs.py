@@ -369,9 +369,10 @@ def cmd_failsafe(args):
     t_us = 0
     ticks = int(args.hover_s * args.rate_hz)
     max_tilt = 0.0
-    for _ in range(ticks):
+    for k in range(ticks):
         cur = last["odo"] or odo
-        setpoint(pd_thrust(cur, z0))
+        # Climbing at --climb-mps: the setpoints stop while the vehicle moves.
+        setpoint(pd_thrust(cur, z0 - args.climb_mps * k / args.rate_hz))
         got = wait_odometry(t_us)
         if got is None:
             out["error"] = "lockstep: no ODOMETRY for a setpoint at t = %d us" % t_us
@@ -379,7 +380,8 @@ def cmd_failsafe(args):
         t_us = got.time_usec
         max_tilt = max(max_tilt, tilt_deg(got.q))
     stop = last["odo"]
-    out["stopped_at"] = {"t_s": stop.time_usec / 1e6, "x": stop.x, "y": stop.y, "z": stop.z}
+    out["stopped_at"] = {"t_s": stop.time_usec / 1e6, "x": stop.x, "y": stop.y, "z": stop.z,
+                         "vz": stop.vz}
     # Setpoints stop: watch the failsafe.
     modes = []
     hold_dev = 0.0
@@ -441,6 +443,7 @@ def main():
     p.add_argument("--hover-s", type=float, default=1.0)
     p.add_argument("--rate-hz", type=float, default=120.0)
     p.add_argument("--watch-s", type=float, default=20.0)
+    p.add_argument("--climb-mps", type=float, default=0.0)
     args = p.parse_args()
     run = {"rates": cmd_rates, "robust": cmd_robust, "signing": cmd_signing,
            "serial": cmd_serial, "actuator": cmd_actuator, "failsafe": cmd_failsafe}[args.mode]
