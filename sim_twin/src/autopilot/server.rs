@@ -36,6 +36,9 @@ pub const LANDED_MARGIN_M: f64 = 0.05;
 pub const LANDED_SPEED_MPS: f64 = 0.2;
 /// … for this long (twin time), s.
 pub const LANDED_FOR_S: f64 = 0.5;
+/// AUTO.LAND: a vehicle that stays still this far above its descending target is held up by
+/// the ground (or what stands on it) and counts as landed, m.
+pub const LAND_STALL_M: f64 = 0.1;
 /// Per-step telemetry while the twin stands still, wall clock.
 pub const IDLE_TELEMETRY_PERIOD: Duration = Duration::from_millis(100);
 
@@ -606,11 +609,16 @@ impl Autopilot {
         };
         let mut target = target;
         if mode == FlightMode::AutoLand {
-            let floor = self.rest_z_m - 0.2;
+            // Down to the resting height, not into the ground: a controller pushing into the
+            // ground winds up and tips an under-actuated vehicle over.
+            let floor = self.rest_z_m;
             target.translation.z = (target.translation.z - LAND_SPEED_MPS * self.dt_s).max(floor);
             let z = m.base.position_in_world_m.z;
             let still = m.base.velocity_in_world_mps.norm() < LANDED_SPEED_MPS;
-            if z < self.rest_z_m + LANDED_MARGIN_M && still {
+            // On the ground: at the resting height, or held up (by an arm or an object below)
+            // while the target is well below, as PX4's land detector.
+            let held_up = target.translation.z < z - LAND_STALL_M;
+            if (z < self.rest_z_m + LANDED_MARGIN_M || held_up) && still {
                 self.landed_since_s.get_or_insert(m.time_s);
             } else {
                 self.landed_since_s = None;
