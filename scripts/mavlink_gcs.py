@@ -190,6 +190,9 @@ def cmd_signing(args):
     m = connect(args)
     heartbeat(m)
     out["unsigned"], _ = command(m, mavlink2.MAV_CMD_REQUEST_MESSAGE, 148, timeout=1.5)
+    # Telemetry goes only to senders of accepted frames.
+    out["unsigned_heard_heartbeat"] = m.recv_match(type="HEARTBEAT", blocking=True,
+                                                   timeout=1.5) is not None
     m.close()
     # Signed with a wrong key.
     m = connect(args, signing_key=bytes(b ^ 0xFF for b in key))

@@ -393,6 +393,7 @@ fn with_signing_required_unsigned_and_forged_frames_are_refused() {
     // No ACK for the unsigned or forged command; the signed one is accepted, and what the
     // autopilot sends is signed.
     assert_eq!(r["unsigned"], Value::Null, "{r}");
+    assert_eq!(r["unsigned_heard_heartbeat"], false, "{r}");
     assert_eq!(r["forged"], Value::Null, "{r}");
     assert_eq!(r["signed"], "ACCEPTED", "{r}");
     assert_eq!(r["heartbeat_signed"], true, "{r}");

@@ -413,10 +413,12 @@ impl Autopilot {
                 let Some(incoming) = got else { break };
                 received.clear();
                 let new_peer = match incoming {
-                    Incoming::Datagram { len, from, new } => {
+                    Incoming::Datagram { len, from } => {
                         self.wire
                             .datagram(buf.get(..len).unwrap_or(&[]), &mut received);
-                        new.then_some(from)
+                        // Only a sender of an accepted frame is a peer (with signing required,
+                        // an unsigned sender gets nothing).
+                        (!received.is_empty() && self.transport.note_peer(from)).then_some(from)
                     }
                     Incoming::Stream(n) => {
                         self.wire.stream(buf.get(..n).unwrap_or(&[]), &mut received);

@@ -68,14 +68,12 @@ impl std::fmt::Display for Endpoint {
 /// What a receive returned.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Incoming {
-    /// A UDP datagram of this many bytes from this peer (a new peer when `new`).
+    /// A UDP datagram of this many bytes from this address.
     Datagram {
         /// Bytes.
         len: usize,
         /// Sender.
         from: SocketAddr,
-        /// First frame from this peer (or first after it timed out).
-        new: bool,
     },
     /// Serial bytes.
     Stream(usize),
@@ -148,24 +146,10 @@ impl Transport {
     pub fn recv(&mut self, buf: &mut [u8], wait: Duration) -> std::io::Result<Option<Incoming>> {
         let wait = wait.max(Duration::from_micros(50));
         match self {
-            Self::Udp { socket, peers } => {
+            Self::Udp { socket, .. } => {
                 socket.set_read_timeout(Some(wait))?;
                 match socket.recv_from(buf) {
-                    Ok((len, from)) => {
-                        let now = Instant::now();
-                        peers.retain(|(_, t)| now.duration_since(*t) < PEER_TIMEOUT);
-                        let new = match peers.iter_mut().find(|(a, _)| *a == from) {
-                            Some(p) => {
-                                p.1 = now;
-                                false
-                            }
-                            None => {
-                                peers.push((from, now));
-                                true
-                            }
-                        };
-                        Ok(Some(Incoming::Datagram { len, from, new }))
-                    }
+                    Ok((len, from)) => Ok(Some(Incoming::Datagram { len, from })),
                     Err(e) if is_quiet(&e) => Ok(None),
                     Err(e) => Err(e),
                 }
@@ -179,6 +163,26 @@ impl Transport {
                     Err(e) if is_quiet(&e) => Ok(None),
                     Err(e) => Err(e),
                 }
+            }
+        }
+    }
+
+    /// Counts `from` as a peer (it sent a frame the autopilot accepted): telemetry goes to it
+    /// for [`PEER_TIMEOUT`]. True for a new peer.
+    pub fn note_peer(&mut self, from: SocketAddr) -> bool {
+        let Self::Udp { peers, .. } = self else {
+            return false;
+        };
+        let now = Instant::now();
+        peers.retain(|(_, t)| now.duration_since(*t) < PEER_TIMEOUT);
+        match peers.iter_mut().find(|(a, _)| *a == from) {
+            Some(p) => {
+                p.1 = now;
+                false
+            }
+            None => {
+                peers.push((from, now));
+                true
             }
         }
     }
