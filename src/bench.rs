@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
 
 use anyhow::Result;
 use comfy_table::{Table, presets};
@@ -11,13 +12,16 @@ use controllers::{ControllerKind, profile};
 use indicatif::{ProgressBar, ProgressStyle};
 use policy_runtime::Interface;
 use policy_runtime::bench::{
-    BenchConfig, BenchReport, EpisodeLength, RolloutResult, TaskResult, run_bench,
+    BenchConfig, BenchError, BenchLink, BenchReport, EpisodeLength, RolloutResult, TaskResult,
+    run_bench,
 };
 use policy_runtime::metrics::{Spread, format_or_na};
+use policy_runtime::{IpcLinkConfig, IpcLinkError};
 use serde_json::{Value, json};
 use sim_twin::TaskId;
 
 use crate::cli_error::bad_input;
+use crate::fly::{LinkChoice, link_choice};
 use crate::output::{check_writable, write_json};
 use crate::twin_flags::TwinFlags;
 use crate::vehicles::find_vehicle;
@@ -39,6 +43,12 @@ Each rollout's seed is --seed + its index; same flags, same results, whatever --
 The table shows, per task, the success rate (SR), subtask completion, the errors normalised
 by the arm reach and the tilt use as mean +- std over the successful rollouts, and the rotor
 saturation rate; N/A where a figure is undefined (no subtasks, no arm reach, no rotors).
+
+Links: by default every rollout runs in a twin of its own in this process (--jobs threads).
+With --link ipc:<service> each rollout is a lockstep session of a twin in another process,
+one rollout at a time, with the same results bit for bit:
+  amstack twin serve --ipc bench --platform ee-only --flight-chooses-episode &
+  amstack bench --link ipc:bench --task press-button --rollouts 5
 
 Examples:
   amstack bench --task press-button --rollouts 5
@@ -66,9 +76,19 @@ pub struct Args {
     /// or seconds.
     #[arg(long, value_name = "spec|script|S", default_value = "script")]
     episode_length: String,
-    /// Worker threads [default: all cores].
+    /// Worker threads [default: all cores; 1 over ipc].
     #[arg(long)]
     jobs: Option<usize>,
+    /// Where the rollouts run: `twin` (this process) or `ipc:<service>` (the twin of
+    /// `amstack twin serve --ipc <service> --flight-chooses-episode`, in lockstep).
+    #[arg(long, value_name = "LINK", default_value = "twin")]
+    link: String,
+    /// How long each answer of the twin may take before the run stops, ms (ipc).
+    #[arg(long, value_name = "MS", default_value_t = 50)]
+    link_timeout_ms: u64,
+    /// How long to wait for the twin to answer each rollout's handshake, ms (ipc).
+    #[arg(long, value_name = "MS", default_value_t = 10_000)]
+    connect_timeout_ms: u64,
     #[command(flatten)]
     twin: TwinFlags,
     /// Output directory: results.json, config.json and one MCAP log per rollout.
@@ -161,7 +181,27 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         },
     };
     let twin = args.twin.twin_config()?;
+    let link = match link_choice(&args.link)? {
+        LinkChoice::Twin => BenchLink::InProcess,
+        LinkChoice::Ipc(service) => BenchLink::Ipc(IpcLinkConfig {
+            answer_timeout: Duration::from_millis(args.link_timeout_ms.max(1)),
+            connect_timeout: Duration::from_millis(args.connect_timeout_ms),
+            ..IpcLinkConfig::new(service)
+        }),
+    };
+    let jobs = match (&link, args.jobs) {
+        (BenchLink::Ipc(_), Some(j)) if j > 1 => {
+            return Err(bad_input(format!(
+                "--jobs {j}: over --link {} rollouts run one at a time (the twin serves one \
+                 flight process at a time); start one twin per job and one bench per twin",
+                args.link
+            )));
+        }
+        (BenchLink::Ipc(_), _) => 1,
+        _ => jobs,
+    };
     Ok(BenchConfig {
+        link,
         episode,
         vehicle,
         controller,
@@ -271,6 +311,7 @@ pub(crate) fn results_json(
         "config": config_json(args, config)?,
         "tasks": tasks,
         "timing": {
+            "link": config.link.name(),
             "wall_time_s": report.wall_time_s,
             "jobs": config.jobs,
             "env_steps": report.env_steps,
@@ -332,7 +373,7 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let total = config.tasks.len() * config.rollouts;
     eprintln!(
-        "bench: {} task(s) x {} rollouts on {} ({}, {} interface), seed {}, {} thread(s), disturbances: {}",
+        "bench: {} task(s) x {} rollouts on {} ({}, {} interface), seed {}, {} thread(s), disturbances: {}, link: {}",
         config.tasks.len(),
         config.rollouts,
         config.vehicle.id,
@@ -340,7 +381,8 @@ pub fn run(args: &Args) -> Result<()> {
         args.interface,
         config.seed,
         config.jobs,
-        args.twin.disturbances
+        args.twin.disturbances,
+        config.link.name()
     );
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
@@ -362,7 +404,12 @@ pub fn run(args: &Args) -> Result<()> {
         ));
         bar.inc(1);
     };
-    let report = run_bench(&config, &on_done, &stop)?;
+    let report = run_bench(&config, &on_done, &stop).map_err(|e| match e {
+        BenchError::Link(IpcLinkError::Refused { .. } | IpcLinkError::TooLarge(_)) => {
+            bad_input(e.to_string())
+        }
+        e => anyhow::Error::new(e),
+    })?;
     bar.finish_and_clear();
     println!("{}", table(&report));
     eprintln!(

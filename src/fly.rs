@@ -103,12 +103,12 @@ fn timing(link: String, ticks: &[TickTiming], result: &TrackResult) -> Timing {
     }
 }
 
-enum LinkChoice {
+pub(crate) enum LinkChoice {
     Twin,
     Ipc(String),
 }
 
-fn link_choice(link: &str) -> Result<LinkChoice> {
+pub(crate) fn link_choice(link: &str) -> Result<LinkChoice> {
     match link.split_once(':') {
         None if link == "twin" => Ok(LinkChoice::Twin),
         Some(("ipc", service)) if !service.is_empty() && !service.contains(char::is_whitespace) => {

@@ -5,10 +5,13 @@
 
 mod bench;
 mod cli_error;
+mod compare;
 mod fly;
 mod mpc_bench;
 mod output;
 mod platforms;
+mod plot;
+mod replay;
 mod track;
 mod twin_flags;
 mod twin_serve;
@@ -54,6 +57,12 @@ enum Command {
     /// Solve time of the whole-body MPC per QP path on its standard scenario (FA-Hexa, EE step
     /// near a wall): median/p90/p99/max per RTI step, QP iterations, cost, violation.
     MpcBench(mpc_bench::Args),
+    /// Re-fly a logged flight (MCAP) in the twin from its logged initial state: its actions
+    /// through the whole flight stack, or its actuator commands open loop.
+    Replay(Box<replay::Args>),
+    /// Compare two flight logs signal by signal: RMSE, max error and bias over the whole
+    /// overlap and over intervals; table, JSON, PNG plot.
+    Compare(Box<compare::Args>),
 }
 
 fn main() -> ExitCode {
@@ -86,6 +95,8 @@ fn main() -> ExitCode {
         Command::Fly(args) => fly::run(&args),
         Command::Twin(args) => twin_serve::run(&args),
         Command::MpcBench(args) => mpc_bench::run(&args),
+        Command::Replay(args) => replay::run(&args),
+        Command::Compare(args) => compare::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

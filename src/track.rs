@@ -7,8 +7,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Result;
 use comfy_table::{Table, presets};
-use controllers::{ControllerKind, profile};
-use policy_runtime::{Interface, TrackConfig, TrackResult, Trajectory, run_track};
+use controllers::{ControllerConfig, ControllerKind, profile};
+use policy_runtime::{
+    EstimatorSettings, Interface, StateSource, TrackConfig, TrackResult, Trajectory, run_track,
+};
 
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_json};
@@ -50,10 +52,19 @@ pub struct Args {
     /// Start transient excluded from the error metrics, s.
     #[arg(long, value_name = "S", default_value_t = 2.0)]
     settle: f64,
+    /// Wrench-space limit of the PID controller: largest norm of its force, N (gravity
+    /// compensation included; default none, as the reference).
+    #[arg(long, value_name = "N")]
+    max_force: Option<f64>,
+    /// Wrench-space limit of the PID controller: largest norm of its torque, N·m.
+    #[arg(long, value_name = "NM")]
+    max_torque: Option<f64>,
     #[command(flatten)]
     twin: TwinFlags,
     #[command(flatten)]
     scene: SceneFlag,
+    #[command(flatten)]
+    state: StateFlags,
     /// Write the scores as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -63,6 +74,116 @@ pub struct Args {
     /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
     #[arg(long = "vehicle", value_name = "FILE.toml")]
     vehicles: Vec<PathBuf>,
+}
+
+/// Where the controllers' base state comes from, and the simulated sensors of the estimator.
+#[derive(Debug, clap::Args)]
+#[command(next_help_heading = "State source")]
+pub struct StateFlags {
+    /// `truth`: the controllers fly on the twin's measurement; `estimator`: on the EKF fed by
+    /// a simulated IMU (at the control rate) and pose sensor (motion capture).
+    #[arg(long, value_name = "SOURCE", default_value = "truth", value_parser = ["truth", "estimator"])]
+    state_source: String,
+    /// The sensors and the filter from a TOML file with `[imu]`, `[pose]`, `[estimator]`
+    /// sections (any subset of fields; the flags below override it).
+    #[arg(long, value_name = "FILE.toml")]
+    sensors: Option<PathBuf>,
+    /// Pose sensor rate, Hz [default: 60].
+    #[arg(long, value_name = "HZ")]
+    pose_rate: Option<f64>,
+    /// Pose sensor latency (capture → arrival), s [default: 0.02].
+    #[arg(long, value_name = "S")]
+    pose_latency: Option<f64>,
+    /// Pose position noise, standard deviation per axis, m [default: 0.002].
+    #[arg(long, value_name = "M")]
+    pose_position_std: Option<f64>,
+    /// Pose attitude noise, standard deviation per axis, rad [default: 0.005].
+    #[arg(long, value_name = "RAD")]
+    pose_attitude_std: Option<f64>,
+    /// Accelerometer white-noise density, m/s²/√Hz [default: 0.002].
+    #[arg(long, value_name = "D")]
+    imu_accel_noise: Option<f64>,
+    /// Gyroscope white-noise density, rad/s/√Hz [default: 0.0005].
+    #[arg(long, value_name = "D")]
+    imu_gyro_noise: Option<f64>,
+    /// Accelerometer turn-on bias, standard deviation per axis, m/s² [default: 0.05].
+    #[arg(long, value_name = "B")]
+    imu_accel_bias_std: Option<f64>,
+    /// Gyroscope turn-on bias, standard deviation per axis, rad/s [default: 0.005].
+    #[arg(long, value_name = "B")]
+    imu_gyro_bias_std: Option<f64>,
+}
+
+impl StateFlags {
+    /// The state source; a bad file or value is bad input naming it.
+    pub fn state_source(&self) -> Result<StateSource> {
+        let sensor_flags = [
+            ("--sensors", self.sensors.is_some()),
+            ("--pose-rate", self.pose_rate.is_some()),
+            ("--pose-latency", self.pose_latency.is_some()),
+            ("--pose-position-std", self.pose_position_std.is_some()),
+            ("--pose-attitude-std", self.pose_attitude_std.is_some()),
+            ("--imu-accel-noise", self.imu_accel_noise.is_some()),
+            ("--imu-gyro-noise", self.imu_gyro_noise.is_some()),
+            ("--imu-accel-bias-std", self.imu_accel_bias_std.is_some()),
+            ("--imu-gyro-bias-std", self.imu_gyro_bias_std.is_some()),
+        ];
+        if self.state_source == "truth" {
+            if let Some((flag, _)) = sensor_flags.iter().find(|(_, set)| *set) {
+                return Err(bad_input(format!(
+                    "{flag}: the simulated sensors need --state-source estimator"
+                )));
+            }
+            return Ok(StateSource::Truth);
+        }
+        let mut settings = match &self.sensors {
+            None => EstimatorSettings::default(),
+            Some(path) => {
+                let text = std::fs::read_to_string(path)
+                    .map_err(|e| bad_input(format!("--sensors {}: {e}", path.display())))?;
+                toml::from_str(&text).map_err(|e| {
+                    bad_input(format!(
+                        "{}: {}",
+                        path.display(),
+                        e.to_string().lines().collect::<Vec<_>>().join(" ")
+                    ))
+                })?
+            }
+        };
+        let set = |target: &mut f64, value: Option<f64>| {
+            if let Some(v) = value {
+                *target = v;
+            }
+        };
+        set(&mut settings.pose.rate_hz, self.pose_rate);
+        set(&mut settings.pose.latency_s, self.pose_latency);
+        set(&mut settings.pose.position_std_m, self.pose_position_std);
+        set(&mut settings.pose.attitude_std_rad, self.pose_attitude_std);
+        set(
+            &mut settings.imu.accel_noise_mps2_per_sqrt_hz,
+            self.imu_accel_noise,
+        );
+        set(
+            &mut settings.imu.gyro_noise_radps_per_sqrt_hz,
+            self.imu_gyro_noise,
+        );
+        set(
+            &mut settings.imu.accel_bias_std_mps2,
+            self.imu_accel_bias_std,
+        );
+        set(
+            &mut settings.imu.gyro_bias_std_radps,
+            self.imu_gyro_bias_std,
+        );
+        settings.validate().map_err(|e| {
+            let source = self
+                .sensors
+                .as_ref()
+                .map_or_else(|| "sensors".to_owned(), |p| p.display().to_string());
+            bad_input(format!("{source}: {e}"))
+        })?;
+        Ok(StateSource::Estimator(settings))
+    }
 }
 
 fn config(args: &Args) -> Result<TrackConfig> {
@@ -76,8 +197,25 @@ fn config(args: &Args) -> Result<TrackConfig> {
         "mpc" => ControllerKind::Mpc,
         _ => ControllerKind::Pid,
     };
-    let controller = profile(&vehicle, kind)
+    let mut controller = profile(&vehicle, kind)
         .map_err(|e| bad_input(format!("--controller {}: {e}", args.controller)))?;
+    if args.max_force.is_some() || args.max_torque.is_some() {
+        let (force, torque) = match &mut controller {
+            ControllerConfig::Pid6(g) => (&mut g.max_force_n, &mut g.max_torque_nm),
+            ControllerConfig::Pid4(g) => (&mut g.max_force_n, &mut g.max_torque_nm),
+            _ => {
+                return Err(bad_input(format!(
+                    "--max-force/--max-torque: wrench limits are the PID controller's, not {}'s",
+                    args.controller
+                )));
+            }
+        };
+        *force = args.max_force.or(*force);
+        *torque = args.max_torque.or(*torque);
+        controller
+            .validate()
+            .map_err(|e| bad_input(format!("--max-force/--max-torque: {e}")))?;
+    }
     if kind == ControllerKind::Mpc && args.interface != "ee" {
         return Err(bad_input(
             "--controller mpc: the whole-body MPC tracks end-effector targets; add --interface ee",
@@ -99,6 +237,7 @@ fn config(args: &Args) -> Result<TrackConfig> {
             args.settle
         )));
     }
+    let state_source = args.state.state_source()?;
     let interface = if args.interface == "ee" {
         Interface::Ee
     } else {
@@ -113,6 +252,7 @@ fn config(args: &Args) -> Result<TrackConfig> {
         settle_s: args.settle,
         twin,
         mcap: args.mcap.clone(),
+        state_source,
     })
 }
 
@@ -148,13 +288,14 @@ pub(crate) fn run_with(
     flight: impl FnOnce(&TrackConfig, &mut dyn FnMut(f64) -> ControlFlow<()>) -> Result<TrackResult>,
 ) -> Result<()> {
     eprintln!(
-        "flying {} on {} ({}, {} interface) for {} s, disturbances: {}",
+        "flying {} on {} ({}, {} interface) for {} s, disturbances: {}, state: {}",
         config.trajectory.name(),
         config.vehicle.id,
         config.controller.name(),
         config.interface.name(),
         config.duration_s,
-        args.twin.disturbances
+        args.twin.disturbances,
+        config.state_source.name()
     );
     let duration = config.duration_s;
     // Ctrl-C stops the flight at the next simulated second and closes the log properly.
@@ -197,6 +338,28 @@ pub(crate) fn run_with(
         ("ticks per second", cell(Some(r.ticks_per_second), 1.0, 0)),
     ] {
         table.add_row([name.to_owned(), value]);
+    }
+    if let Some(e) = &r.estimator {
+        for (name, value) in [
+            (
+                "estimate position RMSE (mm)",
+                cell(Some(e.position_rmse_m), 1000.0, 3),
+            ),
+            (
+                "estimate max position error (mm)",
+                cell(Some(e.position_max_error_m), 1000.0, 3),
+            ),
+            (
+                "estimator mean NIS (6 = consistent)",
+                cell(Some(e.mean_nis), 1.0, 2),
+            ),
+            (
+                "poses fused / inputs refused",
+                format!("{} / {}", e.fused, e.rejected),
+            ),
+        ] {
+            table.add_row([name.to_owned(), value]);
+        }
     }
     println!("{table}");
     if let Some(path) = &args.json {

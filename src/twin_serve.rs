@@ -93,6 +93,11 @@ pub struct ServeArgs {
     /// --ipc lockstep: a flight process alive but silent this long counts as lost, ms.
     #[arg(long, value_name = "MS", default_value_t = 5000)]
     stall_ms: u64,
+    /// --ipc: let each flight process choose its session's episode, the task scene and the
+    /// seed (`amstack bench --link ipc:<NAME>` runs every rollout as a session); everything
+    /// else must still match. Without it, sessions run --task and --seed.
+    #[arg(long)]
+    flight_chooses_episode: bool,
     /// --ipc: exit after serving this many sessions (default: until Ctrl-C).
     #[arg(long, value_name = "N")]
     sessions: Option<u64>,
@@ -151,6 +156,7 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
         hold: Duration::from_millis(args.hold_ms),
         stall_timeout: Duration::from_millis(args.stall_ms),
         max_sessions: args.sessions,
+        flight_chooses_episode: args.flight_chooses_episode,
         ..ServeConfig::new(ipc, mode)
     };
     let mut server = TwinServer::new(vehicle, twin, config).map_err(|e| match e {

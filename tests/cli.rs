@@ -302,6 +302,32 @@ fn mpc_bench_reports_both_qp_paths_and_refuses_bad_input() {
 }
 
 #[test]
+fn bad_sensor_settings_are_bad_input_naming_flag_file_and_field() {
+    assert_bad_input(
+        &amstack(&["track", "--pose-latency", "0.03"]),
+        &["--pose-latency", "--state-source estimator"],
+    );
+    assert_bad_input(
+        &amstack(&["track", "--state-source", "estimator", "--pose-rate", "0"]),
+        &["pose.rate_hz = 0", "positive"],
+    );
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let file = dir.path().join("sensors.toml");
+    std::fs::write(&file, "[imu]\naccel_noise_mps2_per_sqrt_hz = -1\n")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let path = file.to_string_lossy().into_owned();
+    assert_bad_input(
+        &amstack(&["track", "--state-source", "estimator", "--sensors", &path]),
+        &["sensors.toml", "imu.accel_noise_mps2_per_sqrt_hz = -1"],
+    );
+    std::fs::write(&file, "[pose]\nlatncy_s = 0.1\n").unwrap_or_else(|e| panic!("{e}"));
+    assert_bad_input(
+        &amstack(&["track", "--state-source", "estimator", "--sensors", &path]),
+        &["sensors.toml", "unknown field `latncy_s`"],
+    );
+}
+
+#[test]
 fn track_with_mpc_is_refused_off_the_fa_hexa_and_off_the_ee_interface() {
     assert_bad_input(
         &amstack(&[
@@ -429,4 +455,137 @@ fn bench_writes_the_documented_results_and_one_log_per_rollout() {
             );
         }
     }
+}
+
+#[test]
+fn replay_then_compare_reports_zero_error_and_refuses_bad_logs_and_signals() {
+    let dir = match tempfile::tempdir() {
+        Ok(d) => d,
+        Err(e) => panic!("tempdir: {e}"),
+    };
+    let p = |name: &str| dir.path().join(name).display().to_string();
+    let (real, sim, report, plot) = (p("real.mcap"), p("sim.mcap"), p("c.json"), p("c.png"));
+    let out = amstack(&[
+        "track",
+        "--platform",
+        "fa-hexa",
+        "--trajectory",
+        "step",
+        "--duration",
+        "1.5",
+        "--settle",
+        "0",
+        "--disturbances",
+        "reference",
+        "--seed",
+        "4",
+        "--mcap",
+        &real,
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    // The seed and disturbances come from the log's metadata; an override is printed.
+    let out = amstack(&["replay", &real, "--out", &sim, "--seed", "4"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("replayed 180 ticks"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(
+        stderr(&out).contains("override: seed 4 -> 4"),
+        "{}",
+        stderr(&out)
+    );
+    let out = amstack(&[
+        "compare",
+        &real,
+        &sim,
+        "--signal",
+        "/base/state.position_m",
+        "--signal",
+        "/rotors.realised_n[3]",
+        "--interval",
+        "t=1..1.5",
+        "--json",
+        &report,
+        "--plot",
+        &plot,
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap_or_default())
+            .unwrap_or_default();
+    let signals = json["signals"].as_array().cloned().unwrap_or_default();
+    assert_eq!(signals.len(), 4, "{json}");
+    for s in &signals {
+        assert_eq!(s["whole"]["max_abs"], 0.0, "{s}");
+        assert_eq!(s["intervals"][0]["interval"], "t=1..1.5", "{s}");
+        assert!(s["intervals"][0]["samples"].as_u64() >= Some(60), "{s}");
+    }
+    assert_eq!(signals[2]["signal"], "/base/state.position_m[2]");
+    let png = std::fs::read(&plot).unwrap_or_default();
+    assert!(
+        png.starts_with(b"\x89PNG"),
+        "not a PNG: {} bytes",
+        png.len()
+    );
+
+    // A missing signal names it and lists the available ones; a bad interval names itself.
+    let out = amstack(&["compare", &real, &sim, "--signal", "/base/state.altitude_m"]);
+    assert_bad_input(
+        &out,
+        &[
+            "/base/state.altitude_m",
+            "no field 'altitude_m'",
+            "available:",
+            "/rotors.realised_n[0..6]",
+        ],
+    );
+    let out = amstack(&[
+        "compare",
+        &real,
+        &sim,
+        "--signal",
+        "/base/state.position_m[2]",
+        "--interval",
+        "z_ref=<0.7",
+    ]);
+    assert_bad_input(&out, &["interval 'z_ref=<0.7'"]);
+    // A truncated log names the file and what is wrong.
+    let bytes = std::fs::read(&real).unwrap_or_default();
+    let cut = p("cut.mcap");
+    assert!(std::fs::write(&cut, &bytes[..bytes.len() / 2]).is_ok());
+    let out = amstack(&["replay", &cut, "--out", &p("x.mcap")]);
+    assert_bad_input(&out, &["cut.mcap", "truncated"]);
+    // Another vehicle flies the logged actions with its own gains; open-loop rotor commands
+    // of another rotor count are refused.
+    let out = amstack(&[
+        "replay",
+        &real,
+        "--platform",
+        "omni-hexa",
+        "--out",
+        &p("omni.mcap"),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("override: platform fa-hexa -> omni-hexa"),
+        "{}",
+        stderr(&out)
+    );
+    let out = amstack(&[
+        "replay",
+        &real,
+        "--platform",
+        "ua-quad",
+        "--mode",
+        "commands",
+        "--out",
+        &p("q.mcap"),
+    ]);
+    assert_bad_input(&out, &["real.mcap", "6 thrusts", "4 rotors"]);
+    let out = amstack(&["replay", &real, "--out", &real]);
+    assert_bad_input(&out, &["is the log being replayed"]);
+    let out = amstack(&["compare", &real, &p("none.mcap"), "--signal", "list"]);
+    assert_bad_input(&out, &["none.mcap", "cannot read"]);
 }

@@ -30,9 +30,12 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
-use sim_twin::{TaskId, Twin, TwinConfig, TwinError};
+use sim_twin::{TaskId, TwinConfig, TwinError};
 
+pub use self::episode::{BenchLink, EpisodeError};
+use self::episode::{Episode, StepFailure};
 use crate::flight_log::{FlightLog, TaskCriterion, TaskState, TaskValue, rotors_saturated};
+use crate::ipc_link::IpcLinkError;
 use crate::metrics::{
     CriteriaLatch, RolloutSummary, RunSummary, TrackingRecord, summarize_rollout, summarize_run,
 };
@@ -40,6 +43,8 @@ use crate::record::{McapRecorder, RecordError, RunMetadata};
 use crate::stack::{Action, EeTarget, FlightStack, StackError, ThrustLimits};
 use crate::task_policies::{PolicyContext, gripper_override, scripted};
 use crate::track::Interface;
+
+mod episode;
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -67,6 +72,8 @@ pub struct BenchConfig {
     pub episode: EpisodeLength,
     /// Directory for one MCAP log per rollout (`<task>/rollout-NNN.mcap`), if any.
     pub mcap_dir: Option<PathBuf>,
+    /// Where the rollouts run (this process, or the twin's process over iceoryx2).
+    pub link: BenchLink,
 }
 
 /// How long a rollout may run before it times out.
@@ -159,6 +166,18 @@ pub enum BenchError {
     /// A log could not be written.
     #[error(transparent)]
     Record(#[from] RecordError),
+    /// The twin process refused, failed or stopped answering.
+    #[error(transparent)]
+    Link(#[from] IpcLinkError),
+}
+
+impl From<EpisodeError> for BenchError {
+    fn from(e: EpisodeError) -> Self {
+        match e {
+            EpisodeError::Twin(e) => Self::Twin(e),
+            EpisodeError::Ipc(e) => Self::Link(e),
+        }
+    }
 }
 
 /// Per-task aggregate.
@@ -216,7 +235,7 @@ pub fn run_rollout(
     };
     let dt = twin_config.control_dt_s();
     let rate_hz = twin_config.control_rate_hz;
-    let mut twin = Twin::new(vehicle.clone(), twin_config)?;
+    let mut episode = Episode::open(&config.link, vehicle, &twin_config)?;
     let limits = if config.twin.disturbances.saturation {
         ThrustLimits::Enforced
     } else {
@@ -229,12 +248,16 @@ pub fn run_rollout(
         limits,
         dt,
     )?;
-    let mut measurement = twin.truth().clone();
+    let mut measurement = episode.measurement()?;
     stack.reset_at(&measurement.base, &measurement.joint_positions);
+    let mut scene = episode.task();
     let context = PolicyContext {
         init: measurement.world_from_ee.translation.vector,
-        task: twin.task_observation().unwrap_or_default(),
-        wall: twin.task_wall(),
+        task: scene
+            .as_ref()
+            .map(|s| s.observation.clone())
+            .unwrap_or_default(),
+        wall: scene.as_ref().and_then(|s| s.wall),
     };
     let mut policy_rng = ChaCha8Rng::seed_from_u64(seed);
     policy_rng.set_stream(2);
@@ -258,7 +281,8 @@ pub fn run_rollout(
             let run = RunMetadata::new(&vehicle.id, &config.controller_name, seed)
                 .with_interface(config.interface.name())
                 .with_trajectory(format!("task:{}", task.name()))
-                .with_config(&twin.config().clone())?;
+                .with_config(&twin_config)?
+                .with_controller_config(&config.controller)?;
             Some(FlightLog::new(McapRecorder::create(&path, &run)?, vehicle)?)
         }
     };
@@ -273,7 +297,7 @@ pub fn run_rollout(
             termination = Termination::Interrupted;
             break;
         }
-        stack.keep_in_front_of(twin.obstacle_face_x());
+        stack.keep_in_front_of(scene.as_ref().and_then(|s| s.obstacle_face_x));
         let (mut command_pose, mut gripper) = policy.action(steps);
         if let Some(g) = gripper_override(task) {
             gripper = g;
@@ -292,27 +316,23 @@ pub fn run_rollout(
         };
         let record = stack.act(&measurement, &action);
         if let Some(log) = &mut log {
+            log.action(measurement.time_s, &action)?;
             log.tick(&measurement, &record, &ee_desired)?;
         }
         let (ee_actual, base_actual) = (measurement.world_from_ee, measurement.base.pose());
-        // A physics engine panic (NaN inside rapier) ends this rollout as diverged, not the run.
-        let stepped =
-            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| twin.step(&record.command)))
-                .unwrap_or_else(|_| {
-                    Err(TwinError::Diverged(
-                        "the physics engine panicked (non-finite state)".to_owned(),
-                    ))
-                });
-        measurement = match stepped {
+        measurement = match episode.step(&record.command) {
             Ok(m) => m,
-            Err(e) => {
-                termination = match e {
-                    TwinError::Command(_) => Termination::NanAction,
-                    _ => Termination::Diverged,
-                };
+            Err(StepFailure::NonFinite) => {
+                termination = Termination::NanAction;
                 break;
             }
+            Err(StepFailure::Diverged) => {
+                termination = Termination::Diverged;
+                break;
+            }
+            Err(StepFailure::Link(e)) => return Err(e.into()),
         };
+        scene = episode.task();
         steps += 1;
         if let Some(log) = &mut log {
             log.outcome(&measurement)?;
@@ -325,12 +345,13 @@ pub fn run_rollout(
             saturated: has_rotors
                 .then(|| record.allocation_saturated || rotors_saturated(&measurement, limits_n)),
         });
-        if let Some(status) = twin.task_status() {
+        if let Some(snapshot) = &scene {
+            let status = &snapshot.status;
             latch.observe(&status.criteria);
             if let Some(log) = &mut log {
                 let state = TaskState {
                     task: task.name().to_owned(),
-                    step: twin.steps(),
+                    step: snapshot.steps,
                     success: status.success,
                     criteria: criteria_names
                         .iter()
@@ -342,17 +363,16 @@ pub fn run_rollout(
                             reached: *reached,
                         })
                         .collect(),
-                    observation: twin
-                        .task_observation()
-                        .unwrap_or_default()
+                    observation: snapshot
+                        .observation
                         .entries
-                        .into_iter()
+                        .iter()
                         .map(|(name, values)| TaskValue {
-                            name: name.to_owned(),
-                            values,
+                            name: name.clone(),
+                            values: values.clone(),
                         })
                         .collect(),
-                    holding: twin.holding(),
+                    holding: snapshot.holding,
                 };
                 log.task_state(measurement.time_s, &state)?;
             }
@@ -446,7 +466,12 @@ pub fn run_bench(
     let next = AtomicUsize::new(0);
     let failed = AtomicBool::new(false);
     std::thread::scope(|scope| {
-        for _ in 0..config.jobs.max(1) {
+        // The twin process serves one flight at a time.
+        let threads = match config.link {
+            BenchLink::InProcess => config.jobs.max(1),
+            BenchLink::Ipc(_) => 1,
+        };
+        for _ in 0..threads {
             scope.spawn(|| {
                 loop {
                     if stop.load(Ordering::Relaxed) || failed.load(Ordering::Relaxed) {

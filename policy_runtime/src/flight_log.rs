@@ -14,6 +14,11 @@
 //! | `/joints` | amstack.Joints | every movable joint: target and measured |
 //! | `/disturbances` | amstack.Disturbances | drag, wind, ground and near-wall forces, `base` frame |
 //! | `/controller/status` | amstack.ControllerStatus | errors, integrators, adaptive terms |
+//! | `/action` | amstack.Action | the action handed to the flight stack (what `replay` re-flies) |
+//! | `/estimator/state` | amstack.EstimatorState | the estimate the controllers flew on (`--state-source estimator`), its deviations, biases, innovations |
+//!
+//! The complete description, with units, frames and the compatibility rule, is
+//! `docs/mcap-format.md`.
 
 use nalgebra::Isometry3;
 use platform::{Measurement, Vehicle};
@@ -22,7 +27,7 @@ use serde::Serialize;
 
 use crate::record::foxglove::{FrameTransform, FrameTransforms, PoseInFrame};
 use crate::record::{Channel, McapRecorder, RecordError, SchemaName};
-use crate::stack::TickRecord;
+use crate::stack::{Action, BaseJointTarget, EeTarget, TickRecord};
 
 fn v3(v: &nalgebra::Vector3<f64>) -> [f64; 3] {
     [v.x, v.y, v.z]
@@ -39,6 +44,70 @@ pub struct BaseState {
     pub velocity_world_mps: [f64; 3],
     /// Angular velocity in `base`, rad/s.
     pub angular_velocity_body_radps: [f64; 3],
+}
+
+/// The action handed to the flight stack at one tick, exactly as given: what
+/// `amstack replay --mode reference` feeds the stack again.
+#[derive(Debug, Clone, Serialize, serde::Deserialize, JsonSchema)]
+pub struct ActionMessage {
+    /// `ee` (an end-effector target in the command frame) or `base-joint` (a base pose and
+    /// arm joint targets).
+    pub interface: String,
+    /// `ee`: `world_from_ee_command` translation; `base-joint`: `world_from_base`
+    /// translation; world frame, m.
+    pub position_m: [f64; 3],
+    /// The pose's orientation in `world`, w x y z.
+    pub orientation_wxyz: [f64; 4],
+    /// Arm joint targets in the vehicle's command order, rad (empty for `ee`).
+    pub arm_joints_rad: Vec<f64>,
+    /// Gripper action in [−1, 1]: −1 closed, +1 open.
+    pub gripper: f64,
+}
+
+impl ActionMessage {
+    /// The message of `action`.
+    pub fn of(action: &Action) -> Self {
+        let (interface, pose, arm, gripper) = match action {
+            Action::Ee(ee) => ("ee", &ee.world_from_ee_command, &[][..], ee.gripper),
+            Action::BaseJoint(t) => (
+                "base-joint",
+                &t.world_from_base,
+                t.arm_joints.as_slice(),
+                t.gripper,
+            ),
+        };
+        let q = pose.rotation;
+        Self {
+            interface: interface.to_owned(),
+            position_m: v3(&pose.translation.vector),
+            orientation_wxyz: [q.w, q.i, q.j, q.k],
+            arm_joints_rad: arm.to_vec(),
+            gripper,
+        }
+    }
+
+    /// The action again, bit for bit (the quaternion is taken as stored, not renormalised);
+    /// `None` for an unknown interface name.
+    pub fn to_action(&self) -> Option<Action> {
+        let [w, x, y, z] = self.orientation_wxyz;
+        let [px, py, pz] = self.position_m;
+        let pose = Isometry3::from_parts(
+            nalgebra::Translation3::new(px, py, pz),
+            nalgebra::UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(w, x, y, z)),
+        );
+        match self.interface.as_str() {
+            "ee" => Some(Action::Ee(EeTarget {
+                world_from_ee_command: pose,
+                gripper: self.gripper,
+            })),
+            "base-joint" => Some(Action::BaseJoint(BaseJointTarget {
+                world_from_base: pose,
+                arm_joints: self.arm_joints_rad.clone(),
+                gripper: self.gripper,
+            })),
+            _ => None,
+        }
+    }
 }
 
 /// The controller's wrench, `base` frame, about the base origin.
@@ -183,6 +252,88 @@ pub struct MpcStatus {
     pub predicted_terminal_position_m: [f64; 3],
 }
 
+/// The state estimator's tick (flights with `--state-source estimator`): the estimate handed
+/// to the controllers next to the measurement logged on `/base/state`.
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct EstimatorState {
+    /// Estimated position in `world`, m.
+    pub position_m: [f64; 3],
+    /// Estimated orientation `world_from_base`, w x y z.
+    pub orientation_wxyz: [f64; 4],
+    /// Estimated velocity in `world`, m/s.
+    pub velocity_world_mps: [f64; 3],
+    /// Estimated angular velocity in `base` (gyro − bias), rad/s.
+    pub angular_velocity_body_radps: [f64; 3],
+    /// Estimate − measured position, `world`, m.
+    pub position_error_m: [f64; 3],
+    /// One standard deviation of position, `world`, m.
+    pub position_std_m: [f64; 3],
+    /// One standard deviation of velocity, `world`, m/s.
+    pub velocity_std_mps: [f64; 3],
+    /// One standard deviation of the attitude error, `base`, rad.
+    pub attitude_std_rad: [f64; 3],
+    /// Estimated accelerometer bias, `base`, m/s².
+    pub accel_bias_mps2: [f64; 3],
+    /// Estimated gyroscope bias, `base`, rad/s.
+    pub gyro_bias_radps: [f64; 3],
+    /// The simulated IMU's accelerometer bias, `base`, m/s².
+    pub true_accel_bias_mps2: [f64; 3],
+    /// The simulated IMU's gyroscope bias, `base`, rad/s.
+    pub true_gyro_bias_radps: [f64; 3],
+    /// The measurements fused this tick.
+    pub innovations: Vec<EstimatorInnovation>,
+    /// Why inputs were refused this tick (one line each).
+    pub rejections: Vec<String>,
+}
+
+/// One fused measurement of an [`EstimatorState`].
+#[derive(Debug, Clone, Serialize, JsonSchema)]
+pub struct EstimatorInnovation {
+    /// Capture time, s.
+    pub time_s: f64,
+    /// How far it was behind the newest IMU sample, s.
+    pub delay_s: f64,
+    /// Position residual, `world`, m.
+    pub position_m: [f64; 3],
+    /// Attitude residual, `base`, rad.
+    pub attitude_rad: [f64; 3],
+    /// Normalised innovation squared.
+    pub nis: f64,
+}
+
+impl EstimatorState {
+    /// The log message of an estimator report.
+    pub fn from_report(r: &crate::state_source::EstimateReport) -> Self {
+        let q = r.state.world_from_body;
+        Self {
+            position_m: v3(&r.state.position_in_world_m),
+            orientation_wxyz: [q.w, q.i, q.j, q.k],
+            velocity_world_mps: v3(&r.state.velocity_in_world_mps),
+            angular_velocity_body_radps: v3(&r.state.angular_velocity_in_body_radps),
+            position_error_m: v3(&r.position_error_m),
+            position_std_m: v3(&r.position_std_m),
+            velocity_std_mps: v3(&r.velocity_std_mps),
+            attitude_std_rad: v3(&r.attitude_std_rad),
+            accel_bias_mps2: v3(&r.accel_bias_mps2),
+            gyro_bias_radps: v3(&r.gyro_bias_radps),
+            true_accel_bias_mps2: v3(&r.true_accel_bias_mps2),
+            true_gyro_bias_radps: v3(&r.true_gyro_bias_radps),
+            innovations: r
+                .innovations
+                .iter()
+                .map(|i| EstimatorInnovation {
+                    time_s: i.time_s,
+                    delay_s: i.delay_s,
+                    position_m: v3(&i.position_m),
+                    attitude_rad: v3(&i.attitude_rad),
+                    nis: i.nis,
+                })
+                .collect(),
+            rejections: r.rejections.iter().map(ToString::to_string).collect(),
+        }
+    }
+}
+
 /// A serde enum's name as a string.
 fn name_of<T: Serialize>(value: &T) -> String {
     serde_json::to_value(value)
@@ -194,6 +345,9 @@ fn name_of<T: Serialize>(value: &T) -> String {
 macro_rules! schema_names {
     ($($t:ident),*) => {$(impl SchemaName for $t { const SCHEMA_NAME: &'static str = concat!("amstack.", stringify!($t)); })*};
 }
+impl SchemaName for ActionMessage {
+    const SCHEMA_NAME: &'static str = "amstack.Action";
+}
 schema_names!(
     TaskState,
     BaseState,
@@ -202,7 +356,8 @@ schema_names!(
     Joints,
     Disturbances,
     ControllerStatus,
-    MpcStatus
+    MpcStatus,
+    EstimatorState
 );
 
 /// The open channels of one flight log.
@@ -220,10 +375,14 @@ pub struct FlightLog {
     joints: Channel<Joints>,
     disturbances: Channel<Disturbances>,
     status: Channel<ControllerStatus>,
+    /// Opened on the first action logged.
+    action: Option<Channel<ActionMessage>>,
     /// Opened on the first tick that carries an MPC report.
     mpc: Option<Channel<MpcStatus>>,
     /// Opened on the first task state logged.
     task: Option<Channel<TaskState>>,
+    /// Opened on the first estimate logged.
+    estimate: Option<Channel<EstimatorState>>,
     joint_names: Vec<String>,
     limits: (f64, f64),
 }
@@ -248,7 +407,9 @@ impl FlightLog {
             disturbances: recorder.channel("/disturbances")?,
             status: recorder.channel("/controller/status")?,
             mpc: None,
+            action: None,
             task: None,
+            estimate: None,
             joint_names: (0..vehicle.model.dof())
                 .map(|d| vehicle.model.dof_joint(d).name.clone())
                 .collect(),
@@ -369,6 +530,20 @@ impl FlightLog {
         Ok(())
     }
 
+    /// Logs the action handed to the stack at simulated time `time_s` on `/action` (call it
+    /// with the tick's measurement time, before or after [`Self::tick`]).
+    pub fn action(&mut self, time_s: f64, action: &Action) -> Result<(), RecordError> {
+        let channel = match self.action.take() {
+            Some(c) => c,
+            None => self.recorder.channel("/action")?,
+        };
+        let logged = self
+            .recorder
+            .log(&channel, nanos(time_s), &ActionMessage::of(action));
+        self.action = Some(channel);
+        logged
+    }
+
     /// Logs a task's state at simulated time `time_s` on `/task/state`.
     pub fn task_state(&mut self, time_s: f64, state: &TaskState) -> Result<(), RecordError> {
         let channel = match self.task.take() {
@@ -377,6 +552,17 @@ impl FlightLog {
         };
         let logged = self.recorder.log(&channel, nanos(time_s), state);
         self.task = Some(channel);
+        logged
+    }
+
+    /// Logs the state estimator's tick at simulated time `time_s` on `/estimator/state`.
+    pub fn estimate(&mut self, time_s: f64, state: &EstimatorState) -> Result<(), RecordError> {
+        let channel = match self.estimate.take() {
+            Some(c) => c,
+            None => self.recorder.channel("/estimator/state")?,
+        };
+        let logged = self.recorder.log(&channel, nanos(time_s), state);
+        self.estimate = Some(channel);
         logged
     }
 

@@ -15,13 +15,13 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use platform::{ActuatorCommand, Measurement, Vehicle};
-use sim_twin::TwinConfig;
 use sim_twin::ipc::{
     COMMAND_END_OF_SESSION, CommandMsg, CommandService, Hello, ImuMsg, Ipc, IpcError,
     MEASUREMENT_SESSION_FAILED, MeasurementMsg, MeasurementService, Mode, Offer, TooLarge, Waiter,
     Welcome, cleanup_dead_nodes_now, command_service, get_str, handshake_service, join_id,
     measurement_service, node, node_alive, split_id,
 };
+use sim_twin::{TaskSnapshot, TwinConfig};
 
 use crate::link::{Link, LinkError};
 
@@ -235,6 +235,11 @@ impl IpcLink {
     /// The simulated IMU of the latest measurement.
     pub fn imu(&self) -> ImuMsg {
         self.latest.imu
+    }
+
+    /// The task scene of the latest measurement (None without a task).
+    pub fn task(&self) -> Option<TaskSnapshot> {
+        self.latest.task.to_snapshot()
     }
 
     /// The gripper opening of the latest measurement ([−1, 1]; NaN without a gripper).

@@ -15,6 +15,8 @@
 //!   actuator command, with the allocator's unallocated wrench fed back to the controller.
 //! - [`trajectory`] and [`track`]: the reference trajectories of `amstack track` and the
 //!   flight that scores them.
+//! - [`state_source`]: `--state-source truth|estimator`: the controllers fly on the link's
+//!   measurement, or on the estimator fed by the twin's simulated IMU and pose sensor.
 //! - [`flight_log`]: the channels of a flight's MCAP log.
 //! - [`metrics`]: the benchmark's metrics (AMBENCH_SPEC §6): per-tick records, rollout and
 //!   run summaries, latched subtask criteria, the reference's N/A rules.
@@ -25,6 +27,8 @@
 //!   transform types ([`record::foxglove`]), timestamps from the caller's (simulated) clock,
 //!   chunks flushed as they fill so a killed run leaves a readable file.
 //!   [`record::Recording`] reads a file back by streaming, complete or cut short.
+//! - [`validation`]: sim-to-real validation — replay a logged flight in the twin, compare two
+//!   logs signal by signal (RMSE, max error, bias, over intervals).
 
 pub mod bench;
 pub mod flight_log;
@@ -34,14 +38,17 @@ pub mod metrics;
 pub mod record;
 pub mod scripted;
 pub mod stack;
+pub mod state_source;
 pub mod task_policies;
 pub mod track;
 pub mod trajectory;
+pub mod validation;
 
 pub use ipc_link::{IpcLink, IpcLinkConfig, IpcLinkError};
 pub use link::{Link, LinkError, TwinLink};
 pub use stack::{
     Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits, TickRecord,
 };
+pub use state_source::{EstimatorSettings, EstimatorSummary, StateSource};
 pub use track::{Interface, TrackConfig, TrackError, TrackResult, run_track, run_track_with_link};
 pub use trajectory::Trajectory;

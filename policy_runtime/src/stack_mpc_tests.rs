@@ -198,6 +198,7 @@ fn an_mpc_flight_logs_the_mpc_status_every_tick() {
         settle_s: 0.0,
         twin: TwinConfig::default(),
         mcap: Some(path.clone()),
+        state_source: crate::StateSource::Truth,
     };
     let result = run_track(&config, |_| std::ops::ControlFlow::Continue(()))
         .unwrap_or_else(|e| panic!("{e}"));

@@ -30,6 +30,7 @@ use crate::flight_log::{FlightLog, rotors_saturated};
 use crate::link::{Link, LinkError, TwinLink};
 use crate::record::{McapRecorder, RecordError, RunMetadata};
 use crate::stack::{Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits};
+use crate::state_source::{EstimateError, EstimatorSummary, StateEstimate, StateSource};
 use crate::trajectory::Trajectory;
 
 /// Which action interface carries the reference to the controller.
@@ -72,6 +73,8 @@ pub struct TrackConfig {
     pub twin: TwinConfig,
     /// Where to write the MCAP log, if anywhere.
     pub mcap: Option<PathBuf>,
+    /// Where the controllers' base state comes from (the measurement, or the estimator).
+    pub state_source: StateSource,
 }
 
 /// The scores of one flight.
@@ -117,6 +120,10 @@ pub struct TrackResult {
     pub ticks_per_second: f64,
     /// The MCAP log written, if any.
     pub mcap: Option<PathBuf>,
+    /// `truth` or `estimator`.
+    pub state_source: String,
+    /// The estimator's figures (with `--state-source estimator`).
+    pub estimator: Option<EstimatorSummary>,
 }
 
 /// A flight that could not be flown.
@@ -131,6 +138,9 @@ pub enum TrackError {
     /// The log could not be written.
     #[error(transparent)]
     Record(#[from] RecordError),
+    /// The state estimator could not start or diverged.
+    #[error(transparent)]
+    Estimate(#[from] EstimateError),
     /// A setting out of range.
     #[error("{0}")]
     Config(String),
@@ -236,7 +246,8 @@ pub fn run_track_with_link(
             let run = RunMetadata::new(&vehicle.id, config.controller.name(), config.twin.seed)
                 .with_interface(config.interface.name())
                 .with_trajectory(config.trajectory.name())
-                .with_config(&config.twin)?;
+                .with_config(&config.twin)?
+                .with_controller_config(&config.controller)?;
             Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
         }
     };
@@ -253,7 +264,22 @@ pub fn run_track_with_link(
     let mut sums = Sums::default();
     let started = Instant::now();
     let mut measurement = link.receive()?;
-    stack.reset_at(&measurement.base, &measurement.joint_positions);
+    // The controllers' view of the vehicle: the measurement, or the estimator's.
+    let mut estimate = match &config.state_source {
+        StateSource::Truth => None,
+        StateSource::Estimator(settings) => Some(StateEstimate::new(
+            settings,
+            config.twin.control_rate_hz,
+            config.twin.seed,
+            &measurement,
+        )?),
+    };
+    let mut fed = match &mut estimate {
+        None => None,
+        Some(e) => Some(observe(e, &measurement, false, &mut log)?),
+    };
+    let start = fed.as_ref().unwrap_or(&measurement);
+    stack.reset_at(&start.base, &start.joint_positions);
     let mut next_progress = 1.0;
     for k in 0..ticks {
         let t = k as f64 * dt;
@@ -274,8 +300,9 @@ pub fn run_track_with_link(
                 })
             }
         };
-        let record = stack.act(&measurement, &action);
+        let record = stack.act(fed.as_ref().unwrap_or(&measurement), &action);
         if let Some(log) = &mut log {
+            log.action(measurement.time_s, &action)?;
             log.tick(&measurement, &record, &ee_reference)?;
         }
         if t >= config.settle_s {
@@ -293,6 +320,18 @@ pub fn run_track_with_link(
         };
         if let Some(log) = &mut log {
             log.outcome(&measurement)?;
+        }
+        if let Some(e) = &mut estimate {
+            let scored = t + dt >= config.settle_s;
+            fed = match observe(e, &measurement, scored, &mut log) {
+                Ok(m) => Some(m),
+                Err(err) => {
+                    if let Some(log) = log {
+                        log.finish()?;
+                    }
+                    return Err(err);
+                }
+            };
         }
         if !measurement.rotors.is_empty() {
             let peak = measurement
@@ -358,7 +397,26 @@ pub fn run_track_with_link(
         wall_time_s,
         ticks_per_second: ticks as f64 / wall_time_s.max(1e-9),
         mcap,
+        state_source: config.state_source.name().to_owned(),
+        estimator: estimate.as_ref().map(StateEstimate::summary),
     })
+}
+
+/// One tick of the state estimator: the measurement the controllers get, the estimate logged.
+fn observe(
+    estimate: &mut StateEstimate,
+    measurement: &platform::Measurement,
+    scored: bool,
+    log: &mut Option<FlightLog>,
+) -> Result<platform::Measurement, TrackError> {
+    let (fed, report) = estimate.observe(measurement, scored)?;
+    if let Some(log) = log {
+        log.estimate(
+            measurement.time_s,
+            &crate::flight_log::EstimatorState::from_report(&report),
+        )?;
+    }
+    Ok(fed)
 }
 
 /// Where a base + joint target puts the end-effector link.

@@ -9,6 +9,9 @@
 //!   distances from parry ray casts that skip the robot's own colliders.
 //! - [`TwinConfig`]: control rate (120 Hz), physics substeps, disturbance switches, motor
 //!   dynamics, noise, seed. Same seed, same commands → bit-identical results.
+//! - [`sensors`]: the simulated IMU and pose sensor (motion capture) the flight stack's
+//!   estimator is fed with, from the truth of each control tick and the `estimator` crate's
+//!   sensor models.
 //! - [`ipc`]: the twin in its own process, served over iceoryx2 shared memory
 //!   (`amstack twin serve`), lockstep or realtime, with a handshake, loss detection and a
 //!   failsafe.
@@ -25,6 +28,7 @@ mod config;
 mod convert;
 mod error;
 pub mod ipc;
+pub mod sensors;
 pub mod tasks;
 mod twin;
 mod vehicle_body;
@@ -34,6 +38,6 @@ mod tests;
 
 pub use config::{Disturbances, MotorConfig, NoiseConfig, TiltThrust, TwinConfig};
 pub use error::TwinError;
-pub use tasks::{GraspMode, TaskId, TaskObservation, TaskStatus};
+pub use tasks::{GraspMode, TaskId, TaskObservation, TaskSnapshot, TaskStatus};
 pub use twin::Twin;
 pub use vehicle_body::{ROBOT_GROUP, WORLD_GROUP};

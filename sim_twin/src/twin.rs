@@ -33,7 +33,9 @@ use crate::convert::{
 };
 use crate::error::TwinError;
 use crate::tasks::objects::Grasp;
-use crate::tasks::{Build, GraspMode, Scene, TaskId, TaskObservation, TaskStatus, View};
+use crate::tasks::{
+    Build, GraspMode, Scene, TaskId, TaskObservation, TaskSnapshot, TaskStatus, View,
+};
 use crate::vehicle_body::{self, ROBOT_GROUP, VehicleBody, WORLD_GROUP, material};
 
 /// Standard gravity of the world, m/s² (AMBENCH_SPEC §0).
@@ -229,6 +231,13 @@ impl Twin {
         Ok(())
     }
 
+    /// A new episode: the task scene `task` (None: the empty world) at `seed`, as a new twin
+    /// with that configuration.
+    pub fn reset_episode(&mut self, task: Option<TaskId>, seed: u64) -> Result<(), TwinError> {
+        self.config.task = task;
+        self.reset(seed)
+    }
+
     /// The vehicle simulated.
     pub fn vehicle(&self) -> &Vehicle {
         &self.vehicle
@@ -316,8 +325,22 @@ impl Twin {
 
     /// Applies `command` for one control period and returns the measurement at its end
     /// (with observation noise if that is on).
+    ///
+    /// A diverged simulation is an error, never a panic: rapier panics on some non-finite
+    /// states, and that panic is caught here and reported as [`TwinError::Diverged`] (the
+    /// twin must then be reset). A non-finite or ill-shaped command is
+    /// [`TwinError::Command`] and leaves the twin as it was.
     pub fn step(&mut self, command: &ActuatorCommand) -> Result<Measurement, TwinError> {
         self.check(command)?;
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.step_checked(command)))
+            .unwrap_or_else(|_| {
+                Err(TwinError::Diverged(
+                    "the physics engine panicked (non-finite state)".to_owned(),
+                ))
+            })
+    }
+
+    fn step_checked(&mut self, command: &ActuatorCommand) -> Result<Measurement, TwinError> {
         let dt = self.config.control_dt_s();
         let realised = self.realise_thrusts(&command.rotor_thrusts_n, dt)?;
         self.place_tilting_rotors(&command.joint_targets);
@@ -750,6 +773,20 @@ impl Twin {
     /// Env steps since reset.
     pub fn steps(&self) -> u64 {
         self.task.steps
+    }
+
+    /// The task scene's state now, all in one (None without a task).
+    pub fn task_snapshot(&self) -> Option<TaskSnapshot> {
+        let scene = self.task.scene.as_ref()?;
+        Some(TaskSnapshot {
+            task: scene.task(),
+            status: self.task.status.clone(),
+            observation: scene.observation(&self.world),
+            wall: scene.wall(),
+            obstacle_face_x: scene.obstacle_face_x(&self.world),
+            holding: self.holding(),
+            steps: self.task.steps,
+        })
     }
 
     /// The tool tip now: ee + R_ee·tool_tip offset, oriented as the command frame.

@@ -307,6 +307,98 @@ fn lockstep_split_flight_equals_the_in_process_one() {
     }
 }
 
+/// A bench results JSON without what differs between two runs of the same flags (the
+/// `timing` section, the logs' paths).
+fn bench_scores(path: &Path) -> serde_json::Value {
+    fn strip(v: &mut serde_json::Value) {
+        match v {
+            serde_json::Value::Object(o) => {
+                o.remove("timing");
+                o.remove("mcap");
+                o.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let mut v = read_json(path);
+    strip(&mut v);
+    v
+}
+
+#[test]
+fn bench_over_ipc_equals_the_in_process_bench() {
+    // Every rollout a session of one twin process that lets the flight choose the episode;
+    // every disturbance and noise on, a held object thrown (Toss Ball) and a wall task.
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let mut sitl = Sitl::new();
+    let svc = service("bench");
+    let common = [
+        "--platform",
+        "fa-hexa",
+        "--disturbances",
+        "all",
+        "--seed",
+        "3",
+    ];
+    let mut twin_args = vec!["--flight-chooses-episode", "--sessions", "4"];
+    twin_args.extend(common);
+    let twin = sitl.twin(&svc, &twin_args);
+    let out = |name: &str| dir.path().join(name);
+    let bench = |out_dir: &Path, link: &str| -> Vec<String> {
+        let mut args: Vec<String> = [
+            "bench",
+            "--task",
+            "press-button,toss-ball",
+            "--rollouts",
+            "2",
+        ]
+        .iter()
+        .map(|s| (*s).to_owned())
+        .collect();
+        args.extend(common.iter().map(|s| (*s).to_owned()));
+        args.extend(["--link".to_owned(), link.to_owned()]);
+        args.extend(["--link-timeout-ms".to_owned(), "10000".to_owned()]);
+        args.extend(["--out".to_owned(), out_dir.display().to_string()]);
+        args
+    };
+    let in_args = bench(&out("in"), "twin");
+    let ipc_args = bench(&out("ipc"), &format!("ipc:{svc}"));
+    let in_args: Vec<&str> = in_args.iter().map(String::as_str).collect();
+    let ipc_args: Vec<&str> = ipc_args.iter().map(String::as_str).collect();
+    let in_process = sitl.start("bench-in", &in_args);
+    let split = sitl.start("bench-ipc", &ipc_args);
+    for i in [in_process, split] {
+        let status = sitl.procs[i].wait();
+        assert!(status.success(), "{}", sitl.procs[i].stderr());
+    }
+    assert!(
+        sitl.procs[twin].wait().success(),
+        "{}",
+        sitl.procs[twin].stderr()
+    );
+    let (a, b) = (out("in/results.json"), out("ipc/results.json"));
+    assert_eq!(read_json(&b)["timing"]["link"], format!("ipc:{svc}"));
+    assert_eq!(bench_scores(&a), bench_scores(&b));
+    // The logs agree message for message, the task's state included.
+    for log in [
+        "press-button/rollout-000.mcap",
+        "toss-ball/rollout-001.mcap",
+    ] {
+        let (x, y) = (
+            recording(&out("in/rollouts").join(log)),
+            recording(&out("ipc/rollouts").join(log)),
+        );
+        assert!(x.complete && y.complete);
+        assert!(
+            x.message_counts()
+                .get("/task/state")
+                .is_some_and(|n| *n > 0)
+        );
+        assert_eq!(x.messages, y.messages, "{log}");
+    }
+}
+
 #[test]
 fn killing_the_twin_stops_the_flight_with_a_finished_log() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));

@@ -22,6 +22,7 @@ fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> Be
         jobs: 1,
         episode: EpisodeLength::Script,
         mcap_dir: None,
+        link: BenchLink::InProcess,
     }
 }
 
@@ -141,4 +142,78 @@ fn action_noise_perturbs_every_element_by_its_standard_deviation() {
     let mean = dx.iter().sum::<f64>() / dx.len() as f64;
     let std = (dx.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (dx.len() - 1) as f64).sqrt();
     assert!((std - 1e-2).abs() < 1e-3, "std {std}");
+}
+
+/// Prints where each Toss Ball throw comes down relative to the container (the aim of the
+/// script in `task_policies/toss_ball.rs`), seeds 0–39 with the EE-only oracle:
+/// `cargo test --release -p policy_runtime --lib bench::tests::toss_ball_landing -- --ignored
+/// --nocapture`.
+#[test]
+#[ignore = "a measurement, not a test"]
+fn toss_ball_landing() {
+    const RIM_HEIGHT_M: f64 = 0.17;
+    let cfg = config("ee-only", ControllerKind::Pid, Interface::Ee);
+    for seed in 0..40u64 {
+        let twin_config = TwinConfig {
+            task: Some(TaskId::TossBall),
+            seed,
+            ..TwinConfig::default()
+        };
+        let mut twin =
+            Twin::new(cfg.vehicle.clone(), twin_config).unwrap_or_else(|e| panic!("{e}"));
+        let mut stack = FlightStack::new(
+            cfg.vehicle.clone(),
+            &cfg.controller,
+            AllocationMethod::PseudoInverse,
+            ThrustLimits::Ideal,
+            1.0 / 120.0,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let mut m = twin.truth().clone();
+        stack.reset_at(&m.base, &m.joint_positions);
+        let ctx = PolicyContext {
+            init: m.world_from_ee.translation.vector,
+            task: twin.task_observation().unwrap_or_default(),
+            wall: twin.task_wall(),
+        };
+        let target = ctx
+            .task
+            .vec3("target_pos", 0)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(2);
+        let mut policy =
+            scripted(TaskId::TossBall, &ctx, &mut rng).unwrap_or_else(|e| panic!("{e}"));
+        let mut released = None;
+        let mut landing_x = None;
+        let mut success = false;
+        for step in 0..TaskId::TossBall.max_steps(120.0) {
+            let (pose, gripper) = policy.action(step);
+            let ee = EeTarget {
+                world_from_ee_command: pose,
+                gripper,
+            };
+            let record = stack.act(&m, &Action::Ee(ee));
+            m = twin.step(&record.command).unwrap_or_else(|e| panic!("{e}"));
+            let o = twin.task_observation().unwrap_or_default();
+            let ball = o.vec3("ball_pos", 0).unwrap_or_else(|e| panic!("{e}"));
+            let velocity = o.vec3("ball_lin_vel", 0).unwrap_or_else(|e| panic!("{e}"));
+            if released.is_none() && !twin.holding() {
+                released = Some((step, velocity));
+            }
+            if released.is_some() && landing_x.is_none() && ball.z < RIM_HEIGHT_M {
+                landing_x = Some(ball.x);
+            }
+            success |= twin.task_status().is_some_and(|s| s.success);
+        }
+        let (step, v) = released.unwrap_or_default();
+        println!(
+            "seed {seed:2}: container x {:.3}, comes down at {:+.3} from its centre, released at \
+             step {step} at ({:.2}, {:.2}) m/s, success {success}",
+            target.x,
+            landing_x.map_or(f64::NAN, |x| x - target.x),
+            v.x,
+            v.z
+        );
+    }
 }

@@ -23,6 +23,7 @@ const KEY_CONTROLLER: &str = "controller";
 const KEY_INTERFACE: &str = "interface";
 const KEY_TRAJECTORY: &str = "trajectory";
 const KEY_CONFIG: &str = "config";
+const KEY_CONTROLLER_CONFIG: &str = "controller_config";
 const KEY_SEED: &str = "seed";
 const KEY_VERSION: &str = "amstack_version";
 const KEY_FORMAT: &str = "log_format_version";
@@ -45,6 +46,9 @@ pub struct RunMetadata {
     pub trajectory: Option<String>,
     /// The run's complete configuration as one JSON document (`{}` when there is none).
     pub config_json: String,
+    /// The controller's configuration (gains, limits) as one JSON document, if recorded
+    /// (key `controller_config`; absent in files written before it was added).
+    pub controller_config_json: Option<String>,
     /// Seed of every random stream of the run.
     pub seed: u64,
     /// amstack version that wrote the file; [`RunMetadata::new`] sets [`AMSTACK_VERSION`].
@@ -62,6 +66,7 @@ impl RunMetadata {
             interface: None,
             trajectory: None,
             config_json: "{}".to_owned(),
+            controller_config_json: None,
             seed,
             amstack_version: AMSTACK_VERSION.to_owned(),
             log_format_version: LOG_FORMAT_VERSION,
@@ -89,6 +94,17 @@ impl RunMetadata {
         Ok(self)
     }
 
+    /// Sets the controller's configuration from any serialisable config struct.
+    pub fn with_controller_config<C: Serialize + ?Sized>(
+        mut self,
+        config: &C,
+    ) -> Result<Self, RecordError> {
+        self.controller_config_json = Some(serde_json::to_string(config).map_err(|e| {
+            RecordError::Metadata(format!("controller config does not serialise: {e}"))
+        })?);
+        Ok(self)
+    }
+
     /// Checks what a reader relies on: a vehicle and a controller are named and `config_json`
     /// is a JSON document.
     pub fn validate(&self) -> Result<(), RecordError> {
@@ -100,6 +116,11 @@ impl RunMetadata {
         }
         serde_json::from_str::<serde_json::Value>(&self.config_json)
             .map_err(|e| RecordError::Metadata(format!("config_json is not JSON: {e}")))?;
+        if let Some(c) = &self.controller_config_json {
+            serde_json::from_str::<serde_json::Value>(c).map_err(|e| {
+                RecordError::Metadata(format!("controller_config_json is not JSON: {e}"))
+            })?;
+        }
         Ok(())
     }
 
@@ -116,6 +137,9 @@ impl RunMetadata {
             put(KEY_TRAJECTORY, trajectory.clone());
         }
         put(KEY_CONFIG, self.config_json.clone());
+        if let Some(c) = &self.controller_config_json {
+            put(KEY_CONTROLLER_CONFIG, c.clone());
+        }
         put(KEY_SEED, self.seed.to_string());
         put(KEY_VERSION, self.amstack_version.clone());
         put(KEY_FORMAT, self.log_format_version.to_string());
@@ -141,6 +165,7 @@ impl RunMetadata {
             interface: map.get(KEY_INTERFACE).cloned(),
             trajectory: map.get(KEY_TRAJECTORY).cloned(),
             config_json: get(KEY_CONFIG)?,
+            controller_config_json: map.get(KEY_CONTROLLER_CONFIG).cloned(),
             seed: seed.parse().map_err(|_| parse_err(KEY_SEED, &seed))?,
             amstack_version: get(KEY_VERSION)?,
             log_format_version: format.parse().map_err(|_| parse_err(KEY_FORMAT, &format))?,
@@ -181,6 +206,11 @@ mod tests {
             .with_config(&Config {
                 rate_hz: 120.0,
                 substeps: 4,
+            })
+            .unwrap()
+            .with_controller_config(&Config {
+                rate_hz: 1.0,
+                substeps: 2,
             })
             .unwrap();
         let map = full.to_record_map();

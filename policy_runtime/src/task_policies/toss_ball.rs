@@ -1,7 +1,21 @@
 //! Toss Ball (AMBENCH_SPEC §4.11): tilt the held ball down, line up with the container in y,
 //! move forward, pitch down to load the throw, then swing forward and up to level while
-//! the gripper opens, and follow through low. Only the container's y is used: the throw's
-//! reach does not depend on where the container stands in x.
+//! the gripper opens, and follow through low.
+//!
+//! **Departure from the reference (aimed throw).** The reference script lines up with the
+//! container in y only: its throw lands at the same x wherever the container stands, so with
+//! the container's x randomised by ±0.5 m and the container 0.4 m long, most throws miss
+//! (30 % of 30 rollouts with the EE-only oracle here). Scripted demonstrations are the
+//! benchmark's training data and must succeed, so the whole throw (from the alignment on) is
+//! shifted in x so that it lands on the container, as it is lined up in y. The geometry of
+//! the throw relative to the container, and with it the "base at least 0.7 m behind the
+//! container" criterion, is then the same in every rollout. The random draws are unchanged
+//! (same order, same ranges).
+//!
+//! Where the unshifted throw lands is a measured property of the twin and the controller, not
+//! of the script: the waypoints ask for a swing far faster than the EE can follow (the
+//! release segment's smootherstep peaks near 9 m/s), so the release speed (≈ 2.1–2.2 m/s here)
+//! is set by the controller's limits. [`UNSHIFTED_LANDING_X_M`] is that landing point.
 //!
 //! Random offsets are drawn in the reference's order: the two pitch deltas (release, load),
 //! the tilt offset (x, y, z), the alignment (y, then x, then z), the forward pose (x, z), the
@@ -17,6 +31,14 @@ use crate::scripted::WaypointPolicy;
 
 /// Follow-through time (env steps).
 const T_FOLLOW: u64 = 800;
+/// Where the reference script's ball lands in x with the EE-only oracle and PID, starting at
+/// x = 0, m: the centre of the measured landing spread. Throws vary by ±0.13 m with the
+/// script's random offsets (the release timing sets the ball's vertical speed, 0.8–1.5 m/s),
+/// and the container is 0.4 m long, so the throw is aimed at its centre. Measured (the ball's x
+/// where it comes down through the container's rim height, minus the container's x, seeds
+/// 0–39: −0.12 to +0.14 m with this value) by `cargo test --release -p policy_runtime --lib
+/// bench::tests::toss_ball_landing -- --ignored --nocapture`.
+const UNSHIFTED_LANDING_X_M: f64 = 1.84;
 /// Where the pre-release pose lies between the hold and release poses.
 const PRE_RELEASE_FRACTION: f64 = 0.42;
 
@@ -47,10 +69,13 @@ pub(crate) fn policy(ctx: &PolicyContext, rng: &mut ChaCha8Rng) -> Result<Waypoi
             uniform(rng, -0.02, 0.02),
         );
     let align_y = target.y + uniform(rng, -0.06, 0.06);
-    let align_x = init.x + uniform(rng, -0.05, 0.10);
+    // The aimed throw: everything from the alignment on moves so the ball lands on the
+    // container (relative to the start, as every other waypoint).
+    let aim_x = target.x - (init.x + UNSHIFTED_LANDING_X_M);
+    let align_x = init.x + aim_x + uniform(rng, -0.05, 0.10);
     let align_z = init.z + uniform(rng, -0.03, 0.03);
     let align = Vector3::new(align_x, align_y, align_z);
-    let forward_x = init.x + uniform(rng, 0.25, 0.45);
+    let forward_x = init.x + aim_x + uniform(rng, 0.25, 0.45);
     let forward_z = align.z + uniform(rng, -0.03, 0.04);
     let forward = Vector3::new(forward_x, align.y, forward_z);
     let load_x = forward.x + uniform(rng, 0.05, 0.10);
@@ -99,6 +124,28 @@ mod tests {
             init: Vector3::new(0.0, 0.0, 1.0),
             task,
             wall: None,
+        }
+    }
+
+    #[test]
+    fn the_throw_moves_with_the_container_in_x_from_the_alignment_on() {
+        // The same draws, the container 0.3 m further: the start and the tilt stay, every later
+        // waypoint moves 0.3 m in x and nothing else changes.
+        let mut far = context();
+        far.task = TaskObservation::default();
+        far.task
+            .push_vec3("target_pos", &Vector3::new(2.8, -0.3, 0.0));
+        let near =
+            policy(&context(), &mut ChaCha8Rng::seed_from_u64(7)).unwrap_or_else(|e| panic!("{e}"));
+        let far = policy(&far, &mut ChaCha8Rng::seed_from_u64(7)).unwrap_or_else(|e| panic!("{e}"));
+        for (i, (a, b)) in near.waypoints().iter().zip(far.waypoints()).enumerate() {
+            let shift = if i < 2 { 0.0 } else { 0.3 };
+            let d = b.position - a.position;
+            assert!(
+                (d - Vector3::new(shift, 0.0, 0.0)).norm() < 1e-12,
+                "waypoint {i}: {d}"
+            );
+            assert_eq!((a.tick, a.gripper), (b.tick, b.gripper));
         }
     }
 

@@ -108,10 +108,19 @@ impl Offer {
     }
 }
 
+/// The fields of the twin configuration a flight process may choose per session when the
+/// twin lets it choose the episode.
+const EPISODE_FIELDS: [&str; 2] = ["seed", "task"];
+
 /// Checks a flight's [`Hello`] against the twin's terms; the refusal names both values
 /// (message version, vehicle id, vehicle description, control rate, then the first field of
-/// the twin configuration that differs).
-pub fn check_hello(hello: &Hello, twin: &Offer) -> Result<(), String> {
+/// the twin configuration that differs). With `flight_chooses_episode`, the configuration's
+/// `seed` and `task` are the flight's to choose.
+pub fn check_hello(
+    hello: &Hello,
+    twin: &Offer,
+    flight_chooses_episode: bool,
+) -> Result<(), String> {
     if hello.version != MESSAGE_VERSION {
         return Err(format!(
             "message version mismatch: the flight process speaks v{}, the twin v{MESSAGE_VERSION}",
@@ -137,8 +146,29 @@ pub fn check_hello(hello: &Hello, twin: &Offer) -> Result<(), String> {
             hello.control_rate_hz, twin.control_rate_hz
         ));
     }
+    let flight_json = get_str(&hello.config_json, hello.config_len);
+    if flight_chooses_episode {
+        let without_episode = |json: &str| {
+            let mut value: Value = serde_json::from_str(json).ok()?;
+            let object = value.as_object_mut()?;
+            for field in EPISODE_FIELDS {
+                object.remove(field);
+            }
+            Some(value)
+        };
+        let flight = without_episode(&flight_json)
+            .ok_or_else(|| "the flight process's twin configuration is not valid".to_owned())?;
+        let served = without_episode(&twin.config_json).unwrap_or(Value::Null);
+        return match diff(&flight, &served, String::new()) {
+            None if serde_json::from_str::<TwinConfig>(&flight_json).is_ok() => Ok(()),
+            None => Err("the flight process's twin configuration is not valid".to_owned()),
+            Some((path, a, b)) => Err(format!(
+                "twin configuration mismatch at {path}: flight {a}, twin {b} (the episode, \
+                 task and seed, is the flight's to choose)"
+            )),
+        };
+    }
     if hello.config_hash != twin.config_hash {
-        let flight_json = get_str(&hello.config_json, hello.config_len);
         let difference = first_difference(&flight_json, &twin.config_json)
             .map(|(path, a, b)| format!(" at {path}: flight {a}, twin {b};"))
             .unwrap_or_default();

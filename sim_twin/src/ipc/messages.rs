@@ -17,9 +17,11 @@ use platform::{
     ActuatorCommand, DisturbanceReport, Measurement, RigidBodyState, RotorReport, Wrench,
 };
 
+use crate::{TaskId, TaskObservation, TaskSnapshot, TaskStatus};
+
 /// Version of the data messages' layout and meaning. Bump on any change of
 /// [`MeasurementMsg`] or [`CommandMsg`] (and of the type names below).
-pub const MESSAGE_VERSION: u32 = 1;
+pub const MESSAGE_VERSION: u32 = 2;
 /// Most movable joints a vehicle may have on the wire (arm, gripper, tilt hinges).
 pub const MAX_JOINTS: usize = 16;
 /// Most rotors a vehicle may have on the wire.
@@ -30,6 +32,23 @@ pub const MAX_ID_BYTES: usize = 64;
 pub const MAX_CONFIG_BYTES: usize = 4096;
 /// Longest refusal reason, bytes.
 pub const MAX_REASON_BYTES: usize = 512;
+/// Most criteria a task may have on the wire.
+pub const MAX_TASK_CRITERIA: usize = 8;
+/// Most observation keys a task may have on the wire.
+pub const MAX_TASK_KEYS: usize = 8;
+/// Longest observation key name, bytes.
+pub const MAX_TASK_KEY_BYTES: usize = 24;
+/// Most observation values (all keys together) on the wire.
+pub const MAX_TASK_VALUES: usize = 48;
+
+/// [`TaskMsg::flags`]: the success criterion holds.
+pub const TASK_SUCCESS: u32 = 1;
+/// [`TaskMsg::flags`]: the grasp constraint holds an object.
+pub const TASK_HOLDING: u32 = 2;
+/// [`TaskMsg::flags`]: `wall_*` is set.
+pub const TASK_HAS_WALL: u32 = 4;
+/// [`TaskMsg::flags`]: `obstacle_face_x_m` is set.
+pub const TASK_HAS_OBSTACLE_FACE: u32 = 8;
 
 /// [`CommandMsg::flags`]: the flight process ends its session (no failsafe follows).
 pub const COMMAND_END_OF_SESSION: u32 = 1;
@@ -59,7 +78,7 @@ pub mod joint_role {
 /// One rotor over the last control period (see [`RotorReport`]).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("amstack.sitl.Rotor.v1")]
+#[type_name("amstack.sitl.Rotor.v2")]
 pub struct RotorMsg {
     /// Thrust commanded, N.
     pub commanded_n: f64,
@@ -80,23 +99,168 @@ pub struct RotorMsg {
 }
 
 /// A simulated IMU at the base origin, from the twin's truth (no noise): what an
-/// accelerometer and a gyro fixed to the base would read.
+/// integrating accelerometer and gyro fixed to the base read over the last control period
+/// ([`crate::sensors::ideal_imu`]).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("amstack.sitl.Imu.v1")]
+#[type_name("amstack.sitl.Imu.v2")]
 pub struct ImuMsg {
     /// Specific force f = Rᵀ(a − g), base frame, m/s², with a the base origin's world
-    /// acceleration averaged over the last control period and g = (0, 0, −9.81) m/s²
-    /// (at rest, level: (0, 0, +9.81)).
+    /// acceleration averaged over the last control period, R the attitude at mid-period and
+    /// g = (0, 0, −9.81) m/s² (at rest, level: (0, 0, +9.81)).
     pub specific_force_in_body_mps2: [f64; 3],
-    /// Angular velocity, base frame, rad/s.
+    /// Angular velocity, base frame, rad/s: the mean over the last control period (its
+    /// delta angle over its length).
     pub angular_velocity_in_body_radps: [f64; 3],
+}
+
+/// The task scene after the tick (see [`TaskSnapshot`]); `task` 0 without a task.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("amstack.sitl.Task.v2")]
+pub struct TaskMsg {
+    /// 0: no task; k: `TaskId::ALL[k − 1]`.
+    pub task: u32,
+    /// `TASK_*` bits.
+    pub flags: u32,
+    /// Env steps since reset.
+    pub steps: u64,
+    /// Criteria in use ([`TaskId::criteria_names`] order).
+    pub criteria_count: u32,
+    /// Observation keys in use.
+    pub key_count: u32,
+    /// Each criterion now, 0 or 1.
+    pub criteria: [u8; MAX_TASK_CRITERIA],
+    /// Observation key names, UTF-8, `key_name_lens` bytes each.
+    pub key_names: [[u8; MAX_TASK_KEY_BYTES]; MAX_TASK_KEYS],
+    /// Length of each key name.
+    pub key_name_lens: [u32; MAX_TASK_KEYS],
+    /// Values of each key (they follow each other in `values`).
+    pub key_value_counts: [u32; MAX_TASK_KEYS],
+    /// Every key's values, in key order.
+    pub values: [f64; MAX_TASK_VALUES],
+    /// The wall's position in the world, m.
+    pub wall_position_in_world_m: [f64; 3],
+    /// The wall's orientation, w x y z.
+    pub world_from_wall_wxyz: [f64; 4],
+    /// World x of the obstacle face the base must stay in front of, m.
+    pub obstacle_face_x_m: f64,
+}
+
+impl Default for TaskMsg {
+    fn default() -> Self {
+        Self {
+            task: 0,
+            flags: 0,
+            steps: 0,
+            criteria_count: 0,
+            key_count: 0,
+            criteria: [0; MAX_TASK_CRITERIA],
+            key_names: [[0; MAX_TASK_KEY_BYTES]; MAX_TASK_KEYS],
+            key_name_lens: [0; MAX_TASK_KEYS],
+            key_value_counts: [0; MAX_TASK_KEYS],
+            values: [0.0; MAX_TASK_VALUES],
+            wall_position_in_world_m: [0.0; 3],
+            world_from_wall_wxyz: [1.0, 0.0, 0.0, 0.0],
+            obstacle_face_x_m: 0.0,
+        }
+    }
+}
+
+impl TaskMsg {
+    /// The wire form of `snapshot` (None: no task).
+    pub fn from_snapshot(snapshot: Option<&TaskSnapshot>) -> Result<Self, TooLarge> {
+        let mut msg = Self::default();
+        let Some(t) = snapshot else {
+            return Ok(msg);
+        };
+        fits("task criteria", t.status.criteria.len(), MAX_TASK_CRITERIA)?;
+        fits(
+            "task observation keys",
+            t.observation.entries.len(),
+            MAX_TASK_KEYS,
+        )?;
+        let values: usize = t.observation.entries.iter().map(|(_, v)| v.len()).sum();
+        fits("task observation values", values, MAX_TASK_VALUES)?;
+        msg.task = TaskId::ALL
+            .iter()
+            .position(|&id| id == t.task)
+            .map_or(0, |i| i as u32 + 1);
+        msg.steps = t.steps;
+        msg.criteria_count = t.status.criteria.len() as u32;
+        for (slot, &c) in msg.criteria.iter_mut().zip(&t.status.criteria) {
+            *slot = u8::from(c);
+        }
+        msg.key_count = t.observation.entries.len() as u32;
+        let mut at = 0;
+        for (i, (name, v)) in t.observation.entries.iter().enumerate() {
+            fits("task observation key bytes", name.len(), MAX_TASK_KEY_BYTES)?;
+            msg.key_name_lens[i] = put_str(&mut msg.key_names[i], name);
+            msg.key_value_counts[i] = v.len() as u32;
+            msg.values[at..at + v.len()].copy_from_slice(v);
+            at += v.len();
+        }
+        if t.status.success {
+            msg.flags |= TASK_SUCCESS;
+        }
+        if t.holding {
+            msg.flags |= TASK_HOLDING;
+        }
+        if let Some(w) = &t.wall {
+            msg.flags |= TASK_HAS_WALL;
+            msg.wall_position_in_world_m = w.translation.vector.into();
+            let q = w.rotation.quaternion();
+            msg.world_from_wall_wxyz = [q.w, q.i, q.j, q.k];
+        }
+        if let Some(x) = t.obstacle_face_x {
+            msg.flags |= TASK_HAS_OBSTACLE_FACE;
+            msg.obstacle_face_x_m = x;
+        }
+        Ok(msg)
+    }
+
+    /// Back to the twin's type (None without a task; counts clamped to the arrays). Every
+    /// value is copied bit for bit.
+    pub fn to_snapshot(&self) -> Option<TaskSnapshot> {
+        let task = *TaskId::ALL.get((self.task as usize).checked_sub(1)?)?;
+        let criteria = (self.criteria_count as usize).min(MAX_TASK_CRITERIA);
+        let keys = (self.key_count as usize).min(MAX_TASK_KEYS);
+        let mut observation = TaskObservation::default();
+        let mut at = 0;
+        for i in 0..keys {
+            let n = (self.key_value_counts[i] as usize).min(MAX_TASK_VALUES - at);
+            observation.push(
+                get_str(&self.key_names[i], self.key_name_lens[i]),
+                self.values[at..at + n].iter().copied(),
+            );
+            at += n;
+        }
+        let w = &self.world_from_wall_wxyz;
+        Some(TaskSnapshot {
+            task,
+            status: TaskStatus {
+                success: self.flags & TASK_SUCCESS != 0,
+                criteria: self.criteria[..criteria].iter().map(|&c| c != 0).collect(),
+            },
+            observation,
+            wall: (self.flags & TASK_HAS_WALL != 0).then(|| {
+                Isometry3::from_parts(
+                    Translation3::from(Vector3::from(self.wall_position_in_world_m)),
+                    UnitQuaternion::new_unchecked(Quaternion::new(w[0], w[1], w[2], w[3])),
+                )
+            }),
+            obstacle_face_x: (self.flags & TASK_HAS_OBSTACLE_FACE != 0)
+                .then_some(self.obstacle_face_x_m),
+            holding: self.flags & TASK_HOLDING != 0,
+            steps: self.steps,
+        })
+    }
 }
 
 /// Twin → flight: the measurement at the end of a control period.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("amstack.sitl.Measurement.v1")]
+#[type_name("amstack.sitl.Measurement.v2")]
 pub struct MeasurementMsg {
     /// [`MESSAGE_VERSION`].
     pub version: u32,
@@ -146,12 +310,14 @@ pub struct MeasurementMsg {
     pub near_wall_n: [f64; 3],
     /// The simulated IMU.
     pub imu: ImuMsg,
+    /// The task scene after the tick.
+    pub task: TaskMsg,
 }
 
 /// Flight → twin: the actuator command for one control period.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("amstack.sitl.Command.v1")]
+#[type_name("amstack.sitl.Command.v2")]
 pub struct CommandMsg {
     /// [`MESSAGE_VERSION`].
     pub version: u32,
@@ -318,6 +484,7 @@ impl Default for MeasurementMsg {
             ground_effect_n: [0.0; 3],
             near_wall_n: [0.0; 3],
             imu: ImuMsg::default(),
+            task: TaskMsg::default(),
         }
     }
 }

@@ -57,7 +57,7 @@ pub use messages::{
     COMMAND_END_OF_SESSION, COMMAND_HAS_DIRECT_WRENCH, CommandMsg, Hello, ImuMsg, MAX_CONFIG_BYTES,
     MAX_ID_BYTES, MAX_JOINTS, MAX_REASON_BYTES, MAX_ROTORS, MEASUREMENT_FAILSAFE,
     MEASUREMENT_HOLDING, MEASUREMENT_SESSION_FAILED, MESSAGE_VERSION, MeasurementMsg, RotorMsg,
-    TooLarge, Welcome, get_str, join_id, joint_role, put_str, split_id,
+    TaskMsg, TooLarge, Welcome, get_str, join_id, joint_role, put_str, split_id,
 };
 pub use server::{Failsafe, Mode, ServeConfig, ServeError, ServeEvent, ServeSummary, TwinServer};
 pub use wait::Waiter;

@@ -8,14 +8,13 @@ use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::server::Server;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use nalgebra::Vector3;
-use platform::{ActuatorCommand, GRAVITY_MPS2, Measurement, Vehicle};
+use platform::{ActuatorCommand, Measurement, RigidBodyState, Vehicle};
 
 use super::handshake::{Offer, check_hello};
 use super::messages::{
     COMMAND_END_OF_SESSION, CommandMsg, Hello, ImuMsg, MEASUREMENT_FAILSAFE, MEASUREMENT_HOLDING,
-    MEASUREMENT_SESSION_FAILED, MeasurementMsg, TooLarge, Welcome, join_id, joint_role, put_str,
-    split_id,
+    MEASUREMENT_SESSION_FAILED, MeasurementMsg, TaskMsg, TooLarge, Welcome, get_str, join_id,
+    joint_role, put_str, split_id,
 };
 use super::wait::Waiter;
 use super::{
@@ -23,7 +22,8 @@ use super::{
     cleanup_dead_nodes_now, command_service, handshake_service, measurement_service, node,
     node_alive,
 };
-use crate::{Twin, TwinConfig, TwinError};
+use crate::sensors::ideal_imu;
+use crate::{TaskId, Twin, TwinConfig, TwinError};
 
 /// How the twin's time advances.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -90,6 +90,10 @@ pub struct ServeConfig {
     pub after_failsafe_s: f64,
     /// Return after this many sessions have ended (None: serve until stopped).
     pub max_sessions: Option<u64>,
+    /// Each flight process chooses its session's episode — the task scene and the seed —
+    /// in its hello (`amstack bench --link ipc` runs every rollout as a session); the rest
+    /// of the configuration must still match. Off: the served `task` and `seed` must match.
+    pub flight_chooses_episode: bool,
 }
 
 impl ServeConfig {
@@ -103,6 +107,7 @@ impl ServeConfig {
             stall_timeout: Duration::from_secs(5),
             after_failsafe_s: 3.0,
             max_sessions: None,
+            flight_chooses_episode: false,
         }
     }
 }
@@ -348,7 +353,8 @@ pub struct TwinServer {
     session: Option<Session>,
     phase: Phase,
     next_session: u64,
-    previous_velocity: Vector3<f64>,
+    /// The base at the previous measurement: the IMU's period starts there.
+    previous_base: RigidBodyState,
     /// The measurement handed out last (with observation noise when on).
     observed: Measurement,
     summary: ServeSummary,
@@ -362,6 +368,13 @@ impl fmt::Debug for TwinServer {
             .field("phase", &self.phase)
             .finish_non_exhaustive()
     }
+}
+
+/// The task and seed a flight process asks for in its hello's configuration.
+fn episode_of(hello: &Hello) -> Option<(Option<TaskId>, u64)> {
+    let json = get_str(&hello.config_json, hello.config_len);
+    let config: TwinConfig = serde_json::from_str(&json).ok()?;
+    Some((config.task, config.seed))
 }
 
 /// How often the flight process's node is looked at while no command comes.
@@ -399,7 +412,7 @@ impl TwinServer {
             .subscriber_builder()
             .create()
             .map_err(|e| IpcError::new("creating the command subscriber", e))?;
-        let previous_velocity = twin.truth().base.velocity_in_world_mps;
+        let previous_base = twin.truth().base;
         let observed = twin.truth().clone();
         Ok(Self {
             twin,
@@ -415,7 +428,7 @@ impl TwinServer {
             session: None,
             phase: Phase::Idle,
             next_session: u64::from(std::process::id()) << 32,
-            previous_velocity,
+            previous_base,
             observed,
             summary: ServeSummary::default(),
             config,
@@ -485,7 +498,8 @@ impl TwinServer {
             handled = true;
             let hello = *request.payload();
             let mut welcome = self.welcome();
-            let verdict = check_hello(&hello, &self.offer).and_then(|()| self.busy(&hello));
+            let verdict = check_hello(&hello, &self.offer, self.config.flight_chooses_episode)
+                .and_then(|()| self.busy(&hello));
             match verdict {
                 Err(reason) => {
                     welcome.reason_len = put_str(&mut welcome.reason, &reason);
@@ -557,8 +571,15 @@ impl TwinServer {
     }
 
     fn open_session(&mut self, hello: &Hello) -> Result<u64, ServeError> {
-        self.twin.reset(self.seed)?;
-        self.previous_velocity = self.twin.truth().base.velocity_in_world_mps;
+        match self.config.flight_chooses_episode {
+            // The hello passed the check, so its configuration parses.
+            true => match episode_of(hello) {
+                Some((task, seed)) => self.twin.reset_episode(task, seed)?,
+                None => self.twin.reset(self.seed)?,
+            },
+            false => self.twin.reset(self.seed)?,
+        }
+        self.previous_base = self.twin.truth().base;
         // As the in-process link: the state at the start is the exact one.
         self.observed = self.twin.truth().clone();
         // Commands of earlier sessions still queued are stale.
@@ -840,7 +861,8 @@ impl TwinServer {
         let truth = self.twin.truth();
         msg.imu = self.imu(truth);
         msg.gripper_opening = gripper_opening(self.twin.vehicle(), truth);
-        self.previous_velocity = truth.base.velocity_in_world_mps;
+        msg.task = TaskMsg::from_snapshot(self.twin.task_snapshot().as_ref())?;
+        self.previous_base = truth.base;
         msg.twin_busy_ns = started.elapsed().as_nanos() as u64;
         let sample = self
             .measurements
@@ -853,24 +875,18 @@ impl TwinServer {
         Ok(())
     }
 
-    /// The IMU over the last period: acceleration of the base origin from its velocity change.
+    /// The IMU over the last period ([`crate::sensors::ideal_imu`], as the flight stack's
+    /// simulated IMU reads it, without noise).
     fn imu(&self, truth: &Measurement) -> ImuMsg {
         let dt = 1.0 / self.offer.control_rate_hz;
-        let base = &truth.base;
-        let acceleration = if truth.time_s > 0.0 {
-            (base.velocity_in_world_mps - self.previous_velocity) / dt
-        } else {
-            Vector3::zeros()
-        };
-        let specific =
-            base.world_from_body.inverse() * (acceleration + Vector3::new(0.0, 0.0, GRAVITY_MPS2));
+        let s = ideal_imu(&self.previous_base, &truth.base, truth.time_s, dt);
+        let (f, w) = (
+            s.specific_force_in_body_mps2,
+            s.angular_velocity_in_body_radps,
+        );
         ImuMsg {
-            specific_force_in_body_mps2: [specific.x, specific.y, specific.z],
-            angular_velocity_in_body_radps: [
-                base.angular_velocity_in_body_radps.x,
-                base.angular_velocity_in_body_radps.y,
-                base.angular_velocity_in_body_radps.z,
-            ],
+            specific_force_in_body_mps2: [f.x, f.y, f.z],
+            angular_velocity_in_body_radps: [w.x, w.y, w.z],
         }
     }
 }

@@ -3,7 +3,7 @@
 use platform::Vehicle;
 
 use super::*;
-use crate::{Disturbances, Twin, TwinConfig};
+use crate::{Disturbances, TaskId, Twin, TwinConfig};
 
 fn vehicle(id: &str) -> Vehicle {
     Vehicle::builtin(id).unwrap_or_else(|e| panic!("{e}"))
@@ -71,7 +71,8 @@ fn matching_terms_are_accepted() {
     assert_eq!(
         check_hello(
             &offer("fa-hexa", &c).hello(1, [0, 0]),
-            &offer("fa-hexa", &c)
+            &offer("fa-hexa", &c),
+            false
         ),
         Ok(())
     );
@@ -83,6 +84,7 @@ fn a_mismatched_vehicle_is_refused_naming_both() {
     let refusal = check_hello(
         &offer("ua-quad", &c).hello(1, [0, 0]),
         &offer("fa-hexa", &c),
+        false,
     );
     assert_eq!(
         refusal,
@@ -103,6 +105,7 @@ fn a_mismatched_configuration_is_refused_naming_the_field_and_both_values() {
     let refusal = check_hello(
         &offer("fa-hexa", &flight).hello(1, [0, 0]),
         &offer("fa-hexa", &twin),
+        false,
     )
     .err()
     .unwrap_or_default();
@@ -118,11 +121,73 @@ fn a_mismatched_configuration_is_refused_naming_the_field_and_both_values() {
 }
 
 #[test]
+fn a_flight_that_chooses_the_episode_may_differ_in_task_and_seed_only() {
+    let twin = TwinConfig::default();
+    let episode = TwinConfig {
+        seed: 4,
+        task: Some(TaskId::TossBall),
+        ..TwinConfig::default()
+    };
+    let served = offer("fa-hexa", &twin);
+    let hello = offer("fa-hexa", &episode).hello(1, [0, 0]);
+    assert_eq!(check_hello(&hello, &served, true), Ok(()));
+    assert!(check_hello(&hello, &served, false).is_err());
+    let other = TwinConfig {
+        control_rate_hz: 240.0,
+        solver_iterations: 8,
+        ..episode
+    };
+    // The rate is refused first; with it equal, the first other field is named.
+    let refusal = check_hello(&offer("fa-hexa", &other).hello(1, [0, 0]), &served, true);
+    assert!(refusal.is_err_and(|r| r.contains("control rate")));
+    let other = TwinConfig {
+        control_rate_hz: twin.control_rate_hz,
+        ..other
+    };
+    let refusal = check_hello(&offer("fa-hexa", &other).hello(1, [0, 0]), &served, true)
+        .err()
+        .unwrap_or_default();
+    assert!(
+        refusal.contains("at solver_iterations: flight 8, twin 4"),
+        "{refusal}"
+    );
+}
+
+#[test]
+fn task_state_crosses_the_wire_bit_for_bit() {
+    let mut twin = Twin::new(
+        vehicle("ee-only"),
+        TwinConfig {
+            task: Some(TaskId::WipeWindow),
+            seed: 9,
+            ..TwinConfig::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let snapshot = twin.task_snapshot().unwrap_or_else(|| panic!("a task"));
+    assert!(snapshot.wall.is_some() && snapshot.obstacle_face_x.is_some());
+    let msg = TaskMsg::from_snapshot(Some(&snapshot)).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(msg.to_snapshot(), Some(snapshot));
+    assert_eq!(
+        TaskMsg::from_snapshot(None).map(|m| m.to_snapshot()),
+        Ok(None)
+    );
+    // Every task's state fits the message.
+    for task in TaskId::ALL {
+        twin.reset_episode(Some(task), 1)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let snapshot = twin.task_snapshot().unwrap_or_else(|| panic!("a task"));
+        let msg = TaskMsg::from_snapshot(Some(&snapshot)).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(msg.to_snapshot(), Some(snapshot), "{task:?}");
+    }
+}
+
+#[test]
 fn a_mismatched_message_version_is_refused_naming_both() {
     let c = TwinConfig::default();
     let mut hello = offer("fa-hexa", &c).hello(1, [0, 0]);
     hello.version = MESSAGE_VERSION + 1;
-    let refusal = check_hello(&hello, &offer("fa-hexa", &c))
+    let refusal = check_hello(&hello, &offer("fa-hexa", &c), false)
         .err()
         .unwrap_or_default();
     assert!(

@@ -218,21 +218,42 @@ pub struct TaskStatus {
     pub criteria: Vec<bool>,
 }
 
+/// Everything a runner needs of a task scene after a tick: what the in-process twin answers
+/// from its methods, and what the iceoryx2 twin sends with every measurement.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TaskSnapshot {
+    /// The task.
+    pub task: TaskId,
+    /// Success and criteria now.
+    pub status: TaskStatus,
+    /// The observation keys now.
+    pub observation: TaskObservation,
+    /// The wall's (or wall-like object's) pose.
+    pub wall: Option<Isometry3<f64>>,
+    /// World x of the obstacle face the base must stay in front of.
+    pub obstacle_face_x: Option<f64>,
+    /// Whether the grasp constraint holds an object.
+    pub holding: bool,
+    /// Env steps since reset.
+    pub steps: u64,
+}
+
 /// A task's observation keys (AMBENCH_SPEC §5.1 "task keys"): name → values, world frame.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct TaskObservation {
     /// Entries in the scene's order.
-    pub entries: Vec<(&'static str, Vec<f64>)>,
+    pub entries: Vec<(String, Vec<f64>)>,
 }
 
 impl TaskObservation {
     /// Adds an entry.
-    pub fn push(&mut self, name: &'static str, values: impl IntoIterator<Item = f64>) {
-        self.entries.push((name, values.into_iter().collect()));
+    pub fn push(&mut self, name: impl Into<String>, values: impl IntoIterator<Item = f64>) {
+        self.entries
+            .push((name.into(), values.into_iter().collect()));
     }
 
     /// Adds a 3-vector entry.
-    pub fn push_vec3(&mut self, name: &'static str, v: &Vector3<f64>) {
+    pub fn push_vec3(&mut self, name: impl Into<String>, v: &Vector3<f64>) {
         self.push(name, v.iter().copied());
     }
 
@@ -243,7 +264,7 @@ impl TaskObservation {
             .find(|(n, _)| *n == name)
             .map(|(_, v)| v.as_slice())
             .ok_or_else(|| {
-                let names: Vec<&str> = self.entries.iter().map(|(n, _)| *n).collect();
+                let names: Vec<&str> = self.entries.iter().map(|(n, _)| n.as_str()).collect();
                 format!("observation '{name}' missing (have: {})", names.join(", "))
             })
     }
