@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
-# Creates (idempotently) the Python virtualenv that holds amstack's independent MCAP reader:
-# the PyPI `mcap` package, used by scripts/mcap_check.py and by policy_runtime's tests to read
-# back the files our recorder writes with code that is not ours.
+# Creates (idempotently) the Python virtualenv that holds amstack's third-party checkers:
+# - the PyPI `mcap` package, used by scripts/mcap_check.py and by policy_runtime's tests to read
+#   back the files our recorder writes with code that is not ours;
+# - `pymavlink`, the ground station of scripts/mavlink_gcs.py, used by tests/tests/mavlink.rs
+#   to talk to the twin's autopilot (`amstack twin serve --mavlink`) with a MAVLink
+#   implementation that is not ours.
 #
 #   AMSTACK_VENV   where the venv lives (default: $HOME/.cache/amstack-venv)
 #   PYTHON         the interpreter that creates it (default: python3; needs its venv module)
@@ -11,9 +14,12 @@
 set -euo pipefail
 
 # Pinned: the reader must not change under the tests. mcap 1.6.0 needs lz4 and zstandard to
-# decompress chunks; both ship manylinux wheels, so nothing is compiled.
+# decompress chunks; both ship manylinux wheels, so nothing is compiled. pymavlink 2.4.50
+# ships a manylinux wheel too and needs lxml and fastcrc (wheels).
 MCAP_VERSION="1.6.0"
-PINNED=("mcap==${MCAP_VERSION}" "lz4==4.4.5" "zstandard==0.25.0")
+PYMAVLINK_VERSION="2.4.50"
+PINNED=("mcap==${MCAP_VERSION}" "lz4==4.4.5" "zstandard==0.25.0"
+        "pymavlink==${PYMAVLINK_VERSION}" "lxml==6.1.3" "fastcrc==0.5.0")
 
 VENV="${AMSTACK_VENV:-$HOME/.cache/amstack-venv}"
 PYTHON="${PYTHON:-python3}"
@@ -29,11 +35,16 @@ if command -v flock >/dev/null 2>&1; then
 fi
 
 installed_version() {
-    "$VPY" -c 'import importlib.metadata as m; print(m.version("mcap"))' 2>/dev/null || true
+    "$VPY" -c "import importlib.metadata as m; print(m.version('$1'))" 2>/dev/null || true
 }
 
-if [[ -x "$VPY" && "$(installed_version)" == "$MCAP_VERSION" ]]; then
-    say "venv $VENV already has mcap $MCAP_VERSION: nothing to do"
+installed() {
+    echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink)"
+}
+
+WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}"
+if [[ -x "$VPY" && "$(installed)" == "$WANTED" ]]; then
+    say "venv $VENV already has $WANTED: nothing to do"
     echo "$VPY"
     exit 0
 fi
@@ -43,10 +54,10 @@ if [[ ! -x "$VPY" ]]; then
     say "creating venv $VENV with $("$PYTHON" --version 2>&1)"
     "$PYTHON" -m venv "$VENV" >&2 || { say "'$PYTHON -m venv' failed: on Debian install python3-venv"; exit 1; }
 else
-    say "venv $VENV exists but has mcap '$(installed_version)', want $MCAP_VERSION"
+    say "venv $VENV exists but has $(installed), want $WANTED"
 fi
 
 say "installing ${PINNED[*]}"
 "$VPY" -m pip install --quiet --disable-pip-version-check "${PINNED[@]}" >&2
-say "done: $("$VPY" -c 'import importlib.metadata as m; print("mcap", m.version("mcap"))')"
+say "done: $(installed)"
 echo "$VPY"

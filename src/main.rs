@@ -77,9 +77,15 @@ fn main() -> ExitCode {
         Err(e) => {
             // clap's message is several lines (usage, hint); keep the first, the problem.
             let rendered = e.render().to_string();
-            let first = rendered.lines().next().unwrap_or("invalid arguments");
+            let mut lines = rendered.lines().filter(|l| !l.trim().is_empty());
+            let first = lines.next().unwrap_or("invalid arguments");
             let first = first.strip_prefix("error: ").unwrap_or(first);
-            eprintln!("amstack: {first} (see 'amstack --help')");
+            // "the following required arguments were not provided:" names them on the next line.
+            let more = match lines.next() {
+                Some(next) if first.ends_with(':') => format!(" {}", next.trim()),
+                _ => String::new(),
+            };
+            eprintln!("amstack: {first}{more} (see 'amstack --help')");
             return ExitCode::from(2);
         }
     };

@@ -1,4 +1,5 @@
-//! `amstack twin serve`: the twin alone in its process, offered over iceoryx2 shared memory.
+//! `amstack twin serve`: the twin alone in its process, offered over iceoryx2 shared memory
+//! (`--ipc`) or as a PX4-style autopilot over MAVLink 2 (`--mavlink`).
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -6,6 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::Result;
+use sim_twin::autopilot::{Autopilot, AutopilotConfig, AutopilotError, Endpoint, Signing};
 use sim_twin::ipc::{Mode, ServeConfig, ServeError, TwinServer};
 
 use crate::cli_error::bad_input;
@@ -21,13 +23,15 @@ pub struct TwinArgs {
 #[derive(Debug, clap::Subcommand)]
 enum TwinCommand {
     /// Run the twin in this process and serve it over iceoryx2 shared memory to one flight
-    /// process at a time (`amstack fly --link ipc:<service>`).
+    /// process at a time (`--ipc`, for `amstack fly --link ipc:<service>`), or as a PX4-style
+    /// autopilot over MAVLink 2 (`--mavlink`, for `amstack fly --link mavlink:…`, a ground
+    /// station, or any offboard program).
     Serve(Box<ServeArgs>),
 }
 
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
-Lockstep (the default, PX4's SITL contract): the twin advances exactly one control period
+IPC (--ipc). Lockstep (the default, PX4's SITL contract): the twin advances exactly one control period
 when the command for its current tick arrives, so a split-process flight is bit-identical
 to the in-process one. Realtime: the twin steps on the wall clock at the control rate with
 the latest command, as hardware would.
@@ -41,11 +45,39 @@ process. Resources left under /dev/shm by crashed processes are removed at start
 
 Example:
   amstack twin serve --ipc sitl --platform fa-hexa &
-  amstack fly --link ipc:sitl --platform fa-hexa --trajectory step --json r.json")]
+  amstack fly --link ipc:sitl --platform fa-hexa --trajectory step --json r.json
+
+MAVLINK (--mavlink): the twin is a PX4 vehicle, MAVLink 2 system 1 component 1: HEARTBEAT
+(PX4 custom modes), SYS_STATUS, EXTENDED_SYS_STATE, ATTITUDE, GLOBAL_POSITION_INT, and at
+every twin step DEBUG_FLOAT_ARRAY 'joints', ACTUATOR_OUTPUT_STATUS (newtons), HIGHRES_IMU,
+ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ODOMETRY. It arms, switches to OFFBOARD (only
+while setpoints stream, >= 2 Hz) and flies SET_ACTUATOR_CONTROL_TARGET (groups 0 motors,
+1 tilts, 2 arm + gripper) or SET_ATTITUDE_TARGET (its own attitude loop). Every COMMAND_LONG
+gets a COMMAND_ACK, refusals a STATUSTEXT with the reason. It starts disarmed in POSCTL,
+level, 1 m up (the benchmark's reset); POSCTL and AUTO modes hold/land with its own PID.
+With --lockstep (what SITL tests use) the twin steps once per setpoint tick while armed in
+OFFBOARD; with --realtime it runs on the wall clock from the first arming.
+Failsafe: armed in OFFBOARD and no setpoint for --offboard-timeout-ms -> AUTO.LOITER (hold
+the position) for --failsafe-hold-s -> AUTO.LAND at 0.5 m/s -> disarm on the ground; each
+step is logged on stderr with the twin time. Bad input (CRC, unknown ids, truncated frames,
+unsigned frames when signing is required) is counted: SYS_STATUS errors_comm and
+drop_rate_comm, and a line on stderr at exit. The contract: docs/mavlink.md.
+
+Example with pymavlink as the ground station (QGroundControl: add a UDP link to server
+127.0.0.1:14540 and it shows the vehicle):
+  amstack twin serve --mavlink udp:127.0.0.1:14540 --platform fa-hexa --realtime &
+  PY=$(bash scripts/setup-python.sh)    # a venv with pymavlink
+  $PY scripts/mavlink_gcs.py rates --connect udpout:127.0.0.1:14540 --seconds 3
+  (it measures the message rates, requests AUTOPILOT_VERSION, arms and disarms: JSON)")]
+#[command(group(clap::ArgGroup::new("link").required(true).args(["ipc", "mavlink"])))]
 pub struct ServeArgs {
     /// iceoryx2 service name the flight process connects to (`--link ipc:<NAME>`).
     #[arg(long, value_name = "NAME")]
-    ipc: String,
+    ipc: Option<String>,
+    /// Serve as a PX4-style autopilot over MAVLink 2: bind a UDP port (telemetry goes to
+    /// every peer heard from) or open a serial device.
+    #[arg(long, value_name = "udp:HOST:PORT|serial:DEVICE:BAUD")]
+    mavlink: Option<String>,
     /// Vehicle id (ua-quad, ua-hexa, fa-hexa, omni-hexa, ee-only, or one added with --vehicle).
     #[arg(long, default_value = "fa-hexa")]
     platform: String,
@@ -55,20 +87,37 @@ pub struct ServeArgs {
     /// Run on the wall clock at the control rate, applying the latest command.
     #[arg(long)]
     realtime: bool,
-    /// How long a lost flight process's last command is held before the failsafe, ms.
+    /// --ipc: how long a lost flight process's last command is held before the failsafe, ms.
     #[arg(long, value_name = "MS", default_value_t = 500)]
     hold_ms: u64,
-    /// Lockstep: a flight process alive but silent this long counts as lost, ms.
+    /// --ipc lockstep: a flight process alive but silent this long counts as lost, ms.
     #[arg(long, value_name = "MS", default_value_t = 5000)]
     stall_ms: u64,
-    /// Let each flight process choose its session's episode, the task scene and the seed
-    /// (`amstack bench --link ipc:<NAME>` runs every rollout as a session); everything else
-    /// must still match. Without it, sessions run --task and --seed.
+    /// --ipc: let each flight process choose its session's episode, the task scene and the
+    /// seed (`amstack bench --link ipc:<NAME>` runs every rollout as a session); everything
+    /// else must still match. Without it, sessions run --task and --seed.
     #[arg(long)]
     flight_chooses_episode: bool,
-    /// Exit after serving this many sessions (default: until Ctrl-C).
+    /// --ipc: exit after serving this many sessions (default: until Ctrl-C).
     #[arg(long, value_name = "N")]
     sessions: Option<u64>,
+    /// --mavlink: armed in OFFBOARD, no setpoint for this long starts the failsafe (and
+    /// OFFBOARD or arming in it are refused), ms.
+    #[arg(long, value_name = "MS", default_value_t = 500)]
+    offboard_timeout_ms: u64,
+    /// --mavlink: how long the failsafe holds position before it lands, s.
+    #[arg(long, value_name = "S", default_value_t = 5.0)]
+    failsafe_hold_s: f64,
+    /// --mavlink: MAVLink 2 signing key file: 32 raw bytes or 64 hexadecimal digits. Outgoing
+    /// frames are signed; incoming signed frames are checked.
+    #[arg(long, value_name = "FILE")]
+    signing_key: Option<PathBuf>,
+    /// --mavlink: refuse unsigned frames (needs --signing-key).
+    #[arg(long, requires = "signing_key")]
+    require_signing: bool,
+    /// --mavlink: link id written into outgoing signatures.
+    #[arg(long, value_name = "ID", default_value_t = 0)]
+    signing_link_id: u8,
     /// The twin's settings, as in `amstack track`; every session starts from the seed.
     #[command(flatten)]
     twin: TwinFlags,
@@ -86,10 +135,13 @@ pub fn run(args: &TwinArgs) -> Result<()> {
 }
 
 fn run_serve(args: &ServeArgs) -> Result<()> {
-    if args.ipc.is_empty() || args.ipc.contains(char::is_whitespace) {
+    if let Some(link) = &args.mavlink {
+        return run_mavlink(args, link);
+    }
+    let ipc = args.ipc.clone().unwrap_or_default();
+    if ipc.is_empty() || ipc.contains(char::is_whitespace) {
         return Err(bad_input(format!(
-            "--ipc '{}': a service name without spaces",
-            args.ipc
+            "--ipc '{ipc}': a service name without spaces"
         )));
     }
     let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
@@ -105,7 +157,7 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
         stall_timeout: Duration::from_millis(args.stall_ms),
         max_sessions: args.sessions,
         flight_chooses_episode: args.flight_chooses_episode,
-        ..ServeConfig::new(args.ipc.clone(), mode)
+        ..ServeConfig::new(ipc, mode)
     };
     let mut server = TwinServer::new(vehicle, twin, config).map_err(|e| match e {
         ServeError::Taken(_) | ServeError::TooLarge(_) => bad_input(e.to_string()),
@@ -119,5 +171,63 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
         "twin: stopped after {} session(s), {} refused",
         summary.sessions, summary.refused
     );
+    Ok(())
+}
+
+fn run_mavlink(args: &ServeArgs, link: &str) -> Result<()> {
+    let endpoint = Endpoint::parse(link).map_err(|e| bad_input(format!("--mavlink {e}")))?;
+    if !(args.failsafe_hold_s.is_finite() && args.failsafe_hold_s >= 0.0) {
+        return Err(bad_input(format!(
+            "--failsafe-hold-s {}: a duration in seconds, not negative",
+            args.failsafe_hold_s
+        )));
+    }
+    if args.offboard_timeout_ms == 0 {
+        return Err(bad_input(
+            "--offboard-timeout-ms 0: must be positive".to_owned(),
+        ));
+    }
+    let signing = match &args.signing_key {
+        None => None,
+        Some(path) => {
+            let bytes = std::fs::read(path).map_err(|e| {
+                bad_input(format!(
+                    "--signing-key {}: cannot read: {e}",
+                    path.display()
+                ))
+            })?;
+            let key = Signing::key_from_file_bytes(&bytes)
+                .map_err(|e| bad_input(format!("--signing-key {}: {e}", path.display())))?;
+            Some(Signing {
+                key,
+                link_id: args.signing_link_id,
+                require: args.require_signing,
+            })
+        }
+    };
+    let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
+    let mut twin = args.twin.twin_config()?;
+    args.scene.apply(&mut twin)?;
+    let mode = if args.realtime {
+        Mode::Realtime
+    } else {
+        Mode::Lockstep
+    };
+    let config = AutopilotConfig {
+        offboard_timeout: Duration::from_millis(args.offboard_timeout_ms),
+        failsafe_hold_s: args.failsafe_hold_s,
+        signing,
+        ..AutopilotConfig::new(endpoint, mode)
+    };
+    let mut autopilot = Autopilot::new(vehicle, twin, config).map_err(|e| match e {
+        AutopilotError::Vehicle(_) | AutopilotError::Link(_) => {
+            bad_input(format!("--mavlink: {e}"))
+        }
+        e => anyhow::Error::new(e),
+    })?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
+    autopilot.run(&stop, |event| eprintln!("autopilot: {event}"))?;
     Ok(())
 }

@@ -1,20 +1,22 @@
-//! Over real UDP loopback: `amstack fly --link mavlink:udp:...` (the flight stack through
-//! `firmware_bridge`) against `amstack twin serve --mavlink udp:... --lockstep` (the twin as
-//! a PX4-style autopilot), both real processes, started and stopped by the tests. Written
-//! against the contract in `docs/mavlink.md`.
+//! The twin's PX4-style autopilot (`amstack twin serve --mavlink udp:…`) against a MAVLink
+//! implementation that is not ours: pymavlink (scripts/mavlink_gcs.py, in the venv of
+//! scripts/setup-python.sh) as a ground station, an offboard sender and a source of garbage.
 //!
-//! The autopilot side lands on its own branch: until both are merged the tests that need it
-//! are ignored (`cargo test -p tests --test mavlink -- --ignored` runs them). Build the
-//! binary first: `cargo build --bin amstack`.
+//! The `amstack` binary is the one cargo builds for the root package's CLI test
+//! (`cargo test --workspace`); alone, run `cargo build --bin amstack` first. The first run
+//! installs pymavlink from PyPI into the shared venv.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-/// Generous: bounds a hang, not what a test measures.
-const PATIENCE: Duration = Duration::from_secs(120);
+use platform::{GRAVITY_MPS2, Vehicle};
+use serde_json::Value;
+
+/// Generous: these bound a hang, they are not what a test measures.
+const PATIENCE: Duration = Duration::from_secs(60);
 
 fn amstack() -> PathBuf {
     let exe = std::env::current_exe().unwrap_or_else(|e| panic!("current_exe: {e}"));
@@ -25,44 +27,63 @@ fn amstack() -> PathBuf {
         .unwrap_or_default();
     assert!(
         bin.is_file(),
-        "{} is missing: run `cargo build --bin amstack`",
+        "{} is missing: run `cargo build --bin amstack` (cargo test --workspace builds it)",
         bin.display()
     );
     bin
 }
 
-/// One test at a time (two processes each on a small machine).
+fn scripts() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts")
+}
+
+/// The venv's python with pymavlink (installed on first use).
+fn python() -> PathBuf {
+    static PY: Mutex<Option<PathBuf>> = Mutex::new(None);
+    let mut py = PY.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some(p) = &*py {
+        return p.clone();
+    }
+    let out = Command::new("bash")
+        .arg(scripts().join("setup-python.sh"))
+        .stderr(Stdio::inherit())
+        .output()
+        .unwrap_or_else(|e| panic!("setup-python.sh: {e}"));
+    assert!(out.status.success(), "setup-python.sh failed");
+    let path = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .last()
+        .map(|l| PathBuf::from(l.trim()))
+        .unwrap_or_default();
+    *py = Some(path.clone());
+    path
+}
+
+/// One test at a time (each runs a twin and a Python peer on a small machine).
 fn serial() -> MutexGuard<'static, ()> {
     static LOCK: Mutex<()> = Mutex::new(());
     LOCK.lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-/// A UDP port free right now on loopback.
-fn free_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .map(|a| a.port())
-        .unwrap_or_else(|e| panic!("no free port: {e}"))
-}
-
-/// A child `amstack` whose stderr is collected as it comes; stopped (Ctrl-C, then kill) on
-/// drop.
-struct Proc {
-    name: String,
+/// `amstack twin serve --mavlink udp:127.0.0.1:0 …`, its stderr collected line by line.
+struct Autopilot {
     child: Child,
     lines: Arc<Mutex<Vec<String>>>,
+    port: u16,
+    rest_z_m: f64,
 }
 
-impl Proc {
-    fn start(name: &str, args: &[&str]) -> Self {
+impl Autopilot {
+    fn start(args: &[&str]) -> Self {
         let mut child = Command::new(amstack())
+            .args(["twin", "serve", "--mavlink", "udp:127.0.0.1:0"])
             .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()
-            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+            .unwrap_or_else(|e| panic!("cannot start the autopilot: {e}"));
         let lines = Arc::new(Mutex::new(Vec::new()));
         if let Some(stderr) = child.stderr.take() {
             let sink = Arc::clone(&lines);
@@ -74,11 +95,26 @@ impl Proc {
                 }
             });
         }
-        Self {
-            name: name.to_owned(),
+        let mut ap = Self {
             child,
             lines,
-        }
+            port: 0,
+            rest_z_m: f64::NAN,
+        };
+        // "… on udp:127.0.0.1:PORT (lockstep, …); resting height 0.025 m"
+        let ready = ap.wait_for("serving");
+        ap.port = ready
+            .split("udp:127.0.0.1:")
+            .nth(1)
+            .and_then(|s| s.split(' ').next())
+            .and_then(|p| p.parse().ok())
+            .unwrap_or_else(|| panic!("no port in {ready:?}"));
+        ap.rest_z_m = ready
+            .split("resting height ")
+            .nth(1)
+            .and_then(|s| s.trim_end_matches(" m").parse().ok())
+            .unwrap_or_else(|| panic!("no resting height in {ready:?}"));
+        ap
     }
 
     fn stderr(&self) -> String {
@@ -88,192 +124,663 @@ impl Proc {
             .join("\n")
     }
 
-    fn wait(&mut self) -> ExitStatus {
+    fn wait_for(&mut self, needle: &str) -> String {
         let started = Instant::now();
         loop {
-            match self.child.try_wait() {
-                Ok(Some(s)) => {
-                    std::thread::sleep(Duration::from_millis(100));
-                    return s;
-                }
-                Ok(None) if started.elapsed() < PATIENCE => {
-                    std::thread::sleep(Duration::from_millis(10));
-                }
-                _ => panic!("{} did not exit:\n{}", self.name, self.stderr()),
+            if let Some(line) = self.stderr().lines().find(|l| l.contains(needle)) {
+                return line.to_owned();
             }
+            let exited = matches!(self.child.try_wait(), Ok(Some(_)));
+            if exited || started.elapsed() > PATIENCE {
+                std::thread::sleep(Duration::from_millis(200));
+                if let Some(line) = self.stderr().lines().find(|l| l.contains(needle)) {
+                    return line.to_owned();
+                }
+                panic!("no line with {needle:?}:\n{}", self.stderr());
+            }
+            std::thread::sleep(Duration::from_millis(5));
         }
     }
-}
 
-impl Drop for Proc {
-    fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(Some(_))) {
-            return;
-        }
+    /// Runs the pymavlink peer in `mode`; its JSON.
+    fn peer(&self, mode: &str, args: &[&str]) -> Value {
+        let connect = format!("udpout:127.0.0.1:{}", self.port);
+        let out = Command::new(python())
+            .arg(scripts().join("mavlink_gcs.py"))
+            .args([mode, "--connect", &connect])
+            .args(args)
+            .stderr(Stdio::inherit())
+            .output()
+            .unwrap_or_else(|e| panic!("mavlink_gcs.py: {e}"));
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "mavlink_gcs.py {mode} failed: {text}");
+        serde_json::from_str(text.trim())
+            .unwrap_or_else(|e| panic!("{e}: {text}\nautopilot:\n{}", self.stderr()))
+    }
+
+    /// Ctrl-C, then the exit line with the link's counters.
+    fn stop(&mut self) -> String {
         let _ = Command::new("kill")
             .args(["-INT", &self.child.id().to_string()])
             .status();
-        let started = Instant::now();
-        while started.elapsed() < Duration::from_secs(3) {
-            if matches!(self.child.try_wait(), Ok(Some(_))) {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(10));
+        self.wait_for("stopped after")
+    }
+}
+
+impl Drop for Autopilot {
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(Some(_))) {
+            return;
         }
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
 }
 
-fn read_json(path: &Path) -> serde_json::Value {
-    let text = std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+/// A counter's value in the exit line ("…, bad crc 50, …").
+fn counter(line: &str, name: &str) -> u64 {
+    line.split(&format!("{name} "))
+        .nth(1)
+        .and_then(|s| s.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no counter {name:?} in {line:?}"))
 }
 
-fn number(v: &serde_json::Value, key: &str) -> f64 {
-    v[key]
+fn rate(report: &Value, message: &str) -> f64 {
+    report["rates_hz"][message]
         .as_f64()
-        .unwrap_or_else(|| panic!("no number {key} in {v}"))
+        .unwrap_or_else(|| panic!("no rate for {message}: {report}"))
 }
-
-/// The twin's autopilot on `port`, lockstep, with `twin_flags` (the same flags as the
-/// flight's: vehicle, disturbances, seed).
-fn autopilot(port: u16, twin_flags: &[&str]) -> Proc {
-    let address = format!("udp:127.0.0.1:{port}");
-    let mut args = vec!["twin", "serve", "--mavlink", &address, "--lockstep"];
-    args.extend_from_slice(twin_flags);
-    Proc::start("twin serve --mavlink", &args)
-}
-
-/// `amstack fly` over MAVLink to `port`; returns the exit status and the JSON scores.
-fn fly(port: u16, flags: &[&str], json: &Path) -> (ExitStatus, Option<serde_json::Value>, String) {
-    let link = format!("mavlink:udp:127.0.0.1:{port}");
-    let json_arg = json.to_string_lossy().into_owned();
-    let mut args = vec![
-        "fly",
-        "--link",
-        &link,
-        "--connect-timeout-ms",
-        "30000",
-        "--json",
-        &json_arg,
-    ];
-    args.extend_from_slice(flags);
-    let mut p = Proc::start("fly --link mavlink", &args);
-    let status = p.wait();
-    let scores = json.is_file().then(|| read_json(json));
-    (status, scores, p.stderr())
-}
-
-const FLIGHT: &[&str] = &[
-    "--platform",
-    "fa-hexa",
-    "--disturbances",
-    "saturation",
-    "--seed",
-    "3",
-];
 
 #[test]
-#[ignore = "needs the twin autopilot (branch ap)"]
-fn a_step_at_actuator_level_over_udp_matches_the_in_process_flight() {
+fn a_pymavlink_ground_station_sees_the_vehicle_at_its_rates_and_arms_it() {
     let _one = serial();
-    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-    let port = free_port();
-    let _twin = autopilot(port, FLIGHT);
-    let over = dir.path().join("mavlink.json");
-    let mut flags = FLIGHT.to_vec();
-    flags.extend_from_slice(&[
-        "--trajectory",
-        "step",
-        "--duration",
-        "4",
-        "--level",
-        "actuator",
-    ]);
-    let (status, scores, stderr) = fly(port, &flags, &over);
-    assert!(status.success(), "fly failed:\n{stderr}");
-    let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
-    // The same flight in process.
-    let local = dir.path().join("local.json");
-    let mut args = vec!["track", "--json"];
-    let local_arg = local.to_string_lossy().into_owned();
-    args.push(&local_arg);
-    args.extend_from_slice(FLIGHT);
-    args.extend_from_slice(&["--trajectory", "step", "--duration", "4"]);
-    let mut track = Proc::start("track", &args);
-    assert!(track.wait().success(), "track failed:\n{}", track.stderr());
-    let reference = read_json(&local);
-    // Lockstep from the same reset state, f32 on the wire: the same flight within 0.1 mm of
-    // RMS error (the fixture of policy_runtime's MavlinkLink tests measured 6e-9 m).
-    for key in ["ee_pos_rmse_m", "base_pos_rmse_m", "base_z_rmse_m"] {
-        let (a, b) = (number(&scores, key), number(&reference, key));
+    let ap = Autopilot::start(&["--platform", "fa-hexa"]);
+    let r = ap.peer("rates", &["--seconds", "4"]);
+    // HEARTBEAT: MAV_TYPE_HEXAROTOR (13), MAV_AUTOPILOT_PX4 (12), custom mode enabled,
+    // disarmed, POSCTL (3 << 16), STANDBY (3), MAVLink 2.
+    let hb = &r["heartbeat"];
+    assert_eq!(hb["type"], 13, "{r}");
+    assert_eq!(hb["autopilot"], 12, "{r}");
+    assert_eq!(hb["base_mode"], 1, "{r}");
+    assert_eq!(hb["custom_mode"], 3 << 16, "{r}");
+    assert_eq!(hb["system_status"], 3, "{r}");
+    assert_eq!(hb["mavlink_version"], true, "{r}");
+    // The configured rates, within 10 % (the twin stands still: per-step messages at 10 Hz).
+    for (message, hz) in [
+        ("HEARTBEAT", 1.0),
+        ("SYS_STATUS", 1.0),
+        ("EXTENDED_SYS_STATE", 1.0),
+        ("ATTITUDE", 50.0),
+        ("GLOBAL_POSITION_INT", 10.0),
+        ("ODOMETRY", 10.0),
+        ("HIGHRES_IMU", 10.0),
+        ("ACTUATOR_OUTPUT_STATUS", 10.0),
+        ("DEBUG_FLOAT_ARRAY", 10.0),
+        ("ATTITUDE_QUATERNION", 10.0),
+        ("LOCAL_POSITION_NED", 10.0),
+    ] {
+        let got = rate(&r, message);
         assert!(
-            (a - b).abs() < 1e-4,
-            "{key}: {a} over MAVLink vs {b} in process"
+            (got - hz).abs() <= 0.1 * hz,
+            "{message}: {got:.2} Hz, configured {hz} Hz\n{r}"
         );
     }
-    assert_eq!(scores["ticks"], reference["ticks"]);
+    assert_eq!(r["request_autopilot_version"], "ACCEPTED", "{r}");
+    assert_eq!(r["autopilot_version_received"], true, "{r}");
+    assert_eq!(r["request_home_position"], "ACCEPTED", "{r}");
+    assert_eq!(r["home"]["lat"], 473_977_420, "{r}");
+    assert_eq!(r["home"]["lon"], 85_455_940, "{r}");
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    assert_eq!(r["armed_flag_after_arm"], true, "{r}");
+    // Armed in POSCTL the autopilot holds the vehicle 1 m up: a plain disarm is refused with
+    // the reason (PX4), a forced one (param2 21196) is accepted.
+    assert_eq!(r["disarm"], "DENIED", "{r}");
+    assert!(r["disarm_texts"].to_string().contains("in the air"), "{r}");
+    assert_eq!(r["force_disarm"], "ACCEPTED", "{r}");
+    assert_eq!(r["unsupported_command"], "UNSUPPORTED", "{r}");
 }
 
 #[test]
-#[ignore = "needs the twin autopilot (branch ap)"]
-fn hover_at_attitude_level_holds_altitude() {
+fn offboard_loss_holds_then_lands_then_disarms_without_a_crash() {
     let _one = serial();
-    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-    let port = free_port();
-    let _twin = autopilot(port, FLIGHT);
-    let out = dir.path().join("attitude.json");
-    let mut flags = FLIGHT.to_vec();
-    flags.extend_from_slice(&[
-        "--trajectory",
-        "hover",
-        "--duration",
-        "4",
-        "--level",
-        "attitude",
+    // With the paper's disturbances (drag, wind, ground and wall effects, rotor limits).
+    let mut ap = Autopilot::start(&[
+        "--platform",
+        "fa-hexa",
+        "--failsafe-hold-s",
+        "2",
+        "--disturbances",
+        "reference",
     ]);
-    let (status, scores, stderr) = fly(port, &flags, &out);
-    assert!(status.success(), "fly failed:\n{stderr}");
-    let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
-    // The autopilot's own attitude loop and allocation hold the hover at 1 m: within 5 cm
-    // RMS after the 2 s settling, and the base barely tilts.
-    let z = number(&scores, "base_z_rmse_m");
-    assert!(z < 0.05, "base z RMSE {z} m\n{stderr}");
-    let tilt = number(&scores, "tilt_use_rad");
-    assert!(tilt < 0.2, "tilt {tilt} rad\n{stderr}");
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"));
+    let mass = vehicle
+        .mass_properties(&vehicle.initial_configuration())
+        .mass_kg;
+    let hover = mass * GRAVITY_MPS2 / (vehicle.rotors.len() as f64 * vehicle.rotors.thrust_max_n);
+    let r = ap.peer(
+        "failsafe",
+        &[
+            "--hover-thrust",
+            &hover.to_string(),
+            "--hover-s",
+            "1.5",
+            "--climb-mps",
+            "0.3",
+            "--watch-s",
+            "20",
+        ],
+    );
+    // Offboard needs a setpoint stream; arming in offboard too, refused with the reason.
+    assert_eq!(
+        r["offboard_without_setpoints"], "TEMPORARILY_REJECTED",
+        "{r}"
+    );
+    assert_eq!(r["offboard_with_setpoints"], "ACCEPTED", "{r}");
+    assert_eq!(r["arm_without_setpoints"], "DENIED", "{r}");
+    assert!(
+        r["arm_refusal_texts"].to_string().contains("no setpoints"),
+        "{r}"
+    );
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    // Lockstep: 1.5 s of setpoints is 180 ticks, 1.5 s of twin time; the vehicle was
+    // climbing (NED vz < 0) when they stopped.
+    assert!(
+        (r["stopped_at"]["t_s"].as_f64().unwrap_or(0.0) - 1.5).abs() < 1e-6,
+        "{r}"
+    );
+    assert!(r["stopped_at"]["vz"].as_f64().unwrap_or(0.0) < -0.2, "{r}");
+    // OFFBOARD armed → AUTO.LOITER (CRITICAL) → AUTO.LAND (CRITICAL) → disarmed.
+    let modes: Vec<(u64, u64, bool)> = r["modes"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{r}"))
+        .iter()
+        .map(|m| {
+            (
+                m["main"].as_u64().unwrap_or(0),
+                m["sub"].as_u64().unwrap_or(0),
+                m["armed"].as_bool().unwrap_or(true),
+            )
+        })
+        .collect();
+    assert_eq!(
+        modes,
+        vec![(6, 0, true), (4, 3, true), (4, 6, true), (3, 0, false)],
+        "{r}"
+    );
+    // The hold stops the climb within 3 cm of where the setpoints stopped; nothing tilts
+    // more than 5°; the vehicle ends at its resting height, still.
+    let hold = r["hold_max_deviation_m"].as_f64().unwrap_or(f64::NAN);
+    assert!(hold < 0.03, "hold deviation {hold} m\n{r}");
+    let tilt = r["max_tilt_deg"].as_f64().unwrap_or(f64::NAN);
+    assert!(tilt < 5.0, "tilt {tilt}°\n{r}");
+    let z = -r["final"]["z_ned"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (z - ap.rest_z_m).abs() < 0.02,
+        "final z {z} m, rest {} m\n{r}",
+        ap.rest_z_m
+    );
+    assert!(
+        r["final"]["speed"].as_f64().unwrap_or(f64::NAN) < 0.05,
+        "{r}"
+    );
+    // The hold lasts 2 s of twin time, then a ≈ 1.2 m descent at 0.5 m/s (≈ 2.4 s) and the
+    // landed detection (0.5 s): the disarm comes 4–6.5 s after the setpoints stopped.
+    let stopped = r["stopped_at"]["t_s"].as_f64().unwrap_or(f64::NAN);
+    let disarmed = r["disarmed_at_s"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (4.0..6.5).contains(&(disarmed - stopped)),
+        "disarmed {disarmed} s after stopping at {stopped} s\n{r}"
+    );
+    // Each transition is logged with the twin time.
+    for needle in [
+        "mode AUTO.LOITER (failsafe: offboard setpoints lost, holding)",
+        "mode AUTO.LAND (failsafe: hold over, landing)",
+        "disarmed (landed)",
+    ] {
+        let line = ap.wait_for(needle);
+        assert!(line.contains("t = "), "{line}");
+    }
+    ap.stop();
 }
 
 #[test]
-fn a_flight_without_an_autopilot_stops_with_a_clear_error() {
-    // Nobody on the port: the bridge waits for the first ODOMETRY, then says so (exit 1).
+fn garbage_is_counted_and_the_link_keeps_working() {
+    let _one = serial();
+    let mut ap = Autopilot::start(&["--platform", "ua-quad"]);
+    let r = ap.peer("robust", &["--rounds", "50", "--seed", "7"]);
+    // After 50 rounds of random bytes, truncated frames, bad CRCs and unknown ids the ground
+    // station still gets its ACKs.
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    assert_eq!(r["force_disarm"], "ACCEPTED", "{r}");
+    let s = &r["sys_status"];
+    let at_least = |field: &str, n: u64| {
+        let v = s[field].as_u64().unwrap_or(0);
+        assert!(v >= n, "{field} = {v} < {n}\n{r}");
+    };
+    // errors_count1–3: bad CRC, unknown id, truncated (random bytes may add to each).
+    at_least("errors_count1", 50);
+    at_least("errors_count2", 50);
+    at_least("errors_count3", 50);
+    at_least("errors_comm", 150);
+    at_least("drop_rate_comm", 1);
+    let exit = ap.stop();
+    assert!(counter(&exit, "bad crc") >= 50, "{exit}");
+    assert!(counter(&exit, "unknown id") >= 50, "{exit}");
+    assert!(counter(&exit, "truncated") >= 50, "{exit}");
+    assert!(counter(&exit, "junk bytes") > 0, "{exit}");
+    // Arm, force disarm, heartbeats and SYS_STATUS polls decoded fine.
+    assert!(counter(&exit, "frames ok") >= 3, "{exit}");
+    assert!(!ap.stderr().contains("panicked"), "{}", ap.stderr());
+}
+
+#[test]
+fn with_signing_required_unsigned_and_forged_frames_are_refused() {
     let _one = serial();
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-    let port = free_port();
-    let link = format!("mavlink:udp:127.0.0.1:{port}");
-    let json = dir.path().join("none.json");
-    let json_arg = json.to_string_lossy().into_owned();
-    let mut p = Proc::start(
-        "fly",
+    let key_hex = "0123456789abcdef".repeat(4);
+    let key = dir.path().join("key.hex");
+    std::fs::write(&key, format!("{key_hex}\n")).unwrap_or_else(|e| panic!("{e}"));
+    let key_arg = key.display().to_string();
+    let mut ap = Autopilot::start(&[
+        "--platform",
+        "fa-hexa",
+        "--signing-key",
+        &key_arg,
+        "--require-signing",
+    ]);
+    let r = ap.peer("signing", &["--key-hex", &key_hex]);
+    // No ACK for the unsigned or forged command; the signed one is accepted, and what the
+    // autopilot sends is signed.
+    assert_eq!(r["unsigned"], Value::Null, "{r}");
+    assert_eq!(r["unsigned_heard_heartbeat"], false, "{r}");
+    assert_eq!(r["forged"], Value::Null, "{r}");
+    assert_eq!(r["signed"], "ACCEPTED", "{r}");
+    assert_eq!(r["heartbeat_signed"], true, "{r}");
+    let exit = ap.stop();
+    assert!(counter(&exit, "unsigned refused") >= 2, "{exit}");
+    assert!(counter(&exit, "bad signature") >= 2, "{exit}");
+}
+
+#[test]
+fn the_serial_path_carries_the_link_over_a_pseudo_terminal() {
+    let _one = serial();
+    // pymavlink's parser on the pty's master end; the autopilot opens the slave's path.
+    let mut peer = Command::new(python())
+        .arg(scripts().join("mavlink_gcs.py"))
+        .args(["serial", "--seconds", "2", "--watch-s", "30"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("mavlink_gcs.py serial: {e}"));
+    let stderr = peer.stderr.take().unwrap_or_else(|| panic!("no stderr"));
+    let mut lines = BufReader::new(stderr).lines();
+    let path = lines
+        .by_ref()
+        .map_while(Result::ok)
+        .find_map(|l| l.strip_prefix("pty ").map(str::to_owned))
+        .unwrap_or_else(|| panic!("the peer printed no pty path"));
+    let device = format!("serial:{path}:115200");
+    let mut child = Command::new(amstack())
+        .args([
+            "twin",
+            "serve",
+            "--mavlink",
+            &device,
+            "--platform",
+            "fa-hexa",
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot start the autopilot: {e}"));
+    let out = peer
+        .wait_with_output()
+        .unwrap_or_else(|e| panic!("mavlink_gcs.py serial: {e}"));
+    let _ = child.kill();
+    let _ = child.wait();
+    let text = String::from_utf8_lossy(&out.stdout);
+    let r: Value = serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"));
+    assert_eq!(r["heartbeat"]["type"], 13, "{r}");
+    assert_eq!(r["heartbeat"]["autopilot"], 12, "{r}");
+    // 2 s of the standing twin's per-step telemetry at 10 Hz.
+    let odometry = r["counts"]["ODOMETRY"].as_u64().unwrap_or(0);
+    assert!((18..=22).contains(&odometry), "{r}");
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    assert_eq!(r["force_disarm"], "ACCEPTED", "{r}");
+}
+
+#[test]
+fn lockstep_actuator_setpoints_step_the_twin_once_per_tick() {
+    let _one = serial();
+    let mut ap = Autopilot::start(&["--platform", "fa-hexa"]);
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"));
+    let u = 0.55;
+    let arm_joints = vehicle.arm_joints.len().to_string();
+    let r = ap.peer(
+        "actuator",
         &[
+            "--rotors",
+            "6",
+            "--arm-joints",
+            &arm_joints,
+            "--motor-u",
+            &u.to_string(),
+            "--joint-control",
+            "0.5",
+            "--ticks",
+            "60",
+        ],
+    );
+    // Disarmed, setpoints only refresh the stream: the twin stands still at t = 0.
+    assert_eq!(r["disarmed_time_usec"], serde_json::json!([0, 0]), "{r}");
+    assert_eq!(r["offboard"], "ACCEPTED", "{r}");
+    assert_eq!(r["arm"], "ACCEPTED", "{r}");
+    // Tick k (group 2 then group 0) answers with ODOMETRY at exactly k control periods.
+    let times: Vec<u64> = r["times_usec"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{r}"))
+        .iter()
+        .filter_map(Value::as_u64)
+        .collect();
+    let expected: Vec<u64> = (1..=60u64)
+        .map(|k| (k as f64 * 1e6 / 120.0).round() as u64)
+        .collect();
+    assert_eq!(times, expected, "{r}");
+    // Every rotor realises the thrust curve's thrust for u (ideal rotors: no dynamics).
+    let thrust = vehicle.rotors.thrust_curve.thrust_n(u);
+    let thrusts = r["thrusts_n"].as_array().unwrap_or_else(|| panic!("{r}"));
+    assert_eq!(thrusts.len(), 6, "{r}");
+    for t in thrusts {
+        let t = t.as_f64().unwrap_or(f64::NAN);
+        assert!(
+            (t - thrust).abs() < 1e-4 * thrust,
+            "{t} N vs {thrust} N\n{r}"
+        );
+    }
+    // Group 2: arm joint 0 at control 0.5 → 3/4 of its range; the gripper open.
+    let joints = r["joints"].as_array().unwrap_or_else(|| panic!("{r}"));
+    let j0 = &vehicle.model.joints[vehicle.arm_joints[0]];
+    let limits = j0
+        .limits
+        .unwrap_or_else(|| panic!("arm joint 0 has limits"));
+    let target = limits.lower + 0.75 * (limits.upper - limits.lower);
+    let dof = j0.dof.unwrap_or_else(|| panic!("movable"));
+    let q0 = joints[dof].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (q0 - target).abs() < 0.1,
+        "joint 0 at {q0} rad, target {target} rad\n{r}"
+    );
+    let gripper = vehicle
+        .gripper
+        .as_ref()
+        .unwrap_or_else(|| panic!("a gripper"));
+    for (k, &j) in gripper.joints.iter().enumerate() {
+        let d = vehicle.model.joints[j]
+            .dof
+            .unwrap_or_else(|| panic!("movable"));
+        let q = joints[d].as_f64().unwrap_or(f64::NAN);
+        assert!((q - gripper.open[k]).abs() < 0.01, "finger {k} at {q}\n{r}");
+    }
+    assert_eq!(r["force_disarm"], "ACCEPTED", "{r}");
+    ap.stop();
+}
+
+/// The flight stack's side: `amstack fly --link mavlink:udp:...` (the flight stack through
+/// `firmware_bridge`) against `amstack twin serve --mavlink udp:... --lockstep`, both real
+/// processes over UDP loopback, started and stopped by the tests.
+mod bridge {
+    use std::io::{BufRead, BufReader};
+    use std::path::Path;
+    use std::process::{Child, Command, ExitStatus, Stdio};
+    use std::sync::{Arc, Mutex};
+
+    use super::{amstack, serial};
+    use std::time::{Duration, Instant};
+
+    /// Generous: bounds a hang, not what a test measures.
+    const PATIENCE: Duration = Duration::from_secs(120);
+
+    /// A UDP port free right now on loopback.
+    fn free_port() -> u16 {
+        std::net::UdpSocket::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .map(|a| a.port())
+            .unwrap_or_else(|e| panic!("no free port: {e}"))
+    }
+
+    /// A child `amstack` whose stderr is collected as it comes; stopped (Ctrl-C, then kill) on
+    /// drop.
+    struct Proc {
+        name: String,
+        child: Child,
+        lines: Arc<Mutex<Vec<String>>>,
+    }
+
+    impl Proc {
+        fn start(name: &str, args: &[&str]) -> Self {
+            let mut child = Command::new(amstack())
+                .args(args)
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+            let lines = Arc::new(Mutex::new(Vec::new()));
+            if let Some(stderr) = child.stderr.take() {
+                let sink = Arc::clone(&lines);
+                std::thread::spawn(move || {
+                    for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                        sink.lock()
+                            .unwrap_or_else(std::sync::PoisonError::into_inner)
+                            .push(line);
+                    }
+                });
+            }
+            Self {
+                name: name.to_owned(),
+                child,
+                lines,
+            }
+        }
+
+        fn stderr(&self) -> String {
+            self.lines
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .join("\n")
+        }
+
+        fn wait(&mut self) -> ExitStatus {
+            let started = Instant::now();
+            loop {
+                match self.child.try_wait() {
+                    Ok(Some(s)) => {
+                        std::thread::sleep(Duration::from_millis(100));
+                        return s;
+                    }
+                    Ok(None) if started.elapsed() < PATIENCE => {
+                        std::thread::sleep(Duration::from_millis(10));
+                    }
+                    _ => panic!("{} did not exit:\n{}", self.name, self.stderr()),
+                }
+            }
+        }
+    }
+
+    impl Drop for Proc {
+        fn drop(&mut self) {
+            if matches!(self.child.try_wait(), Ok(Some(_))) {
+                return;
+            }
+            let _ = Command::new("kill")
+                .args(["-INT", &self.child.id().to_string()])
+                .status();
+            let started = Instant::now();
+            while started.elapsed() < Duration::from_secs(3) {
+                if matches!(self.child.try_wait(), Ok(Some(_))) {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+
+    fn read_json(path: &Path) -> serde_json::Value {
+        let text = std::fs::read_to_string(path)
+            .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    }
+
+    fn number(v: &serde_json::Value, key: &str) -> f64 {
+        v[key]
+            .as_f64()
+            .unwrap_or_else(|| panic!("no number {key} in {v}"))
+    }
+
+    /// The twin's autopilot on `port`, lockstep, with `twin_flags` (the same flags as the
+    /// flight's: vehicle, disturbances, seed).
+    fn autopilot(port: u16, twin_flags: &[&str]) -> Proc {
+        let address = format!("udp:127.0.0.1:{port}");
+        let mut args = vec!["twin", "serve", "--mavlink", &address, "--lockstep"];
+        args.extend_from_slice(twin_flags);
+        Proc::start("twin serve --mavlink", &args)
+    }
+
+    /// `amstack fly` over MAVLink to `port`; returns the exit status and the JSON scores.
+    fn fly(
+        port: u16,
+        flags: &[&str],
+        json: &Path,
+    ) -> (ExitStatus, Option<serde_json::Value>, String) {
+        let link = format!("mavlink:udp:127.0.0.1:{port}");
+        let json_arg = json.to_string_lossy().into_owned();
+        let mut args = vec![
             "fly",
             "--link",
             &link,
             "--connect-timeout-ms",
-            "300",
+            "30000",
             "--json",
             &json_arg,
-        ],
-    );
-    let status = p.wait();
-    assert_eq!(status.code(), Some(1), "{}", p.stderr());
-    assert!(
-        p.stderr().contains(
-            "no ODOMETRY (the vehicle's state at start) from the autopilot within 300 ms"
-        ),
-        "{}",
-        p.stderr()
-    );
-    assert!(!json.exists());
+        ];
+        args.extend_from_slice(flags);
+        let mut p = Proc::start("fly --link mavlink", &args);
+        let status = p.wait();
+        let scores = json.is_file().then(|| read_json(json));
+        (status, scores, p.stderr())
+    }
+
+    const FLIGHT: &[&str] = &[
+        "--platform",
+        "fa-hexa",
+        "--disturbances",
+        "saturation",
+        "--seed",
+        "3",
+    ];
+
+    #[test]
+    fn a_step_at_actuator_level_over_udp_matches_the_in_process_flight() {
+        let _one = serial();
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let port = free_port();
+        let _twin = autopilot(port, FLIGHT);
+        let over = dir.path().join("mavlink.json");
+        let mut flags = FLIGHT.to_vec();
+        flags.extend_from_slice(&[
+            "--trajectory",
+            "step",
+            "--duration",
+            "4",
+            "--level",
+            "actuator",
+        ]);
+        let (status, scores, stderr) = fly(port, &flags, &over);
+        assert!(status.success(), "fly failed:\n{stderr}");
+        let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
+        // The same flight in process.
+        let local = dir.path().join("local.json");
+        let mut args = vec!["track", "--json"];
+        let local_arg = local.to_string_lossy().into_owned();
+        args.push(&local_arg);
+        args.extend_from_slice(FLIGHT);
+        args.extend_from_slice(&["--trajectory", "step", "--duration", "4"]);
+        let mut track = Proc::start("track", &args);
+        assert!(track.wait().success(), "track failed:\n{}", track.stderr());
+        let reference = read_json(&local);
+        // Lockstep from the same reset state, f32 on the wire: the same flight within 0.1 mm of
+        // RMS error (the fixture of policy_runtime's MavlinkLink tests measured 6e-9 m).
+        for key in ["ee_pos_rmse_m", "base_pos_rmse_m", "base_z_rmse_m"] {
+            let (a, b) = (number(&scores, key), number(&reference, key));
+            assert!(
+                (a - b).abs() < 1e-4,
+                "{key}: {a} over MAVLink vs {b} in process"
+            );
+        }
+        assert_eq!(scores["ticks"], reference["ticks"]);
+    }
+
+    #[test]
+    fn hover_at_attitude_level_holds_altitude() {
+        let _one = serial();
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let port = free_port();
+        let _twin = autopilot(port, FLIGHT);
+        let out = dir.path().join("attitude.json");
+        let mut flags = FLIGHT.to_vec();
+        flags.extend_from_slice(&[
+            "--trajectory",
+            "hover",
+            "--duration",
+            "4",
+            "--level",
+            "attitude",
+        ]);
+        let (status, scores, stderr) = fly(port, &flags, &out);
+        assert!(status.success(), "fly failed:\n{stderr}");
+        let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
+        // The autopilot's own attitude loop and allocation hold the hover at 1 m: within 5 cm
+        // RMS after the 2 s settling, and the base barely tilts.
+        let z = number(&scores, "base_z_rmse_m");
+        assert!(z < 0.05, "base z RMSE {z} m\n{stderr}");
+        let tilt = number(&scores, "tilt_use_rad");
+        assert!(tilt < 0.2, "tilt {tilt} rad\n{stderr}");
+    }
+
+    #[test]
+    fn a_flight_without_an_autopilot_stops_with_a_clear_error() {
+        // Nobody on the port: the bridge waits for the first ODOMETRY, then says so (exit 1).
+        let _one = serial();
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let port = free_port();
+        let link = format!("mavlink:udp:127.0.0.1:{port}");
+        let json = dir.path().join("none.json");
+        let json_arg = json.to_string_lossy().into_owned();
+        let mut p = Proc::start(
+            "fly",
+            &[
+                "fly",
+                "--link",
+                &link,
+                "--connect-timeout-ms",
+                "300",
+                "--json",
+                &json_arg,
+            ],
+        );
+        let status = p.wait();
+        assert_eq!(status.code(), Some(1), "{}", p.stderr());
+        assert!(
+            p.stderr().contains(
+                "no ODOMETRY (the vehicle's state at start) from the autopilot within 300 ms"
+            ),
+            "{}",
+            p.stderr()
+        );
+        assert!(!json.exists());
+    }
 }

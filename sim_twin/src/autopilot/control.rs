@@ -1,0 +1,170 @@
+//! The autopilot's own control: the position hold and landing of the internal modes
+//! (amstack's geometric PID from `controllers` on the twin's truth) and the attitude loop of
+//! the attitude-level setpoint, both through amstack's allocation to rotor thrusts.
+
+use allocation::{Allocation, AllocationMethod, Allocator};
+use controllers::{BaseController, BodyParams, ControllerConfig, ControllerKind, attitude_error};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use platform::{ActuatorCommand, GRAVITY_MPS2, Measurement, Vehicle, Wrench};
+
+/// An attitude-level setpoint in amstack's frames.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AttitudeSetpoint {
+    /// Desired attitude, `world_from_body`.
+    pub world_from_body: UnitQuaternion<f64>,
+    /// Desired body force, FLU, N.
+    pub force_in_body_n: Vector3<f64>,
+    /// Feed-forward body rates, FLU, rad/s.
+    pub rates_in_body_radps: Vector3<f64>,
+}
+
+/// The internal controller and the attitude loop of one vehicle.
+#[derive(Debug)]
+pub struct Control {
+    body: BodyParams,
+    controller: Box<dyn BaseController>,
+    kp_rot: f64,
+    kd_rot: f64,
+    allocator: Allocator,
+    allocation: Allocation,
+    tilt_dofs: Vec<usize>,
+    measured_tilt: Vec<f64>,
+    thrust_min_n: f64,
+    dt_s: f64,
+}
+
+impl Control {
+    /// For `vehicle` (with rotors), running every `dt_s` seconds, with the vehicle's
+    /// reference PID profile (PID6 or the nested PID4).
+    pub fn new(vehicle: &Vehicle, dt_s: f64) -> Result<Self, String> {
+        let config =
+            controllers::profile(vehicle, ControllerKind::Pid).map_err(|e| e.to_string())?;
+        let (kp_rot, kd_rot) = match &config {
+            ControllerConfig::Pid6(g) => (g.kp_rot, g.kd_rot),
+            ControllerConfig::Pid4(g) => (g.kp_rot, g.kd_rot),
+            _ => return Err(format!("{}: no PID profile", vehicle.id)),
+        };
+        let body = BodyParams::from_vehicle(vehicle);
+        let controller = controllers::build(&config, body).map_err(|e| e.to_string())?;
+        let allocator = Allocator::new(
+            &vehicle.rotors,
+            vehicle.actuation,
+            AllocationMethod::PseudoInverse,
+        )
+        .map_err(|e| format!("{}: allocation: {e}", vehicle.id))?;
+        let allocation = allocator.new_allocation();
+        let tilt_dofs: Vec<usize> = vehicle
+            .rotors
+            .rotors
+            .iter()
+            .filter_map(|r| {
+                r.tilt
+                    .as_ref()
+                    .and_then(|t| vehicle.model.joint_id(&t.joint))
+                    .and_then(|j| vehicle.model.joints.get(j))
+                    .and_then(|j| j.dof)
+            })
+            .collect();
+        Ok(Self {
+            body,
+            controller,
+            kp_rot,
+            kd_rot,
+            allocator,
+            allocation,
+            measured_tilt: vec![0.0; tilt_dofs.len()],
+            tilt_dofs,
+            thrust_min_n: vehicle.rotors.thrust_min_n,
+            dt_s,
+        })
+    }
+
+    /// Clears the hold controller's integrators (on entering an internal mode).
+    pub fn reset(&mut self, m: &Measurement) {
+        self.controller.reset(&m.base);
+    }
+
+    /// One tick of the position hold toward `target` (position, heading level).
+    pub fn hold(
+        &mut self,
+        m: &Measurement,
+        target: &Isometry3<f64>,
+        joint_targets: &[f64],
+    ) -> ActuatorCommand {
+        let wrench = self.controller.update(&m.base, target, self.dt_s);
+        let command = self.allocate(m, &wrench, joint_targets);
+        self.controller
+            .saturation_feedback(&self.allocation.unallocated);
+        command
+    }
+
+    /// One tick of the attitude loop: the geometric attitude law of the vehicle's PID profile
+    /// (τ = J(−k_R e_R − k_Ω(Ω − Ω_d)) + Ω×JΩ + c × Rᵀ m g ẑ) with the setpoint's body force.
+    pub fn attitude(
+        &mut self,
+        m: &Measurement,
+        setpoint: &AttitudeSetpoint,
+        joint_targets: &[f64],
+    ) -> ActuatorCommand {
+        let base = &m.base;
+        let r = base.world_from_body.to_rotation_matrix().into_inner();
+        let r_d = setpoint.world_from_body.to_rotation_matrix().into_inner();
+        let e_r = attitude_error(&r, &r_d);
+        // Desired rates are given in the desired body frame; expressed in the current one.
+        let omega_d = r.transpose() * r_d * setpoint.rates_in_body_radps;
+        let omega = base.angular_velocity_in_body_radps;
+        let e_omega = omega - omega_d;
+        let j = self.body.inertia_kgm2;
+        let lift_in_body =
+            base.world_from_body.inverse() * Vector3::z() * (self.body.mass_kg * GRAVITY_MPS2);
+        let torque = j * (-self.kp_rot * e_r - self.kd_rot * e_omega)
+            + omega.cross(&(j * omega))
+            + self.body.com_in_body_m.cross(&lift_in_body);
+        let wrench = Wrench::new(setpoint.force_in_body_n, torque);
+        self.allocate(m, &wrench, joint_targets)
+    }
+
+    /// Rotor thrusts (and tilt angles) for a body wrench; idle thrust when the request or the
+    /// allocation is unusable (never a non-finite command).
+    fn allocate(
+        &mut self,
+        m: &Measurement,
+        wrench: &Wrench,
+        joint_targets: &[f64],
+    ) -> ActuatorCommand {
+        for (t, &dof) in self.measured_tilt.iter_mut().zip(&self.tilt_dofs) {
+            *t = m.joint_positions.get(dof).copied().unwrap_or(0.0);
+        }
+        let mut command = ActuatorCommand {
+            rotor_thrusts_n: vec![self.thrust_min_n; self.allocator.rotor_count()],
+            joint_targets: joint_targets.to_vec(),
+            direct_wrench_in_body: None,
+        };
+        let ok = self
+            .allocator
+            .allocate_into(wrench, &self.measured_tilt, &mut self.allocation)
+            .is_ok();
+        let a = &self.allocation;
+        if ok && a.thrusts_n.iter().all(|t| t.is_finite()) {
+            command.rotor_thrusts_n.clone_from(&a.thrusts_n);
+            for (&dof, &angle) in self.tilt_dofs.iter().zip(&a.tilt_rad) {
+                if let Some(q) = command.joint_targets.get_mut(dof)
+                    && angle.is_finite()
+                {
+                    *q = angle;
+                }
+            }
+        }
+        command
+    }
+}
+
+/// The hold target: the current position with the current heading, level.
+pub fn hold_target(m: &Measurement) -> Isometry3<f64> {
+    let p = m.base.position_in_world_m;
+    let (_, _, yaw) = m.base.world_from_body.euler_angles();
+    Isometry3::from_parts(
+        Translation3::from(p),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+    )
+}

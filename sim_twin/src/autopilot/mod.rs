@@ -1,0 +1,37 @@
+//! The twin as a PX4-style autopilot over MAVLink 2 (`amstack twin serve --mavlink`): a flight
+//! stack (amstack's `firmware_bridge`, or any offboard program) or a ground station
+//! (QGroundControl, pymavlink) talks to it as to a PX4 vehicle. The contract, as implemented, is
+//! `docs/mavlink.md`.
+//!
+//! | file | concept |
+//! |---|---|
+//! | [`modes`] | PX4 custom modes, the commander: arming, mode switches, offboard-loss failsafe |
+//! | [`setpoints`] | SET_ACTUATOR_CONTROL_TARGET groups 0/1/2 and SET_ATTITUDE_TARGET → commands |
+//! | [`control`] | the autopilot's own control: position hold and landing (PID on the twin's truth), the attitude loop, allocation |
+//! | [`telemetry`] | the twin's state → MAVLink messages (NED/FRD via `firmware_bridge::frames`) |
+//! | [`wire`] | frames: parsing with counters for every bad byte, signing, encoding |
+//! | [`transport`] | UDP (every peer heard) or a serial device |
+//! | [`server`] | the loop: lockstep or realtime stepping, telemetry streams, commands |
+//!
+//! Ids: the autopilot is system 1, component 1. Lockstep (what the tests use): the twin
+//! advances one control period when a tick's completing setpoint (group 0, or
+//! SET_ATTITUDE_TARGET) arrives while armed in OFFBOARD; the internal modes (POSCTL,
+//! AUTO.LOITER, AUTO.LAND, the failsafe) run on the wall clock. Realtime: the twin runs on the
+//! wall clock from the first arming on.
+
+pub mod control;
+pub mod modes;
+pub mod server;
+pub mod setpoints;
+pub mod telemetry;
+pub mod transport;
+pub mod wire;
+
+pub use control::AttitudeSetpoint;
+pub use modes::{Commander, FlightMode, Transition};
+pub use server::{
+    Autopilot, AutopilotConfig, AutopilotError, AutopilotEvent, COMPONENT_ID, SYSTEM_ID,
+    resting_height_m,
+};
+pub use transport::Endpoint;
+pub use wire::{LinkCounters, Signing, Wire};
