@@ -4,32 +4,9 @@
 
 use std::fmt;
 
-/// PX4 main mode numbers (`px4_custom_mode.h`).
-pub mod main_mode {
-    /// MANUAL.
-    pub const MANUAL: u8 = 1;
-    /// ALTCTL.
-    pub const ALTCTL: u8 = 2;
-    /// POSCTL.
-    pub const POSCTL: u8 = 3;
-    /// AUTO (sub mode in the top byte).
-    pub const AUTO: u8 = 4;
-    /// ACRO.
-    pub const ACRO: u8 = 5;
-    /// OFFBOARD.
-    pub const OFFBOARD: u8 = 6;
-    /// STABILIZED.
-    pub const STABILIZED: u8 = 7;
-}
-
-/// PX4 AUTO sub mode numbers.
-pub mod auto_sub_mode {
-    /// AUTO.LOITER.
-    pub const LOITER: u8 = 3;
-    /// AUTO.LAND.
-    pub const LAND: u8 = 6;
-}
-
+// PX4's mode numbers and their `custom_mode` encoding: the bridge's, one definition for both
+// ends of the link.
+use firmware_bridge::telemetry::px4_mode;
 /// The flight modes the twin's autopilot flies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FlightMode {
@@ -47,16 +24,16 @@ impl FlightMode {
     /// `custom_mode` in PX4's encoding: `main_mode << 16 | sub_mode << 24`.
     pub fn custom_mode(self) -> u32 {
         let (main, sub) = self.main_and_sub();
-        (u32::from(main) << 16) | (u32::from(sub) << 24)
+        px4_mode::custom_mode(main, sub)
     }
 
     /// (main mode, sub mode).
     pub fn main_and_sub(self) -> (u8, u8) {
         match self {
-            Self::Posctl => (main_mode::POSCTL, 0),
-            Self::Offboard => (main_mode::OFFBOARD, 0),
-            Self::AutoLoiter => (main_mode::AUTO, auto_sub_mode::LOITER),
-            Self::AutoLand => (main_mode::AUTO, auto_sub_mode::LAND),
+            Self::Posctl => (px4_mode::POSCTL, 0),
+            Self::Offboard => (px4_mode::OFFBOARD, 0),
+            Self::AutoLoiter => (px4_mode::AUTO, px4_mode::AUTO_LOITER),
+            Self::AutoLand => (px4_mode::AUTO, px4_mode::AUTO_LAND),
         }
     }
 
@@ -64,15 +41,14 @@ impl FlightMode {
     /// this autopilot does not fly.
     pub fn from_main_and_sub(main: u8, sub: u8) -> Result<Self, String> {
         match (main, sub) {
-            (main_mode::POSCTL, _) => Ok(Self::Posctl),
-            (main_mode::OFFBOARD, _) => Ok(Self::Offboard),
-            (main_mode::AUTO, auto_sub_mode::LOITER) => Ok(Self::AutoLoiter),
-            (main_mode::AUTO, auto_sub_mode::LAND) => Ok(Self::AutoLand),
-            (
-                main_mode::MANUAL | main_mode::ALTCTL | main_mode::ACRO | main_mode::STABILIZED,
-                _,
-            ) => Err(format!("mode {main} needs RC sticks (the twin has none)")),
-            (main_mode::AUTO, s) => Err(format!("AUTO sub mode {s} not supported")),
+            (px4_mode::POSCTL, _) => Ok(Self::Posctl),
+            (px4_mode::OFFBOARD, _) => Ok(Self::Offboard),
+            (px4_mode::AUTO, px4_mode::AUTO_LOITER) => Ok(Self::AutoLoiter),
+            (px4_mode::AUTO, px4_mode::AUTO_LAND) => Ok(Self::AutoLand),
+            (px4_mode::MANUAL | px4_mode::ALTCTL | px4_mode::ACRO | px4_mode::STABILIZED, _) => {
+                Err(format!("mode {main} needs RC sticks (the twin has none)"))
+            }
+            (px4_mode::AUTO, s) => Err(format!("AUTO sub mode {s} not supported")),
             (m, _) => Err(format!("unknown main mode {m}")),
         }
     }
@@ -351,8 +327,8 @@ mod tests {
             let (main, sub) = m.main_and_sub();
             assert_eq!(FlightMode::from_main_and_sub(main, sub).unwrap(), m);
         }
-        assert!(FlightMode::from_main_and_sub(main_mode::MANUAL, 0).is_err());
-        assert!(FlightMode::from_main_and_sub(main_mode::AUTO, 4).is_err());
+        assert!(FlightMode::from_main_and_sub(px4_mode::MANUAL, 0).is_err());
+        assert!(FlightMode::from_main_and_sub(px4_mode::AUTO, 4).is_err());
         assert!(FlightMode::from_main_and_sub(42, 0).is_err());
     }
 
