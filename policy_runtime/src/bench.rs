@@ -34,7 +34,7 @@ use sim_twin::{TaskId, TwinConfig, TwinError};
 
 pub use self::episode::{BenchLink, EpisodeError};
 use self::episode::{Episode, StepFailure};
-use crate::flight_log::{FlightLog, TaskCriterion, TaskState, TaskValue, rotors_saturated};
+use crate::flight_log::{FlightLog, TaskState, rotors_saturated};
 use crate::ipc_link::IpcLinkError;
 use crate::link::LinkError;
 use crate::metrics::{
@@ -354,31 +354,7 @@ pub fn run_rollout(
             let status = &snapshot.status;
             latch.observe(&status.criteria);
             if let Some(log) = &mut log {
-                let state = TaskState {
-                    task: task.name().to_owned(),
-                    step: snapshot.steps,
-                    success: status.success,
-                    criteria: criteria_names
-                        .iter()
-                        .zip(&status.criteria)
-                        .zip(latch.reached())
-                        .map(|((name, now), reached)| TaskCriterion {
-                            name: (*name).to_owned(),
-                            now: *now,
-                            reached: *reached,
-                        })
-                        .collect(),
-                    observation: snapshot
-                        .observation
-                        .entries
-                        .iter()
-                        .map(|(name, values)| TaskValue {
-                            name: name.clone(),
-                            values: values.clone(),
-                        })
-                        .collect(),
-                    holding: snapshot.holding,
-                };
+                let state = TaskState::from_snapshot(snapshot, latch.reached());
                 log.task_state(measurement.time_s, &state)?;
             }
             if status.success {

@@ -203,6 +203,41 @@ pub struct TaskState {
     pub holding: bool,
 }
 
+impl TaskState {
+    /// The state of `snapshot`, with each criterion's latched value from `reached`
+    /// (criterion order, as [`crate::metrics::CriteriaLatch::reached`]).
+    pub fn from_snapshot(snapshot: &sim_twin::TaskSnapshot, reached: &[bool]) -> Self {
+        let status = &snapshot.status;
+        Self {
+            task: snapshot.task.name().to_owned(),
+            step: snapshot.steps,
+            success: status.success,
+            criteria: snapshot
+                .task
+                .criteria_names()
+                .iter()
+                .zip(&status.criteria)
+                .zip(reached)
+                .map(|((name, now), reached)| TaskCriterion {
+                    name: (*name).to_owned(),
+                    now: *now,
+                    reached: *reached,
+                })
+                .collect(),
+            observation: snapshot
+                .observation
+                .entries
+                .iter()
+                .map(|(name, values)| TaskValue {
+                    name: name.to_string(),
+                    values: values.clone(),
+                })
+                .collect(),
+            holding: snapshot.holding,
+        }
+    }
+}
+
 /// One criterion of a [`TaskState`].
 #[derive(Debug, Clone, Serialize, JsonSchema)]
 pub struct TaskCriterion {

@@ -4,8 +4,11 @@
 //! experiment, determinism of runs and their logs, the logs read back by an independent
 //! reader — and start and stop any second process they need themselves (`tests/`).
 //!
-//! This library holds the one piece of support they share: the independent MCAP reader (the
-//! PyPI `mcap` package, installed into a virtualenv by `scripts/setup-python.sh`).
+//! This library holds the support they share: the independent MCAP reader and the Python
+//! peers (the PyPI `mcap` and `pymavlink` packages, installed into a virtualenv by
+//! `scripts/setup-python.sh`), and the child `amstack` processes ([`process`]).
+
+pub mod process;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

@@ -7,57 +7,13 @@
 //! installs pymavlink from PyPI into the shared venv.
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use platform::{GRAVITY_MPS2, Vehicle};
 use serde_json::Value;
-
-/// Generous: these bound a hang, they are not what a test measures.
-const PATIENCE: Duration = Duration::from_secs(60);
-
-fn amstack() -> PathBuf {
-    let exe = std::env::current_exe().unwrap_or_else(|e| panic!("current_exe: {e}"));
-    let bin = exe
-        .parent()
-        .and_then(Path::parent)
-        .map(|dir| dir.join("amstack"))
-        .unwrap_or_default();
-    assert!(
-        bin.is_file(),
-        "{} is missing: run `cargo build --bin amstack` (cargo test --workspace builds it)",
-        bin.display()
-    );
-    bin
-}
-
-fn scripts() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts")
-}
-
-/// The venv's python with pymavlink (installed on first use).
-fn python() -> PathBuf {
-    static PY: Mutex<Option<PathBuf>> = Mutex::new(None);
-    let mut py = PY.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    if let Some(p) = &*py {
-        return p.clone();
-    }
-    let out = Command::new("bash")
-        .arg(scripts().join("setup-python.sh"))
-        .stderr(Stdio::inherit())
-        .output()
-        .unwrap_or_else(|e| panic!("setup-python.sh: {e}"));
-    assert!(out.status.success(), "setup-python.sh failed");
-    let path = String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .last()
-        .map(|l| PathBuf::from(l.trim()))
-        .unwrap_or_default();
-    *py = Some(path.clone());
-    path
-}
+use tests::process::{PATIENCE, amstack};
 
 /// One test at a time (each runs a twin and a Python peer on a small machine).
 fn serial() -> MutexGuard<'static, ()> {
@@ -145,8 +101,8 @@ impl Autopilot {
     /// Runs the pymavlink peer in `mode`; its JSON.
     fn peer(&self, mode: &str, args: &[&str]) -> Value {
         let connect = format!("udpout:127.0.0.1:{}", self.port);
-        let out = Command::new(python())
-            .arg(scripts().join("mavlink_gcs.py"))
+        let out = Command::new(tests::python())
+            .arg(tests::scripts_dir().join("mavlink_gcs.py"))
             .args([mode, "--connect", &connect])
             .args(args)
             .stderr(Stdio::inherit())
@@ -406,8 +362,8 @@ fn with_signing_required_unsigned_and_forged_frames_are_refused() {
 fn the_serial_path_carries_the_link_over_a_pseudo_terminal() {
     let _one = serial();
     // pymavlink's parser on the pty's master end; the autopilot opens the slave's path.
-    let mut peer = Command::new(python())
-        .arg(scripts().join("mavlink_gcs.py"))
+    let mut peer = Command::new(tests::python())
+        .arg(tests::scripts_dir().join("mavlink_gcs.py"))
         .args(["serial", "--seconds", "2", "--watch-s", "30"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -531,16 +487,12 @@ fn lockstep_actuator_setpoints_step_the_twin_once_per_tick() {
 /// `firmware_bridge`) against `amstack twin serve --mavlink udp:... --lockstep`, both real
 /// processes over UDP loopback, started and stopped by the tests.
 mod bridge {
-    use std::io::{BufRead, BufReader};
     use std::path::Path;
-    use std::process::{Child, Command, ExitStatus, Stdio};
-    use std::sync::{Arc, Mutex};
+    use std::process::ExitStatus;
 
-    use super::{amstack, serial};
-    use std::time::{Duration, Instant};
+    use tests::process::Proc;
 
-    /// Generous: bounds a hang, not what a test measures.
-    const PATIENCE: Duration = Duration::from_secs(120);
+    use super::serial;
 
     /// A UDP port free right now on loopback.
     fn free_port() -> u16 {
@@ -548,85 +500,6 @@ mod bridge {
             .and_then(|s| s.local_addr())
             .map(|a| a.port())
             .unwrap_or_else(|e| panic!("no free port: {e}"))
-    }
-
-    /// A child `amstack` whose stderr is collected as it comes; stopped (Ctrl-C, then kill) on
-    /// drop.
-    struct Proc {
-        name: String,
-        child: Child,
-        lines: Arc<Mutex<Vec<String>>>,
-    }
-
-    impl Proc {
-        fn start(name: &str, args: &[&str]) -> Self {
-            let mut child = Command::new(amstack())
-                .args(args)
-                .stdin(Stdio::null())
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped())
-                .spawn()
-                .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
-            let lines = Arc::new(Mutex::new(Vec::new()));
-            if let Some(stderr) = child.stderr.take() {
-                let sink = Arc::clone(&lines);
-                std::thread::spawn(move || {
-                    for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                        sink.lock()
-                            .unwrap_or_else(std::sync::PoisonError::into_inner)
-                            .push(line);
-                    }
-                });
-            }
-            Self {
-                name: name.to_owned(),
-                child,
-                lines,
-            }
-        }
-
-        fn stderr(&self) -> String {
-            self.lines
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .join("\n")
-        }
-
-        fn wait(&mut self) -> ExitStatus {
-            let started = Instant::now();
-            loop {
-                match self.child.try_wait() {
-                    Ok(Some(s)) => {
-                        std::thread::sleep(Duration::from_millis(100));
-                        return s;
-                    }
-                    Ok(None) if started.elapsed() < PATIENCE => {
-                        std::thread::sleep(Duration::from_millis(10));
-                    }
-                    _ => panic!("{} did not exit:\n{}", self.name, self.stderr()),
-                }
-            }
-        }
-    }
-
-    impl Drop for Proc {
-        fn drop(&mut self) {
-            if matches!(self.child.try_wait(), Ok(Some(_))) {
-                return;
-            }
-            let _ = Command::new("kill")
-                .args(["-INT", &self.child.id().to_string()])
-                .status();
-            let started = Instant::now();
-            while started.elapsed() < Duration::from_secs(3) {
-                if matches!(self.child.try_wait(), Ok(Some(_))) {
-                    return;
-                }
-                std::thread::sleep(Duration::from_millis(10));
-            }
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
     }
 
     fn read_json(path: &Path) -> serde_json::Value {

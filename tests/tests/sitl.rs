@@ -6,32 +6,13 @@
 //! at a time (each busy-polls two processes on a small machine) and every process and
 //! shared-memory resource they start is removed when a test ends, passed or failed.
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::{Duration, Instant};
+use std::path::Path;
+use std::process::Command;
+use std::sync::{Mutex, MutexGuard};
+use std::time::Duration;
 
 use policy_runtime::record::Recording;
-
-/// Generous: these bound a hang, they are not what a test measures.
-const PATIENCE: Duration = Duration::from_secs(60);
-
-fn amstack() -> PathBuf {
-    let exe = std::env::current_exe().unwrap_or_else(|e| panic!("current_exe: {e}"));
-    // target/<profile>/deps/sitl-… → target/<profile>/amstack
-    let bin = exe
-        .parent()
-        .and_then(Path::parent)
-        .map(|dir| dir.join("amstack"))
-        .unwrap_or_default();
-    assert!(
-        bin.is_file(),
-        "{} is missing: run `cargo build --bin amstack` (cargo test --workspace builds it)",
-        bin.display()
-    );
-    bin
-}
+use tests::process::{Proc, amstack};
 
 /// One test at a time.
 fn serial() -> MutexGuard<'static, ()> {
@@ -43,130 +24,6 @@ fn serial() -> MutexGuard<'static, ()> {
 /// A service name no other test run uses.
 fn service(test: &str) -> String {
     format!("test-{}-{test}", std::process::id())
-}
-
-/// A child `amstack` process whose stderr is collected line by line as it comes.
-struct Proc {
-    name: String,
-    child: Child,
-    lines: Arc<Mutex<Vec<String>>>,
-    status: Option<ExitStatus>,
-}
-
-impl Proc {
-    fn start(name: &str, args: &[&str]) -> Self {
-        let mut child = Command::new(amstack())
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
-        let lines = Arc::new(Mutex::new(Vec::new()));
-        if let Some(stderr) = child.stderr.take() {
-            let sink = Arc::clone(&lines);
-            std::thread::spawn(move || {
-                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                    sink.lock()
-                        .unwrap_or_else(std::sync::PoisonError::into_inner)
-                        .push(line);
-                }
-            });
-        }
-        Self {
-            name: name.to_owned(),
-            child,
-            lines,
-            status: None,
-        }
-    }
-
-    fn stderr(&self) -> String {
-        self.lines
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .join("\n")
-    }
-
-    /// The first stderr line containing `needle`, waiting for it.
-    fn wait_for(&mut self, needle: &str) -> String {
-        let started = Instant::now();
-        loop {
-            let found = self
-                .lines
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .iter()
-                .find(|l| l.contains(needle))
-                .cloned();
-            if let Some(line) = found {
-                return line;
-            }
-            let exited = self.status.is_some() || matches!(self.child.try_wait(), Ok(Some(_)));
-            if exited || started.elapsed() > PATIENCE {
-                // The reader may still be draining the last lines of an exited process.
-                std::thread::sleep(Duration::from_millis(200));
-                if let Some(line) = self.stderr().lines().find(|l| l.contains(needle)) {
-                    return line.to_owned();
-                }
-                panic!(
-                    "{}: no line with {needle:?} ({}):\n{}",
-                    self.name,
-                    if exited { "it exited" } else { "timed out" },
-                    self.stderr()
-                );
-            }
-            std::thread::sleep(Duration::from_millis(5));
-        }
-    }
-
-    fn wait(&mut self) -> ExitStatus {
-        if let Some(s) = self.status {
-            return s;
-        }
-        let started = Instant::now();
-        loop {
-            match self.child.try_wait() {
-                Ok(Some(s)) => {
-                    // Let the reader catch the last lines.
-                    std::thread::sleep(Duration::from_millis(100));
-                    self.status = Some(s);
-                    return s;
-                }
-                Ok(None) if started.elapsed() < PATIENCE => {
-                    std::thread::sleep(Duration::from_millis(5));
-                }
-                _ => panic!("{} did not exit:\n{}", self.name, self.stderr()),
-            }
-        }
-    }
-
-    /// A crash: SIGKILL, nothing cleaned up by the process itself.
-    fn kill(&mut self) {
-        let _ = self.child.kill();
-        self.wait();
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        if self.status.is_some() || matches!(self.child.try_wait(), Ok(Some(_))) {
-            return;
-        }
-        // Ctrl-C first (the process closes its logs and services), then SIGKILL.
-        let _ = Command::new("kill")
-            .args(["-INT", &self.child.id().to_string()])
-            .status();
-        let started = Instant::now();
-        while started.elapsed() < Duration::from_secs(3) {
-            if matches!(self.child.try_wait(), Ok(Some(_))) {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
 }
 
 /// The processes of one test; on drop they are stopped and whatever a killed one left in

@@ -26,6 +26,48 @@ fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> Be
     }
 }
 
+/// A scripted rollout at its start, as the runner sets it up (PID, EE interface, ideal
+/// rotors): the twin with `task` at `seed`, the stack, the reset measurement, the policy's
+/// context and the policy (its own stream of the seed).
+fn scripted_start(
+    task: TaskId,
+    vehicle: &str,
+    seed: u64,
+) -> (
+    Twin,
+    FlightStack,
+    platform::Measurement,
+    PolicyContext,
+    Box<dyn crate::task_policies::TaskPolicy>,
+) {
+    let cfg = config(vehicle, ControllerKind::Pid, Interface::Ee);
+    let twin_config = TwinConfig {
+        task: Some(task),
+        seed,
+        ..TwinConfig::default()
+    };
+    let twin = Twin::new(cfg.vehicle.clone(), twin_config).unwrap_or_else(|e| panic!("{e}"));
+    let mut stack = FlightStack::new(
+        cfg.vehicle.clone(),
+        &cfg.controller,
+        AllocationMethod::PseudoInverse,
+        ThrustLimits::Ideal,
+        1.0 / 120.0,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let m = twin.truth().clone();
+    stack.reset_at(&m.base, &m.joint_positions);
+    let ctx = PolicyContext {
+        init: m.world_from_ee.translation.vector,
+        task: twin.task_observation().unwrap_or_default(),
+        wall: twin.task_wall(),
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(2);
+    let policy = scripted(task, &ctx, &mut rng).unwrap_or_else(|e| panic!("{e}"));
+    (twin, stack, m, ctx, policy)
+}
+
 /// Prints a rollout's trace every `AMSTACK_TRACE_EVERY` steps (default 60):
 /// `AMSTACK_TRACE=task[:vehicle[:seed]] cargo test -p policy_runtime trace -- --ignored
 /// --nocapture`.
@@ -38,35 +80,8 @@ fn trace() {
         TaskId::parse(parts.next().unwrap_or("press-button")).unwrap_or_else(|e| panic!("{e}"));
     let vehicle = parts.next().unwrap_or("ee-only").to_owned();
     let seed: u64 = parts.next().and_then(|s| s.parse().ok()).unwrap_or(0);
-    let cfg = config(&vehicle, ControllerKind::Pid, Interface::Ee);
-    let mut twin = Twin::new(
-        cfg.vehicle.clone(),
-        TwinConfig {
-            task: Some(task),
-            seed,
-            ..TwinConfig::default()
-        },
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    let mut stack = FlightStack::new(
-        cfg.vehicle.clone(),
-        &cfg.controller,
-        AllocationMethod::PseudoInverse,
-        ThrustLimits::Ideal,
-        1.0 / 120.0,
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    let mut m = twin.truth().clone();
-    stack.reset_at(&m.base, &m.joint_positions);
-    let ctx = PolicyContext {
-        init: m.world_from_ee.translation.vector,
-        task: twin.task_observation().unwrap_or_default(),
-        wall: twin.task_wall(),
-    };
+    let (mut twin, mut stack, mut m, ctx, mut policy) = scripted_start(task, &vehicle, seed);
     println!("reset observation: {:?}\nwall: {:?}", ctx.task, ctx.wall);
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    rng.set_stream(2);
-    let mut policy = scripted(task, &ctx, &mut rng).unwrap_or_else(|e| panic!("{e}"));
     let every: u64 = std::env::var("AMSTACK_TRACE_EVERY")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -152,38 +167,13 @@ fn action_noise_perturbs_every_element_by_its_standard_deviation() {
 #[ignore = "a measurement, not a test"]
 fn toss_ball_landing() {
     const RIM_HEIGHT_M: f64 = 0.17;
-    let cfg = config("ee-only", ControllerKind::Pid, Interface::Ee);
     for seed in 0..40u64 {
-        let twin_config = TwinConfig {
-            task: Some(TaskId::TossBall),
-            seed,
-            ..TwinConfig::default()
-        };
-        let mut twin =
-            Twin::new(cfg.vehicle.clone(), twin_config).unwrap_or_else(|e| panic!("{e}"));
-        let mut stack = FlightStack::new(
-            cfg.vehicle.clone(),
-            &cfg.controller,
-            AllocationMethod::PseudoInverse,
-            ThrustLimits::Ideal,
-            1.0 / 120.0,
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
-        let mut m = twin.truth().clone();
-        stack.reset_at(&m.base, &m.joint_positions);
-        let ctx = PolicyContext {
-            init: m.world_from_ee.translation.vector,
-            task: twin.task_observation().unwrap_or_default(),
-            wall: twin.task_wall(),
-        };
+        let (mut twin, mut stack, mut m, ctx, mut policy) =
+            scripted_start(TaskId::TossBall, "ee-only", seed);
         let target = ctx
             .task
             .vec3("target_pos", 0)
             .unwrap_or_else(|e| panic!("{e}"));
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(2);
-        let mut policy =
-            scripted(TaskId::TossBall, &ctx, &mut rng).unwrap_or_else(|e| panic!("{e}"));
         let mut released = None;
         let mut landing_x = None;
         let mut success = false;

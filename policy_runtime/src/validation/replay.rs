@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 use sim_twin::{Twin, TwinConfig, TwinError};
 
 use super::FlightLogFile;
-use crate::flight_log::{ActionMessage, FlightLog, TaskCriterion, TaskState, TaskValue};
+use crate::flight_log::{ActionMessage, FlightLog, TaskState};
 use crate::link::{Link, LinkError, TwinLink};
 use crate::metrics::CriteriaLatch;
 use crate::record::foxglove::PoseInFrame;
@@ -580,35 +580,9 @@ pub fn replay_flight(
         }
         log.outcome(&measurement)?;
         // A task scene's state, as a bench rollout logs it: the replay's own success.
-        if let (Some(task), Some(status)) = (task, link.twin().task_status()) {
-            latch.observe(&status.criteria);
-            let twin = link.twin();
-            let state = TaskState {
-                task: task.name().to_owned(),
-                step: twin.steps(),
-                success: status.success,
-                criteria: criteria_names
-                    .iter()
-                    .zip(&status.criteria)
-                    .zip(latch.reached())
-                    .map(|((name, now), reached)| TaskCriterion {
-                        name: (*name).to_owned(),
-                        now: *now,
-                        reached: *reached,
-                    })
-                    .collect(),
-                observation: twin
-                    .task_observation()
-                    .unwrap_or_default()
-                    .entries
-                    .into_iter()
-                    .map(|(name, values)| TaskValue {
-                        name: name.to_owned(),
-                        values,
-                    })
-                    .collect(),
-                holding: twin.holding(),
-            };
+        if let Some(snapshot) = link.twin().task_snapshot() {
+            latch.observe(&snapshot.status.criteria);
+            let state = TaskState::from_snapshot(&snapshot, latch.reached());
             log.task_state(measurement.time_s, &state)?;
         }
         replayed += 1;

@@ -36,6 +36,8 @@ mod rotate_valve;
 mod toss_ball;
 mod wipe_window;
 
+use std::borrow::Cow;
+
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use platform::Vehicle;
 use rand_chacha::ChaCha8Rng;
@@ -241,19 +243,24 @@ pub struct TaskSnapshot {
 /// A task's observation keys (AMBENCH_SPEC §5.1 "task keys"): name → values, world frame.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct TaskObservation {
-    /// Entries in the scene's order.
-    pub entries: Vec<(String, Vec<f64>)>,
+    /// Entries in the scene's order. The scenes' names are static (no allocation per tick);
+    /// names read off the wire are owned.
+    pub entries: Vec<(Cow<'static, str>, Vec<f64>)>,
 }
 
 impl TaskObservation {
     /// Adds an entry.
-    pub fn push(&mut self, name: impl Into<String>, values: impl IntoIterator<Item = f64>) {
+    pub fn push(
+        &mut self,
+        name: impl Into<Cow<'static, str>>,
+        values: impl IntoIterator<Item = f64>,
+    ) {
         self.entries
             .push((name.into(), values.into_iter().collect()));
     }
 
     /// Adds a 3-vector entry.
-    pub fn push_vec3(&mut self, name: impl Into<String>, v: &Vector3<f64>) {
+    pub fn push_vec3(&mut self, name: impl Into<Cow<'static, str>>, v: &Vector3<f64>) {
         self.push(name, v.iter().copied());
     }
 
@@ -264,7 +271,7 @@ impl TaskObservation {
             .find(|(n, _)| *n == name)
             .map(|(_, v)| v.as_slice())
             .ok_or_else(|| {
-                let names: Vec<&str> = self.entries.iter().map(|(n, _)| n.as_str()).collect();
+                let names: Vec<&str> = self.entries.iter().map(|(n, _)| n.as_ref()).collect();
                 format!("observation '{name}' missing (have: {})", names.join(", "))
             })
     }
