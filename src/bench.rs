@@ -190,9 +190,11 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         }),
         LinkChoice::Mavlink(_) => {
             return Err(bad_input(format!(
-                "--link {}: the benchmark runs in the twin (`twin` or `ipc:<service>`); to fly over \
-                 MAVLink use `amstack fly --link mavlink:...`",
-                args.link
+                "--link {}: the benchmark runs its rollouts in the twin (`twin` or \
+                 `ipc:<service>`); an autopilot serves one flight per start: fly one rollout \
+                 over MAVLink with `amstack fly --link {} --task T --trajectory scripted \
+                 --seed S`",
+                args.link, args.link
             )));
         }
     };

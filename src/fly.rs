@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use anyhow::Result;
 use firmware_bridge::{Address, BridgeConfig, Signing, SigningKey};
+use policy_runtime::bench::BenchLink;
 use policy_runtime::ipc_link::TickTiming;
 use policy_runtime::{
     IpcLink, IpcLinkConfig, IpcLinkError, Level, LinkError, MavlinkLink, MavlinkLinkConfig,
@@ -40,6 +41,13 @@ stops the flight with the autopilot's answer, exit 1. At the end the bridge stop
 it never disarms (the autopilot's offboard-loss failsafe holds, then lands).
 With --signing-key every frame is signed and unsigned or badly signed frames are refused.
 
+A task flight (`--task T --trajectory scripted`) flies one benchmark rollout of the task's
+scripted policy at --seed over any link; its result (success, steps, criteria, errors) is
+bench's for that seed. Over MAVLink the twin's autopilot must serve the same task and seed
+(`twin serve --mavlink ... --task T --seed S`): it sends the scene's state each step
+(DEBUG_FLOAT_ARRAY \"task\", docs/mavlink.md), checked against the scene built here; a vehicle
+that sends none (a real one) flies the script from that scene, success not observed.
+
 Over ipc the twin must serve the same vehicle and settings (disturbances, motor model, seed):
 the handshake refuses a mismatch naming both values (exit 2). If the twin stops answering
 within --link-timeout-ms, the flight stops, its MCAP log is closed and amstack exits 1.
@@ -50,7 +58,13 @@ Example (lockstep SITL, the results equal the in-process run's):
 
 Example (the twin's autopilot over MAVLink, lockstep):
   amstack twin serve --mavlink udp:127.0.0.1:14540 --lockstep --platform fa-hexa &
-  amstack fly --link mavlink:udp:127.0.0.1:14540 --platform fa-hexa --level actuator --timing")]
+  amstack fly --link mavlink:udp:127.0.0.1:14540 --platform fa-hexa --level actuator --timing
+
+Example (a task over MAVLink; the same rollout as in process within f32 rounding):
+  amstack twin serve --mavlink udp:127.0.0.1:14540 --lockstep --task push-slider --seed 3 \\
+      --disturbances saturation &
+  amstack fly --link mavlink:udp:127.0.0.1:14540 --task push-slider --trajectory scripted \\
+      --seed 3 --disturbances saturation --json task.json")]
 pub struct FlyArgs {
     /// Where the vehicle is: `twin` (in this process), `ipc:<service>` or
     /// `mavlink:<udp:HOST:PORT|udpin:HOST:PORT|tcp:HOST:PORT|serial:DEVICE:BAUD>`.
@@ -170,18 +184,23 @@ pub fn run(args: &FlyArgs) -> Result<()> {
     if let Some(p) = &args.timing_json {
         check_writable("--timing-json", p)?;
     }
+    if track::is_scripted(&args.track) {
+        let link = match choice {
+            LinkChoice::Twin => BenchLink::InProcess,
+            LinkChoice::Ipc(service) => BenchLink::Ipc(ipc_link_config(args, service)),
+            LinkChoice::Mavlink(address) => {
+                BenchLink::Mavlink(mavlink_link_config(args, &address)?)
+            }
+        };
+        return track::run_scripted(&args.track, link);
+    }
     let service = match choice {
         LinkChoice::Twin => return track::run(&args.track),
         LinkChoice::Ipc(service) => service,
         LinkChoice::Mavlink(address) => return run_mavlink(args, &address),
     };
     let config = track::prepare(&args.track)?;
-    let link_config = IpcLinkConfig {
-        answer_timeout: Duration::from_millis(args.link_timeout_ms.unwrap_or(50).max(1)),
-        connect_timeout: Duration::from_millis(args.connect_timeout_ms),
-        record_timing: args.timing || args.timing_json.is_some(),
-        ..IpcLinkConfig::new(service)
-    };
+    let link_config = ipc_link_config(args, service);
     // Connect before anything is printed: a refusal is bad input, one line.
     let mut link =
         IpcLink::connect(&config.vehicle, &config.twin, link_config).map_err(|e| match e {
@@ -237,9 +256,17 @@ fn report_timing(t: &Timing, json: Option<&std::path::Path>) -> Result<()> {
     Ok(())
 }
 
-/// `amstack fly --link mavlink:...`.
-fn run_mavlink(args: &FlyArgs, address: &Address) -> Result<()> {
-    let config = track::prepare(&args.track)?;
+fn ipc_link_config(args: &FlyArgs, service: String) -> IpcLinkConfig {
+    IpcLinkConfig {
+        answer_timeout: Duration::from_millis(args.link_timeout_ms.unwrap_or(50).max(1)),
+        connect_timeout: Duration::from_millis(args.connect_timeout_ms),
+        record_timing: args.timing || args.timing_json.is_some(),
+        ..IpcLinkConfig::new(service)
+    }
+}
+
+/// The MAVLink link of the flags; a bad signing key is bad input.
+fn mavlink_link_config(args: &FlyArgs, address: &Address) -> Result<MavlinkLinkConfig> {
     let signing = match &args.signing_key {
         None => None,
         Some(path) => Some(Signing {
@@ -253,11 +280,10 @@ fn run_mavlink(args: &FlyArgs, address: &Address) -> Result<()> {
     } else {
         Level::Actuator
     };
-    let record_timing = args.timing || args.timing_json.is_some();
-    let link_config = MavlinkLinkConfig {
+    Ok(MavlinkLinkConfig {
         connect_timeout: Duration::from_millis(args.connect_timeout_ms),
         tick_timeout: Duration::from_millis(args.link_timeout_ms.unwrap_or(500).max(1)),
-        record_timing,
+        record_timing: args.timing || args.timing_json.is_some(),
         ..MavlinkLinkConfig::new(
             BridgeConfig {
                 signing,
@@ -265,7 +291,14 @@ fn run_mavlink(args: &FlyArgs, address: &Address) -> Result<()> {
             },
             level,
         )
-    };
+    })
+}
+
+/// `amstack fly --link mavlink:...`.
+fn run_mavlink(args: &FlyArgs, address: &Address) -> Result<()> {
+    let config = track::prepare(&args.track)?;
+    let link_config = mavlink_link_config(args, address)?;
+    let (level, record_timing) = (link_config.level, link_config.record_timing);
     let mut link = MavlinkLink::connect(&config.vehicle, link_config).map_err(|e| match e {
         // A vehicle whose commands do not fit MAVLink is bad input; the rest is the link.
         LinkError::Mavlink(MavlinkLinkError::Bridge(

@@ -8,9 +8,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Result;
 use comfy_table::{Table, presets};
 use controllers::{ControllerConfig, ControllerKind, profile};
+use firmware_bridge::BridgeError;
+use policy_runtime::bench::{
+    BenchConfig, BenchError, BenchLink, EpisodeLength, Termination, run_rollout_logged,
+};
 use policy_runtime::{
     EstimatorSettings, Interface, StateSource, TrackConfig, TrackResult, Trajectory, run_track,
 };
+use policy_runtime::{IpcLinkError, LinkError, MavlinkLinkError};
 
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_json};
@@ -26,6 +31,8 @@ Trajectories (all start hovering at (0, 0, 1) m):
   sines-high    the same over 0.25-1.50 Hz
   ground-sweep  end-effector z = 0.8 + 0.2 cos(2 pi t / 30) m (the paper's ground-effect run)
   arm-sweep     hover while every arm joint sweeps its range
+  scripted      the --task's scripted policy: one benchmark rollout at --seed (its result
+                is bench's for that seed); --duration caps the episode
 
 Errors are scored after the settling time; the maximum rotor thrust covers the whole flight.
 The paper's actuator experiment, for example:
@@ -186,18 +193,14 @@ impl StateFlags {
     }
 }
 
-fn config(args: &Args) -> Result<TrackConfig> {
-    let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
-    let trajectory: Trajectory = args
-        .trajectory
-        .parse()
-        .map_err(|e| bad_input(format!("--trajectory: {e}")))?;
+/// The controller of `--controller`, with `--max-force`/`--max-torque`.
+fn controller_config(args: &Args, vehicle: &platform::Vehicle) -> Result<ControllerConfig> {
     let kind = match args.controller.as_str() {
         "l1" => ControllerKind::L1,
         "mpc" => ControllerKind::Mpc,
         _ => ControllerKind::Pid,
     };
-    let mut controller = profile(&vehicle, kind)
+    let mut controller = profile(vehicle, kind)
         .map_err(|e| bad_input(format!("--controller {}: {e}", args.controller)))?;
     if args.max_force.is_some() || args.max_torque.is_some() {
         let (force, torque) = match &mut controller {
@@ -221,6 +224,16 @@ fn config(args: &Args) -> Result<TrackConfig> {
             "--controller mpc: the whole-body MPC tracks end-effector targets; add --interface ee",
         ));
     }
+    Ok(controller)
+}
+
+fn config(args: &Args) -> Result<TrackConfig> {
+    let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
+    let trajectory: Trajectory = args
+        .trajectory
+        .parse()
+        .map_err(|e| bad_input(format!("--trajectory: {e}")))?;
+    let controller = controller_config(args, &vehicle)?;
     let mut twin = args.twin.twin_config()?;
     args.scene.apply(&mut twin)?;
     let duration_s = args
@@ -262,6 +275,9 @@ fn cell(x: Option<f64>, scale: f64, decimals: usize) -> String {
 }
 
 pub fn run(args: &Args) -> Result<()> {
+    if is_scripted(args) {
+        return run_scripted(args, BenchLink::InProcess);
+    }
     let config = prepare(args)?;
     run_with(args, &config, |config, progress| {
         Ok(run_track(config, progress)?)
@@ -368,6 +384,174 @@ pub(crate) fn run_with(
     }
     if let Some(path) = &result.mcap {
         eprintln!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// Whether `--trajectory` asks for the task's scripted policy.
+pub(crate) fn is_scripted(args: &Args) -> bool {
+    args.trajectory == SCRIPTED
+}
+
+/// `--trajectory scripted`.
+const SCRIPTED: &str = "scripted";
+
+/// `--trajectory scripted --task T`: one benchmark rollout of the task's scripted policy (seed
+/// `--seed`, as `amstack bench --rollouts 1 --seed S` runs it) flown over `link`, with the
+/// rollout's table and JSON. The interface and controller are track's (`--interface
+/// base-joint` is the benchmark's `ik-` controllers).
+pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
+    for (flag, path) in [("--json", &args.json), ("--mcap", &args.mcap)] {
+        if let Some(p) = path {
+            check_writable(flag, p)?;
+        }
+    }
+    let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
+    let controller = controller_config(args, &vehicle)?;
+    let mut twin = args.twin.twin_config()?;
+    args.scene.apply(&mut twin)?;
+    let Some(task) = twin.task else {
+        return Err(bad_input(
+            "--trajectory scripted: name the task whose script to fly with --task (the names of \
+             `amstack bench --help`)",
+        ));
+    };
+    if args.state.state_source()? != StateSource::Truth {
+        return Err(bad_input(
+            "--trajectory scripted: task flights fly on --state-source truth (the benchmark's \
+             observation)",
+        ));
+    }
+    let interface = if args.interface == "ee" {
+        Interface::Ee
+    } else {
+        Interface::BaseJoint
+    };
+    if interface == Interface::BaseJoint && vehicle.ee_link == vehicle.base_link {
+        return Err(bad_input(format!(
+            "--interface base-joint: {} has no arm joints (use --interface ee)",
+            vehicle.id
+        )));
+    }
+    let episode = match args.duration {
+        None => EpisodeLength::Script,
+        Some(s) if s.is_finite() && s > 0.0 => EpisodeLength::Seconds(s),
+        Some(s) => {
+            return Err(bad_input(format!(
+                "--duration {s}: must be a positive number of seconds"
+            )));
+        }
+    };
+    let controller_name = format!(
+        "{}{}",
+        if interface == Interface::BaseJoint {
+            "ik-"
+        } else {
+            ""
+        },
+        args.controller
+    );
+    let link_name = link.name();
+    let config = BenchConfig {
+        vehicle,
+        controller,
+        controller_name,
+        interface,
+        tasks: vec![task],
+        rollouts: 1,
+        seed: twin.seed,
+        twin,
+        jobs: 1,
+        episode,
+        mcap_dir: None,
+        link,
+    };
+    eprintln!(
+        "flying {}'s scripted policy (seed {}) on {} ({}, {} interface) over {link_name}, \
+         disturbances: {}",
+        task.name(),
+        config.seed,
+        config.vehicle.id,
+        config.controller_name,
+        config.interface.name(),
+        args.twin.disturbances,
+    );
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
+    let r = run_rollout_logged(&config, task, 0, &stop, args.mcap.as_deref()).map_err(|e| {
+        // A link that refuses this flight's configuration is bad input, one line (exit 2).
+        match e {
+            BenchError::Scene(_)
+            | BenchError::Link(IpcLinkError::Refused { .. } | IpcLinkError::TooLarge(_))
+            | BenchError::OtherLink(LinkError::Mavlink(MavlinkLinkError::Bridge(
+                BridgeError::Setpoint(_) | BridgeError::Open { .. },
+            ))) => bad_input(e.to_string()),
+            e => anyhow::Error::new(e),
+        }
+    })?;
+    let s = &r.summary;
+    let mut table = Table::new();
+    table
+        .load_style(presets::ASCII_MARKDOWN)
+        .set_header(["metric", "value"]);
+    let success = if r.task_observed {
+        if r.success { "yes" } else { "no" }.to_owned()
+    } else {
+        "not observed (the vehicle sends no task state; the twin's autopilot does with --task)"
+            .to_owned()
+    };
+    let criteria = r
+        .criteria
+        .iter()
+        .map(|(n, v)| format!("{n} {}", if *v { "yes" } else { "no" }))
+        .collect::<Vec<_>>()
+        .join(", ");
+    for (name, value) in [
+        ("success", success),
+        ("termination", format!("{:?}", r.termination).to_lowercase()),
+        ("env steps", r.executed_steps.to_string()),
+        (
+            "criteria reached",
+            if r.task_observed && !criteria.is_empty() {
+                criteria
+            } else {
+                "N/A".to_owned()
+            },
+        ),
+        ("EE position error (cm)", cell(s.ee_pos_error_m, 100.0, 3)),
+        (
+            "base position error (cm)",
+            cell(s.base_pos_error_m, 100.0, 3),
+        ),
+        ("saturation rate (%)", cell(s.saturation_rate, 100.0, 2)),
+        (
+            "tilt use (deg)",
+            cell(s.tilt_use_rad, 180.0 / std::f64::consts::PI, 3),
+        ),
+        ("wall time (s)", cell(Some(r.wall_time_s), 1.0, 2)),
+    ] {
+        table.add_row([name.to_owned(), value]);
+    }
+    println!("{table}");
+    if let Some(path) = &args.json {
+        let mut value = serde_json::to_value(&r)?;
+        if let Some(object) = value.as_object_mut() {
+            object.insert("link".to_owned(), link_name.into());
+            object.insert("platform".to_owned(), config.vehicle.id.clone().into());
+            object.insert(
+                "controller".to_owned(),
+                config.controller_name.clone().into(),
+            );
+        }
+        write_json(path, &value)?;
+        eprintln!("wrote {}", path.display());
+    }
+    if let Some(path) = &r.mcap {
+        eprintln!("wrote {}", path.display());
+    }
+    if r.termination == Termination::Interrupted {
+        eprintln!("interrupted: the rollout is partial");
     }
     Ok(())
 }

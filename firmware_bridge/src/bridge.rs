@@ -31,6 +31,7 @@ use tokio::sync::mpsc;
 
 use crate::address::Address;
 use crate::setpoint::SetpointError;
+use crate::task_array::TaskArray;
 use crate::telemetry::{AutopilotState, Telemetry, px4_mode};
 use crate::wire::{CounterSnapshot, Counters, Decoder, Encoder, Frame, Signing};
 
@@ -146,6 +147,8 @@ struct Shared {
     autopilot: AutopilotState,
     last_heartbeat: Option<Instant>,
     latest: Option<Measurement>,
+    /// The latest task state (SITL).
+    task: Option<TaskArray>,
     rejected_values: u64,
     closed: Option<String>,
 }
@@ -466,6 +469,16 @@ impl Bridge {
             .clone()
     }
 
+    /// The task state of the latest step, if the autopilot sends one (the twin's autopilot
+    /// serving a task scene does, before the ODOMETRY of each step).
+    pub fn task(&self) -> Option<TaskArray> {
+        self.shared
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .task
+            .clone()
+    }
+
     /// What the autopilot last said about itself.
     pub fn autopilot(&self) -> AutopilotState {
         self.shared
@@ -682,6 +695,9 @@ impl Io {
             shared.autopilot = self.telemetry.autopilot.clone();
         }
         shared.rejected_values = self.telemetry.rejected_values;
+        if matches!(frame.message, MavMessage::DEBUG_FLOAT_ARRAY(_)) {
+            shared.task.clone_from(&self.telemetry.task);
+        }
         if let Some(m) = finished {
             shared.latest = Some(m.clone());
             drop(shared);

@@ -15,6 +15,8 @@
 //!   ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ACTUATOR_OUTPUT_STATUS, DEBUG_FLOAT_ARRAY
 //!   "joints" and ODOMETRY (which closes a tick) → a [`platform::Measurement`] and the
 //!   autopilot's state.
+//! - [`task_array`]: the task scene's state (DEBUG_FLOAT_ARRAY "task"), a SITL extension
+//!   the twin's autopilot sends so a task flown over MAVLink can be judged.
 //! - [`wire`]: framing that never panics and counts garbage, bad CRCs, unknown ids,
 //!   truncated frames and frames refused by MAVLink 2 signing.
 //!
@@ -24,12 +26,14 @@ pub mod address;
 pub mod bridge;
 pub mod frames;
 pub mod setpoint;
+pub mod task_array;
 pub mod telemetry;
 pub mod wire;
 
 pub use address::Address;
 pub use bridge::{Bridge, BridgeConfig, BridgeError};
 pub use setpoint::{AttitudeSetpoint, SetpointCodec, SetpointError};
+pub use task_array::TaskArray;
 pub use telemetry::{AutopilotState, Telemetry};
 pub use wire::{CounterSnapshot, Signing, SigningKey};
 

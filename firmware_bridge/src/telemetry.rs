@@ -22,6 +22,7 @@ use nalgebra::Vector3;
 use platform::{Measurement, RotorReport, Vehicle};
 
 use crate::frames;
+use crate::task_array::TaskArray;
 
 /// PX4's main modes (custom_mode bits 16–23).
 pub mod px4_mode {
@@ -116,6 +117,8 @@ pub struct Telemetry {
     pub autopilot: AutopilotState,
     /// Ticks closed by ODOMETRY.
     pub ticks: u64,
+    /// The task state of the latest step, if the autopilot sends one (SITL).
+    pub task: Option<TaskArray>,
     /// Values ignored because not finite (or a non-unit quaternion, or a joint array of the
     /// wrong name).
     pub rejected_values: u64,
@@ -143,6 +146,7 @@ impl Telemetry {
             current,
             autopilot: AutopilotState::default(),
             ticks: 0,
+            task: None,
             rejected_values: 0,
         }
     }
@@ -215,6 +219,12 @@ impl Telemetry {
                         r.realised_n = t;
                         r.applied_n = t;
                     }
+                }
+            }
+            MavMessage::DEBUG_FLOAT_ARRAY(d) if TaskArray::is_task_array(d) => {
+                match TaskArray::decode(d) {
+                    Ok(t) => self.task = Some(t),
+                    Err(_) => self.reject(),
                 }
             }
             MavMessage::DEBUG_FLOAT_ARRAY(d) => self.joints(d),

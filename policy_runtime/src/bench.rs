@@ -133,6 +133,10 @@ pub struct RolloutResult {
     pub seed: u64,
     /// Success.
     pub success: bool,
+    /// Whether the task's state was observed: always in the twin; over MAVLink only from
+    /// an autopilot that sends it (the twin's). Unobserved, `success` is false and the
+    /// criteria unknown.
+    pub task_observed: bool,
     /// Why it ended.
     pub termination: Termination,
     /// Env steps executed.
@@ -173,6 +177,9 @@ pub enum BenchError {
     /// Another link failed.
     #[error(transparent)]
     OtherLink(LinkError),
+    /// The autopilot serves another task scene than the rollout's.
+    #[error("{0}")]
+    Scene(String),
 }
 
 impl From<EpisodeError> for BenchError {
@@ -181,6 +188,7 @@ impl From<EpisodeError> for BenchError {
             EpisodeError::Twin(e) => Self::Twin(e),
             EpisodeError::Ipc(e) => Self::Link(e),
             EpisodeError::Link(e) => Self::OtherLink(e),
+            EpisodeError::Scene(e) => Self::Scene(e),
         }
     }
 }
@@ -223,13 +231,31 @@ pub fn rollout_seed(run_seed: u64, index: usize) -> u64 {
     run_seed.wrapping_add(index as u64)
 }
 
-/// Runs one rollout of `task`. `stop` interrupts it between steps.
+/// Runs one rollout of `task`, logged under the run's `mcap_dir`. `stop` interrupts it
+/// between steps.
 pub fn run_rollout(
     config: &BenchConfig,
     task: TaskId,
     index: usize,
     stop: &AtomicBool,
 ) -> Result<RolloutResult, BenchError> {
+    let log = config
+        .mcap_dir
+        .as_ref()
+        .map(|dir| rollout_log_path(dir, task, index));
+    run_rollout_logged(config, task, index, stop, log.as_deref())
+}
+
+/// Runs one rollout of `task`, logged to `log` if given (`amstack fly --trajectory scripted`
+/// flies one rollout this way).
+pub fn run_rollout_logged(
+    config: &BenchConfig,
+    task: TaskId,
+    index: usize,
+    stop: &AtomicBool,
+    log: Option<&Path>,
+) -> Result<RolloutResult, BenchError> {
+    let log_path = log;
     let started = Instant::now();
     let seed = rollout_seed(config.seed, index);
     let vehicle = &config.vehicle;
@@ -256,6 +282,7 @@ pub fn run_rollout(
     let mut measurement = episode.measurement()?;
     stack.reset_at(&measurement.base, &measurement.joint_positions);
     let mut scene = episode.task();
+    let observed = episode.task_observed();
     let context = PolicyContext {
         init: measurement.world_from_ee.translation.vector,
         task: scene
@@ -279,16 +306,15 @@ pub fn run_rollout(
     noise_rng.set_stream(3);
     let criteria_names = task.criteria_names();
     let mut latch = CriteriaLatch::new(criteria_names.len());
-    let mut log = match &config.mcap_dir {
+    let mut log = match log_path {
         None => None,
-        Some(dir) => {
-            let path = rollout_log_path(dir, task, index);
+        Some(path) => {
             let run = RunMetadata::new(&vehicle.id, &config.controller_name, seed)
                 .with_interface(config.interface.name())
                 .with_trajectory(format!("task:{}", task.name()))
                 .with_config(&twin_config)?
                 .with_controller_config(&config.controller)?;
-            Some(FlightLog::new(McapRecorder::create(&path, &run)?, vehicle)?)
+            Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
         }
     };
     let limits_n = (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n);
@@ -325,7 +351,7 @@ pub fn run_rollout(
             log.tick(&measurement, &record, &ee_desired)?;
         }
         let (ee_actual, base_actual) = (measurement.world_from_ee, measurement.base.pose());
-        measurement = match episode.step(&record.command) {
+        measurement = match episode.step(&record) {
             Ok(m) => m,
             Err(StepFailure::NonFinite) => {
                 termination = Termination::NanAction;
@@ -350,7 +376,7 @@ pub fn run_rollout(
             saturated: has_rotors
                 .then(|| record.allocation_saturated || rotors_saturated(&measurement, limits_n)),
         });
-        if let Some(snapshot) = &scene {
+        if let Some(snapshot) = scene.as_ref().filter(|_| observed) {
             let status = &snapshot.status;
             latch.observe(&status.criteria);
             if let Some(log) = &mut log {
@@ -374,6 +400,7 @@ pub fn run_rollout(
         index,
         seed,
         success,
+        task_observed: observed,
         termination,
         executed_steps: steps,
         criteria: criteria_names
@@ -448,9 +475,10 @@ pub fn run_bench(
     let failed = AtomicBool::new(false);
     std::thread::scope(|scope| {
         // The twin process serves one flight at a time.
-        let threads = match config.link {
-            BenchLink::InProcess => config.jobs.max(1),
-            BenchLink::Ipc(_) => 1,
+        let threads = if config.link.parallel() {
+            config.jobs.max(1)
+        } else {
+            1
         };
         for _ in 0..threads {
             scope.spawn(|| {

@@ -673,7 +673,18 @@ impl Autopilot {
         if !self.transport.has_peers() {
             return;
         }
-        let msgs = telemetry::per_step(self.twin.truth(), &self.specific_force);
+        let [joints, actuators, imu, attitude, position, odometry] =
+            telemetry::per_step(self.twin.truth(), &self.specific_force);
+        // The task's state (SITL) before the ODOMETRY that closes the tick.
+        let task = self
+            .twin
+            .task_snapshot()
+            .and_then(|s| telemetry::task_array(self.twin.truth(), &s));
+        let msgs: Vec<MavMessage> = [joints, actuators, imu, attitude, position]
+            .into_iter()
+            .chain(task)
+            .chain([odometry])
+            .collect();
         self.send(&msgs);
     }
 

@@ -5,6 +5,7 @@
 //! local NED frame whose origin is the twin's world origin, which is [`HOME`] on the globe.
 
 use firmware_bridge::frames;
+use firmware_bridge::task_array::TaskArray;
 use mavlink::dialects::common::{
     ACTUATOR_OUTPUT_STATUS_DATA, ATTITUDE_DATA, ATTITUDE_QUATERNION_DATA, AUTOPILOT_VERSION_DATA,
     DEBUG_FLOAT_ARRAY_DATA, EXTENDED_SYS_STATE_DATA, GLOBAL_POSITION_INT_DATA, HEARTBEAT_DATA,
@@ -18,6 +19,7 @@ use platform::{GRAVITY_MPS2, Measurement};
 
 use super::modes::{Commander, Failsafe};
 use super::wire::LinkCounters;
+use crate::tasks::{TaskId, TaskSnapshot};
 
 /// Where the twin's world origin is on the globe: PX4 SITL's default home (Zürich).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,6 +44,34 @@ const EARTH_RADIUS_M: f64 = 6_371_000.0;
 
 /// DEBUG_FLOAT_ARRAY's array_id for the joints.
 pub const JOINTS_ARRAY_ID: u16 = 1;
+
+/// The task scene's state after a step as the contract's SITL extension, DEBUG_FLOAT_ARRAY
+/// "task" (`firmware_bridge::task_array`), stamped with the step's time. `None` when it does
+/// not fit the array (no scene of ours comes near: at most 9 observation values of 44).
+pub fn task_array(m: &Measurement, snapshot: &TaskSnapshot) -> Option<MavMessage> {
+    let number = TaskId::ALL
+        .iter()
+        .position(|t| *t == snapshot.task)
+        .map_or(0, |i| i + 1);
+    TaskArray {
+        time_usec: time_us(m),
+        task_number: u32::try_from(number).unwrap_or(0),
+        steps: snapshot.steps,
+        success: snapshot.status.success,
+        holding: snapshot.holding,
+        criteria: snapshot.status.criteria.clone(),
+        obstacle_face_x_m: snapshot.obstacle_face_x,
+        wall: snapshot.wall,
+        values: snapshot
+            .observation
+            .entries
+            .iter()
+            .flat_map(|(_, v)| v.iter().copied())
+            .collect(),
+    }
+    .encode()
+    .ok()
+}
 
 /// The landed state for EXTENDED_SYS_STATE.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
