@@ -518,8 +518,13 @@ mod bridge {
     /// The twin's autopilot on `port`, lockstep, with `twin_flags` (the same flags as the
     /// flight's: vehicle, disturbances, seed).
     fn autopilot(port: u16, twin_flags: &[&str]) -> Proc {
+        autopilot_in(port, "--lockstep", twin_flags)
+    }
+
+    /// The twin's autopilot on `port` in `mode` (`--lockstep` or `--realtime`).
+    fn autopilot_in(port: u16, mode: &str, twin_flags: &[&str]) -> Proc {
         let address = format!("udp:127.0.0.1:{port}");
-        let mut args = vec!["twin", "serve", "--mavlink", &address, "--lockstep"];
+        let mut args = vec!["twin", "serve", "--mavlink", &address, mode];
         args.extend_from_slice(twin_flags);
         Proc::start("twin serve --mavlink", &args)
     }
@@ -694,6 +699,31 @@ mod bridge {
         assert!(z < 0.05, "base z RMSE {z} m\n{stderr}");
         let tilt = number(&scores, "tilt_use_rad");
         assert!(tilt < 0.2, "tilt {tilt} rad\n{stderr}");
+    }
+
+    #[test]
+    fn a_realtime_autopilot_is_flown_on_its_clock() {
+        // `--realtime`: the twin steps on the wall clock at 120 Hz with the latest setpoint,
+        // as a vehicle does; the bridge answers each ODOMETRY with a setpoint. The flight
+        // cannot tick faster than the twin's clock (lockstep runs at thousands of ticks per
+        // second), and the hover holds.
+        let _one = serial();
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let port = free_port();
+        let _twin = autopilot_in(port, "--realtime", FLIGHT);
+        let out = dir.path().join("realtime.json");
+        let mut flags = FLIGHT.to_vec();
+        flags.extend_from_slice(&["--trajectory", "hover", "--duration", "3"]);
+        let (status, scores, stderr) = fly(port, &flags, &out);
+        assert!(status.success(), "fly failed:\n{stderr}");
+        let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
+        let rate = number(&scores, "ticks_per_second");
+        assert!(
+            rate <= 120.0 * 1.05,
+            "{rate} ticks/s against a 120 Hz clock"
+        );
+        let z = number(&scores, "base_z_rmse_m");
+        assert!(z < 0.02, "base z RMSE {z} m\n{stderr}");
     }
 
     #[test]
