@@ -357,6 +357,7 @@ pub(crate) fn run_with(
     }
     if let Some(e) = &r.estimator {
         for (name, value) in [
+            ("estimator fed by (sensors)", e.sensors.to_owned()),
             (
                 "estimate position RMSE (mm)",
                 cell(Some(e.position_rmse_m), 1000.0, 3),

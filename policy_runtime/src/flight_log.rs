@@ -311,10 +311,11 @@ pub struct EstimatorState {
     pub accel_bias_mps2: [f64; 3],
     /// Estimated gyroscope bias, `base`, rad/s.
     pub gyro_bias_radps: [f64; 3],
-    /// The simulated IMU's accelerometer bias, `base`, m/s².
-    pub true_accel_bias_mps2: [f64; 3],
-    /// The simulated IMU's gyroscope bias, `base`, rad/s.
-    pub true_gyro_bias_radps: [f64; 3],
+    /// The simulated IMU's accelerometer bias, `base`, m/s²; null when the estimator fuses
+    /// a vehicle's own IMU (its biases are not known).
+    pub true_accel_bias_mps2: Option<[f64; 3]>,
+    /// The simulated IMU's gyroscope bias, `base`, rad/s; null for a vehicle's own IMU.
+    pub true_gyro_bias_radps: Option<[f64; 3]>,
     /// The measurements fused this tick.
     pub innovations: Vec<EstimatorInnovation>,
     /// Why inputs were refused this tick (one line each).
@@ -351,8 +352,8 @@ impl EstimatorState {
             attitude_std_rad: v3(&r.attitude_std_rad),
             accel_bias_mps2: v3(&r.accel_bias_mps2),
             gyro_bias_radps: v3(&r.gyro_bias_radps),
-            true_accel_bias_mps2: v3(&r.true_accel_bias_mps2),
-            true_gyro_bias_radps: v3(&r.true_gyro_bias_radps),
+            true_accel_bias_mps2: r.true_accel_bias_mps2.as_ref().map(v3),
+            true_gyro_bias_radps: r.true_gyro_bias_radps.as_ref().map(v3),
             innovations: r
                 .innovations
                 .iter()

@@ -9,6 +9,7 @@ use platform::{ActuatorCommand, Measurement};
 use sim_twin::{Twin, TwinError};
 
 use crate::stack::TickRecord;
+use crate::state_source::VehicleSensors;
 
 /// What can go wrong on a link.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -41,6 +42,13 @@ pub trait Link {
 
     /// Short name for logs (`twin`, `ipc:<service>`, `mavlink:<address>`).
     fn name(&self) -> String;
+
+    /// The vehicle's own sensor readings of the tick last received, for a link that reports
+    /// them (a MAVLink autopilot: HIGHRES_IMU and ODOMETRY). The estimator then fuses these
+    /// instead of simulated sensors. `None` (the default): the link has no sensors of its own.
+    fn vehicle_sensors(&self) -> Option<VehicleSensors> {
+        None
+    }
 }
 
 /// The twin in this process: `send` advances it one control period (lockstep).

@@ -20,6 +20,7 @@
 
 use std::time::Duration;
 
+use estimator::{ImuSample, OdometryMeasurement, PoseMeasurement};
 use firmware_bridge::{
     AttitudeSetpoint, Bridge, BridgeConfig, BridgeError, CounterSnapshot, SetpointCodec,
 };
@@ -28,6 +29,7 @@ use platform::{ActuatorCommand, Measurement, Vehicle};
 
 use crate::link::{Link, LinkError};
 use crate::stack::TickRecord;
+use crate::state_source::VehicleSensors;
 
 /// Which setpoints the flight stack sends.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -352,6 +354,37 @@ impl Link for MavlinkLink {
 
     fn name(&self) -> String {
         format!("mavlink:{}", self.bridge.config().address)
+    }
+
+    /// HIGHRES_IMU and ODOMETRY of the tick last received. The autopilot sends the step's
+    /// HIGHRES_IMU before the ODOMETRY that closes it, so both are the tick's; the IMU sample
+    /// is stamped with the tick's time. ODOMETRY's covariances are not read (the contract
+    /// sends NaN): the estimator's settings give the noise.
+    fn vehicle_sensors(&self) -> Option<VehicleSensors> {
+        let m = &self.latest;
+        let state = self.bridge.autopilot();
+        let imu = match (state.imu_accel_in_body_mps2, state.imu_gyro_in_body_radps) {
+            (Some(a), Some(g)) if self.sent_at.is_none() && self.ticks > 0 => Some(ImuSample {
+                time_s: m.time_s,
+                specific_force_in_body_mps2: a,
+                angular_velocity_in_body_radps: g,
+            }),
+            _ => None,
+        };
+        Some(VehicleSensors {
+            imu,
+            odometry: Some(OdometryMeasurement {
+                pose: PoseMeasurement {
+                    time_s: m.time_s,
+                    position_in_world_m: m.base.position_in_world_m,
+                    world_from_body: m.base.world_from_body,
+                    position_std_m: f64::NAN,
+                    attitude_std_rad: f64::NAN,
+                },
+                velocity_in_world_mps: m.base.velocity_in_world_mps,
+                velocity_std_mps: f64::NAN,
+            }),
+        })
     }
 }
 

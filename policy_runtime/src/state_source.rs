@@ -1,12 +1,19 @@
 //! Where the flight stack's base state comes from: the link's measurement as it is (`truth`),
-//! or the estimator fed by simulated sensors (`estimator`): each control tick the twin's
-//! measurement drives a simulated IMU and pose sensor ([`sim_twin::sensors`]), the
-//! [`estimator::Estimator`] fuses them, and the controllers receive the measurement with its
-//! `base` replaced by the estimate (and `world_from_ee` moved with it). Scores and the log's truth channels keep the measurement.
+//! or the estimator (`estimator`), fed by one of two sensor sets:
+//! - **simulated** (the twin in this process or over iceoryx2): each control tick the twin's
+//!   measurement drives a simulated IMU and pose sensor ([`sim_twin::sensors`]);
+//! - **the vehicle's own** (a link that reports them: over MAVLink, HIGHRES_IMU and ODOMETRY
+//!   from the autopilot, [`VehicleSensors`]): the autopilot's IMU sample and odometry (pose
+//!   and velocity, at its capture time) of each tick. The noise the filter assumes for them is
+//!   the settings' pose model (ODOMETRY's covariances are optional in MAVLink).
+//!
+//! The [`estimator::Estimator`] fuses them, and the controllers receive the measurement with
+//! its `base` replaced by the estimate (and `world_from_ee` moved with it). Scores and the
+//! log's truth channels keep the measurement.
 
 use estimator::{
-    Accepted, ConfigError, Estimator, EstimatorConfig, ImuModel, Innovation, Measurement as Fix,
-    PoseModel, Rejection,
+    Accepted, ConfigError, Estimator, EstimatorConfig, ImuModel, ImuSample, Innovation,
+    Measurement as Fix, OdometryMeasurement, PoseModel, Rejection,
 };
 use nalgebra::Vector3;
 use platform::{Measurement, RigidBodyState};
@@ -99,10 +106,10 @@ pub struct EstimateReport {
     pub accel_bias_mps2: Vector3<f64>,
     /// Estimated gyroscope bias, body, rad/s.
     pub gyro_bias_radps: Vector3<f64>,
-    /// The simulated IMU's true accelerometer bias, m/s².
-    pub true_accel_bias_mps2: Vector3<f64>,
-    /// The simulated IMU's true gyroscope bias, rad/s.
-    pub true_gyro_bias_radps: Vector3<f64>,
+    /// The simulated IMU's true accelerometer bias, m/s² (unknown for a vehicle's IMU).
+    pub true_accel_bias_mps2: Option<Vector3<f64>>,
+    /// The simulated IMU's true gyroscope bias, rad/s (unknown for a vehicle's IMU).
+    pub true_gyro_bias_radps: Option<Vector3<f64>>,
     /// Innovations of the poses fused this tick.
     pub innovations: Vec<Innovation>,
     /// Reasons of the inputs refused this tick.
@@ -117,6 +124,9 @@ pub struct EstimatorSummary {
     pub position_rmse_m: f64,
     /// Largest 3-D position error over the scored ticks, m.
     pub position_max_error_m: f64,
+    /// Whose sensors fed the filter: `simulated` (the twin's, through the sensor models) or
+    /// `vehicle` (the autopilot's HIGHRES_IMU and ODOMETRY).
+    pub sensors: &'static str,
     /// Poses fused.
     pub fused: u64,
     /// Inputs refused.
@@ -125,15 +135,72 @@ pub struct EstimatorSummary {
     pub mean_nis: f64,
 }
 
-/// The running estimator of a flight: simulated sensors + filter.
+/// One tick's readings of the vehicle's own sensors, as a link reports them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VehicleSensors {
+    /// The IMU sample of the period that just ended (specific force and rates, body FLU).
+    pub imu: Option<ImuSample>,
+    /// The tick's odometry: pose and world velocity at its capture time. Its standard
+    /// deviations are the link's when it reports them, NaN otherwise (the settings' are used).
+    pub odometry: Option<OdometryMeasurement>,
+}
+
+/// Where the filter's inputs come from.
+#[derive(Debug)]
+enum Feed {
+    /// The twin's measurement through simulated sensors.
+    Simulated(Box<SimulatedSensors>),
+    /// The vehicle's sensors as the link reports them; the noise the settings give.
+    Vehicle {
+        position_std_m: f64,
+        attitude_std_rad: f64,
+        velocity_std_mps: f64,
+        /// Capture time of the last odometry fused, s (a repeated one is not fused twice).
+        last_odometry_s: Option<f64>,
+        /// Time of the last IMU sample fed, s (likewise).
+        last_imu_s: Option<f64>,
+    },
+}
+
+/// Velocity noise assumed for a vehicle's odometry that does not report it, m/s: a
+/// motion-capture-grade velocity (a few mm of position noise differentiated over a few
+/// samples).
+const ODOMETRY_VELOCITY_STD_MPS: f64 = 0.02;
+
+/// The running estimator of a flight: its sensors + filter.
 #[derive(Debug)]
 pub(crate) struct StateEstimate {
-    sensors: SimulatedSensors,
+    feed: Feed,
     estimator: Estimator,
     nis_sum: f64,
     error_sum: f64,
     error_max: f64,
     scored: u64,
+}
+
+impl Feed {
+    /// `o` with the noise the filter assumes: the link's where it gave it, else the settings'.
+    fn with_noise(&self, mut o: OdometryMeasurement) -> OdometryMeasurement {
+        if let Self::Vehicle {
+            position_std_m,
+            attitude_std_rad,
+            velocity_std_mps,
+            ..
+        } = self
+        {
+            let keep = |given: f64, default: f64| {
+                if given.is_finite() && given > 0.0 {
+                    given
+                } else {
+                    default
+                }
+            };
+            o.pose.position_std_m = keep(o.pose.position_std_m, *position_std_m);
+            o.pose.attitude_std_rad = keep(o.pose.attitude_std_rad, *attitude_std_rad);
+            o.velocity_std_mps = keep(o.velocity_std_mps, *velocity_std_mps);
+        }
+        o
+    }
 }
 
 impl StateEstimate {
@@ -155,7 +222,7 @@ impl StateEstimate {
         // The first tick's sample starts the IMU's period.
         let _ = sensors.sample(first);
         Ok(Self {
-            sensors,
+            feed: Feed::Simulated(Box::new(sensors)),
             estimator,
             nis_sum: 0.0,
             error_sum: 0.0,
@@ -164,17 +231,113 @@ impl StateEstimate {
         })
     }
 
-    /// Feeds the sensors' readings of `m` (the measurement at the end of a control period)
-    /// to the filter and returns `m` with its base replaced by the estimate.
+    /// The filter fed by the vehicle's own sensors, started from the first tick's odometry
+    /// (`first` when the link gave none yet).
+    pub(crate) fn from_vehicle(
+        settings: &EstimatorSettings,
+        first: &Measurement,
+        sensors: &VehicleSensors,
+    ) -> Result<Self, EstimateError> {
+        settings.validate()?;
+        let mut estimator = Estimator::new(settings.estimator)?;
+        let mut feed = Feed::Vehicle {
+            position_std_m: settings.pose.position_std_m,
+            attitude_std_rad: settings.pose.attitude_std_rad,
+            velocity_std_mps: ODOMETRY_VELOCITY_STD_MPS,
+            last_odometry_s: None,
+            last_imu_s: None,
+        };
+        let start = sensors.odometry.unwrap_or(OdometryMeasurement {
+            pose: estimator::PoseMeasurement {
+                time_s: first.time_s,
+                position_in_world_m: first.base.position_in_world_m,
+                world_from_body: first.base.world_from_body,
+                position_std_m: f64::NAN,
+                attitude_std_rad: f64::NAN,
+            },
+            velocity_in_world_mps: first.base.velocity_in_world_mps,
+            velocity_std_mps: f64::NAN,
+        });
+        let start = feed.with_noise(start);
+        estimator
+            .correct(&Fix::Pose(start.pose))
+            .map_err(EstimateError::Start)?;
+        if let Feed::Vehicle {
+            last_odometry_s, ..
+        } = &mut feed
+        {
+            *last_odometry_s = Some(start.pose.time_s);
+        }
+        Ok(Self {
+            feed,
+            estimator,
+            nis_sum: 0.0,
+            error_sum: 0.0,
+            error_max: 0.0,
+            scored: 0,
+        })
+    }
+
+    /// Whether the filter is fed by the vehicle's own sensors.
+    pub(crate) fn on_vehicle_sensors(&self) -> bool {
+        matches!(self.feed, Feed::Vehicle { .. })
+    }
+
+    /// Feeds the tick's readings of the sensors — the simulated ones' of `m` (the
+    /// measurement at the end of a control period), or the vehicle's `vehicle` — to the
+    /// filter and returns `m` with its base replaced by the estimate.
     pub(crate) fn observe(
         &mut self,
         m: &Measurement,
+        vehicle: Option<&VehicleSensors>,
         score: bool,
     ) -> Result<(Measurement, EstimateReport), EstimateError> {
-        let readings = self.sensors.sample(m);
+        let (imu, fixes) = match &mut self.feed {
+            Feed::Simulated(sensors) => {
+                let readings = sensors.sample(m);
+                (
+                    readings.imu,
+                    readings
+                        .poses
+                        .into_iter()
+                        .map(Fix::Pose)
+                        .collect::<Vec<_>>(),
+                )
+            }
+            feed @ Feed::Vehicle { .. } => {
+                // Only readings newer than the last ones fed: a link that did not advance
+                // repeats them.
+                let newer = |last: Option<f64>, t: f64| last.is_none_or(|l| t > l);
+                let Feed::Vehicle {
+                    last_odometry_s,
+                    last_imu_s,
+                    ..
+                } = feed
+                else {
+                    unreachable!("matched above")
+                };
+                let imu = vehicle
+                    .and_then(|v| v.imu)
+                    .filter(|i| newer(*last_imu_s, i.time_s));
+                let odometry = vehicle
+                    .and_then(|v| v.odometry)
+                    .filter(|o| newer(*last_odometry_s, o.pose.time_s));
+                if let Some(i) = &imu {
+                    *last_imu_s = Some(i.time_s);
+                }
+                if let Some(o) = &odometry {
+                    *last_odometry_s = Some(o.pose.time_s);
+                }
+                let fixes = odometry
+                    .map(|o| Fix::Odometry(feed.with_noise(o)))
+                    .into_iter()
+                    .collect();
+                (imu, fixes)
+            }
+        };
         let mut innovations = Vec::new();
         let mut rejections = Vec::new();
-        if let Some(imu) = &readings.imu {
+        if let Some(imu) = &imu {
             match self.estimator.predict(imu) {
                 Ok(Accepted::Propagated { fused, .. }) if fused > 0 => {
                     innovations.extend(self.estimator.diagnostics().last_innovation);
@@ -183,8 +346,8 @@ impl StateEstimate {
                 Err(r) => rejections.push(r),
             }
         }
-        for pose in &readings.poses {
-            match self.estimator.correct(&Fix::Pose(*pose)) {
+        for fix in &fixes {
+            match self.estimator.correct(fix) {
                 Ok(Accepted::Fused(i)) => innovations.push(i),
                 Ok(_) => {}
                 Err(r) => rejections.push(r),
@@ -208,7 +371,14 @@ impl StateEstimate {
             self.error_sum += e * e;
             self.error_max = self.error_max.max(e);
         }
-        let (true_ba, true_bg) = self.sensors.imu_biases();
+        let (true_ba, true_bg) = match &self.feed {
+            Feed::Simulated(sensors) => {
+                let (a, g) = sensors.imu_biases();
+                (Some(a), Some(g))
+            }
+            // A real IMU's biases are not known.
+            Feed::Vehicle { .. } => (None, None),
+        };
         let mut fed = m.clone();
         // The end effector rides on the estimated base: the arm's base → EE transform
         // (what the joint encoders give) composed with the estimated pose.
@@ -236,6 +406,11 @@ impl StateEstimate {
     pub(crate) fn summary(&self) -> EstimatorSummary {
         let d = self.estimator.diagnostics();
         EstimatorSummary {
+            sensors: if self.on_vehicle_sensors() {
+                "vehicle"
+            } else {
+                "simulated"
+            },
             position_rmse_m: if self.scored > 0 {
                 (self.error_sum / self.scored as f64).sqrt()
             } else {
@@ -259,7 +434,10 @@ mod tests {
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
     use platform::{Measurement, RigidBodyState};
 
-    use super::{EstimatorSettings, StateEstimate};
+    use estimator::{ImuSample, OdometryMeasurement, PoseMeasurement};
+    use nalgebra::Vector3;
+
+    use super::{EstimatorSettings, StateEstimate, VehicleSensors};
 
     fn hovering(t: f64) -> Measurement {
         let base = Isometry3::from_parts(
@@ -285,7 +463,7 @@ mod tests {
             let mut last = None;
             for k in 1..=240 {
                 let m = hovering(f64::from(k) / 120.0);
-                let (fed, report) = e.observe(&m, true).unwrap();
+                let (fed, report) = e.observe(&m, None, true).unwrap();
                 assert!(report.rejections.is_empty(), "{:?}", report.rejections);
                 let arm = fed.base.pose().inverse() * fed.world_from_ee;
                 let truth_arm = m.base.pose().inverse() * m.world_from_ee;
@@ -304,5 +482,55 @@ mod tests {
         // 60 Hz for 2 s, less the captures in flight: 118 or 119 poses, plus the first.
         assert!((118..=120).contains(&summary.fused), "{summary:?}");
         assert!(summary.position_rmse_m < 0.003, "{summary:?}");
+    }
+
+    /// What a vehicle's autopilot reports of `m`: its IMU (hovering: the specific force is
+    /// gravity's reaction, body up; no rotation) and its odometry, without covariances.
+    fn vehicle(m: &Measurement) -> VehicleSensors {
+        VehicleSensors {
+            imu: Some(ImuSample {
+                time_s: m.time_s,
+                specific_force_in_body_mps2: m.base.world_from_body.inverse()
+                    * Vector3::new(0.0, 0.0, platform::GRAVITY_MPS2),
+                angular_velocity_in_body_radps: Vector3::zeros(),
+            }),
+            odometry: Some(OdometryMeasurement {
+                pose: PoseMeasurement {
+                    time_s: m.time_s,
+                    position_in_world_m: m.base.position_in_world_m,
+                    world_from_body: m.base.world_from_body,
+                    position_std_m: f64::NAN,
+                    attitude_std_rad: f64::NAN,
+                },
+                velocity_in_world_mps: m.base.velocity_in_world_mps,
+                velocity_std_mps: f64::NAN,
+            }),
+        }
+    }
+
+    /// Fed by the vehicle's sensors: one odometry fused per new capture time (a tick that
+    /// repeats the last one fuses nothing), the settings' noise in place of the missing
+    /// covariances, the estimate on the reported pose, the true biases unknown.
+    #[test]
+    fn on_the_vehicles_sensors_each_odometry_is_fused_once() {
+        let settings = EstimatorSettings::default();
+        let first = hovering(0.0);
+        let mut e = StateEstimate::from_vehicle(&settings, &first, &vehicle(&first)).unwrap();
+        assert!(e.on_vehicle_sensors());
+        for k in 1..=120 {
+            let m = hovering(f64::from(k) / 120.0);
+            let (fed, report) = e.observe(&m, Some(&vehicle(&m)), true).unwrap();
+            assert!(report.rejections.is_empty(), "{:?}", report.rejections);
+            assert_eq!(report.innovations.len(), 1, "tick {k}");
+            assert!(report.true_accel_bias_mps2.is_none());
+            assert!((fed.base.position_in_world_m - m.base.position_in_world_m).norm() < 1e-3);
+            // The same tick again (a link that did not advance): nothing new to fuse.
+            let (_, again) = e.observe(&m, Some(&vehicle(&m)), true).unwrap();
+            assert!(again.innovations.is_empty(), "tick {k} fused twice");
+        }
+        let summary = e.summary();
+        assert_eq!(summary.sensors, "vehicle");
+        // One odometry per tick (the start pose initialises the filter), nothing refused.
+        assert_eq!((summary.fused, summary.rejected), (120, 0), "{summary:?}");
     }
 }

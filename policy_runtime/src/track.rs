@@ -30,7 +30,9 @@ use crate::flight_log::{FlightLog, rotors_saturated};
 use crate::link::{Link, LinkError, TwinLink};
 use crate::record::{McapRecorder, RecordError, RunMetadata};
 use crate::stack::{Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits};
-use crate::state_source::{EstimateError, EstimatorSummary, StateEstimate, StateSource};
+use crate::state_source::{
+    EstimateError, EstimatorSummary, StateEstimate, StateSource, VehicleSensors,
+};
 use crate::trajectory::Trajectory;
 
 /// Which action interface carries the reference to the controller.
@@ -265,9 +267,15 @@ pub fn run_track_with_link(
     let started = Instant::now();
     let mut measurement = link.receive()?;
     // The controllers' view of the vehicle: the measurement, or the estimator's.
-    let mut estimate = match &config.state_source {
-        StateSource::Truth => None,
-        StateSource::Estimator(settings) => Some(StateEstimate::new(
+    // A link with sensors of its own (a MAVLink autopilot) feeds the estimator with them.
+    let mut estimate = match (&config.state_source, link.vehicle_sensors()) {
+        (StateSource::Truth, _) => None,
+        (StateSource::Estimator(settings), Some(sensors)) => Some(StateEstimate::from_vehicle(
+            settings,
+            &measurement,
+            &sensors,
+        )?),
+        (StateSource::Estimator(settings), None) => Some(StateEstimate::new(
             settings,
             config.twin.control_rate_hz,
             config.twin.seed,
@@ -276,7 +284,7 @@ pub fn run_track_with_link(
     };
     let mut fed = match &mut estimate {
         None => None,
-        Some(e) => Some(observe(e, &measurement, false, &mut log)?),
+        Some(e) => Some(observe(e, &measurement, None, false, &mut log)?),
     };
     let start = fed.as_ref().unwrap_or(&measurement);
     stack.reset_at(&start.base, &start.joint_positions);
@@ -323,7 +331,8 @@ pub fn run_track_with_link(
         }
         if let Some(e) = &mut estimate {
             let scored = t + dt >= config.settle_s;
-            fed = match observe(e, &measurement, scored, &mut log) {
+            let sensors = link.vehicle_sensors();
+            fed = match observe(e, &measurement, sensors.as_ref(), scored, &mut log) {
                 Ok(m) => Some(m),
                 Err(err) => {
                     if let Some(log) = log {
@@ -406,10 +415,11 @@ pub fn run_track_with_link(
 fn observe(
     estimate: &mut StateEstimate,
     measurement: &platform::Measurement,
+    vehicle: Option<&VehicleSensors>,
     scored: bool,
     log: &mut Option<FlightLog>,
 ) -> Result<platform::Measurement, TrackError> {
-    let (fed, report) = estimate.observe(measurement, scored)?;
+    let (fed, report) = estimate.observe(measurement, vehicle, scored)?;
     if let Some(log) = log {
         log.estimate(
             measurement.time_s,

@@ -702,6 +702,55 @@ mod bridge {
     }
 
     #[test]
+    fn the_estimator_flies_on_the_autopilots_imu_and_odometry() {
+        // `--state-source estimator` over MAVLink: the EKF fuses the autopilot's HIGHRES_IMU
+        // and ODOMETRY (not simulated sensors) and the controllers fly on its estimate. The
+        // twin's autopilot reports its truth to f32, so the estimate stays on the odometry
+        // (measured: 0.044 mm RMS) and the flight is the truth-fed one (9.155 vs 9.150 cm
+        // base RMSE on a 1 m step).
+        let _one = serial();
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let port = free_port();
+        let _twin = autopilot(port, FLIGHT);
+        let out = dir.path().join("estimator.json");
+        let mut flags = FLIGHT.to_vec();
+        flags.extend_from_slice(&[
+            "--trajectory",
+            "step",
+            "--duration",
+            "4",
+            "--state-source",
+            "estimator",
+        ]);
+        let (status, scores, stderr) = fly(port, &flags, &out);
+        assert!(status.success(), "fly failed:\n{stderr}");
+        let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
+        let e = &scores["estimator"];
+        assert_eq!(e["sensors"], "vehicle", "{scores}");
+        let ticks = number(&scores, "ticks");
+        assert!(number(e, "fused") >= ticks - 1.0, "{e}");
+        assert_eq!(number(e, "rejected"), 0.0, "{e}");
+        assert!(number(e, "position_rmse_m") < 1e-3, "{e}");
+        // The same flight in process on the truth.
+        let local = dir.path().join("truth.json");
+        let local_arg = local.to_string_lossy().into_owned();
+        let mut args = vec!["track", "--json", &local_arg];
+        args.extend_from_slice(FLIGHT);
+        args.extend_from_slice(&["--trajectory", "step", "--duration", "4"]);
+        let mut track = Proc::start("track", &args);
+        assert!(track.wait().success(), "track failed:\n{}", track.stderr());
+        let truth = read_json(&local);
+        let (a, b) = (
+            number(&scores, "base_pos_rmse_m"),
+            number(&truth, "base_pos_rmse_m"),
+        );
+        assert!(
+            (a - b).abs() < 1e-3,
+            "base RMSE {a} on the estimate, {b} on the truth"
+        );
+    }
+
+    #[test]
     fn a_realtime_autopilot_is_flown_on_its_clock() {
         // `--realtime`: the twin steps on the wall clock at 120 Hz with the latest setpoint,
         // as a vehicle does; the bridge answers each ODOMETRY with a setpoint. The flight
