@@ -15,8 +15,9 @@
 //!   ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ACTUATOR_OUTPUT_STATUS, DEBUG_FLOAT_ARRAY
 //!   "joints" and ODOMETRY (which closes a tick) → a [`platform::Measurement`] and the
 //!   autopilot's state.
-//! - [`wire`]: framing that never panics and counts garbage, bad CRCs, unknown ids,
-//!   truncated frames and frames refused by MAVLink 2 signing.
+//! - [`wire`]: the MAVLink 2 codec of both ends of the link (the twin's autopilot uses it
+//!   too): framing that never panics and counts garbage, bad CRCs, unknown ids, truncated and
+//!   unsupported frames and frames refused by MAVLink 2 signing; encoding, signed or not.
 //!
 //! The contract with the other end (ids, modes, groups, lockstep) is `docs/mavlink.md`.
 
