@@ -17,8 +17,9 @@
 //!   autopilot's state.
 //! - [`task_array`]: the task scene's state (DEBUG_FLOAT_ARRAY "task"), a SITL extension
 //!   the twin's autopilot sends so a task flown over MAVLink can be judged.
-//! - [`wire`]: framing that never panics and counts garbage, bad CRCs, unknown ids,
-//!   truncated frames and frames refused by MAVLink 2 signing.
+//! - [`wire`]: the MAVLink 2 codec of both ends of the link (the twin's autopilot uses it
+//!   too): framing that never panics and counts garbage, bad CRCs, unknown ids, truncated and
+//!   unsupported frames and frames refused by MAVLink 2 signing; encoding, signed or not.
 //!
 //! The contract with the other end (ids, modes, groups, lockstep) is `docs/mavlink.md`.
 

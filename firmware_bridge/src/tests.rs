@@ -19,7 +19,7 @@ use crate::address::Address;
 use crate::bridge::{Bridge, BridgeConfig, BridgeError};
 use crate::setpoint::{AttitudeSetpoint, SetpointCodec, SetpointError};
 use crate::telemetry::{Telemetry, px4_mode};
-use crate::wire::{Counters, Decoder, Encoder, Signing, SigningKey};
+use crate::wire::{CounterSnapshot, Counters, Decoder, Encoder, Signing, SigningKey};
 
 fn vehicle(id: &str) -> Vehicle {
     Vehicle::builtin(id).unwrap()
@@ -563,6 +563,209 @@ fn signing_keys_read_from_hex_or_raw_files() {
     std::fs::write(&short, "abcd").unwrap();
     let e = SigningKey::from_file(&short, 0).unwrap_err();
     assert!(e.contains("short") && e.contains("found 4 bytes"), "{e}");
+}
+
+// ------------------------------------------- the wire, as the twin's autopilot uses it
+
+/// A ground station's heartbeat (the autopilot's usual first frame).
+fn gcs_heartbeat() -> MavMessage {
+    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        custom_mode: 393_216,
+        mavtype: MavType::MAV_TYPE_GCS,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+        base_mode: MavModeFlag::empty(),
+        system_status: MavState::MAV_STATE_ACTIVE,
+        mavlink_version: 3,
+    })
+}
+
+#[test]
+fn a_good_frame_decodes_and_bad_ones_are_counted_by_kind() {
+    let mut tx = Encoder::new(255, 190, None);
+    let mut rx = Decoder::new(None);
+    let counters = Counters::default();
+    let good = tx.encode(&gcs_heartbeat());
+    let mut out = Vec::new();
+    rx.push_datagram(&good, &counters, &mut out);
+    assert_eq!(out.len(), 1);
+    assert_eq!(out[0].message, gcs_heartbeat());
+    assert_eq!(out[0].header.system_id, 255);
+
+    let mut bad_crc = good.clone();
+    let last = bad_crc.len() - 1;
+    bad_crc[last] ^= 0x55;
+    rx.push_datagram(&bad_crc, &counters, &mut out);
+    assert_eq!(counters.snapshot().bad_crc, 1);
+
+    rx.push_datagram(&good[..good.len() - 3], &counters, &mut out);
+    assert_eq!(counters.snapshot().truncated, 1);
+
+    let mut unknown = good.clone();
+    unknown[7] = 0xEE;
+    unknown[8] = 0xEE;
+    rx.push_datagram(&unknown, &counters, &mut out);
+    assert_eq!(counters.snapshot().unknown_id, 1);
+
+    // (After a refused frame the parser resyncs byte by byte: those bytes count as junk.)
+    let junk = counters.snapshot().garbage_bytes;
+    rx.push_datagram(&[1, 2, 3], &counters, &mut out);
+    assert_eq!(counters.snapshot().garbage_bytes, junk + 3);
+    assert_eq!(out.len(), 1, "nothing bad got through");
+    // A good frame after garbage in the same datagram still decodes.
+    let mut mixed = vec![0u8, 0xFD, 7];
+    mixed.extend_from_slice(&good);
+    rx.push_datagram(&mixed, &counters, &mut out);
+    let c = counters.snapshot();
+    assert_eq!(out.len(), 2, "{c}");
+    assert_eq!(c.frames_ok, 2);
+    assert_eq!(c.bad_crc, 1);
+    assert_eq!(c.unknown_id, 1);
+}
+
+#[test]
+fn a_stream_waits_for_the_rest_of_a_frame() {
+    let mut tx = Encoder::new(255, 190, None);
+    let mut rx = Decoder::new(None);
+    let counters = Counters::default();
+    let good = tx.encode(&gcs_heartbeat());
+    let mut out = Vec::new();
+    let (a, b) = good.split_at(5);
+    rx.push_stream(a, &counters, &mut out);
+    assert!(out.is_empty());
+    rx.push_stream(b, &counters, &mut out);
+    assert_eq!(out.len(), 1);
+    assert_eq!(counters.snapshot().truncated, 0);
+}
+
+#[test]
+fn mavlink_1_and_unknown_incompatibility_flags_are_unsupported() {
+    let mut tx = Encoder::new(255, 190, None);
+    let mut rx = Decoder::new(None);
+    let counters = Counters::default();
+    let mut out = Vec::new();
+    // A MAVLink 1 heartbeat, then a good MAVLink 2 one in the same datagram.
+    let mut bytes = Vec::new();
+    mavlink::write_v1_msg(
+        &mut bytes,
+        MavHeader {
+            system_id: 255,
+            component_id: 190,
+            sequence: 0,
+        },
+        &gcs_heartbeat(),
+    )
+    .unwrap();
+    assert_eq!(bytes[0], 0xFE);
+    let v1_len = bytes.len();
+    bytes.extend(tx.encode(&gcs_heartbeat()));
+    rx.push_datagram(&bytes, &counters, &mut out);
+    let c = counters.snapshot();
+    assert_eq!(out.len(), 1, "{c}");
+    assert_eq!(c.unsupported, 1, "{c}");
+    // The MAVLink 1 body is junk.
+    assert_eq!(c.garbage_bytes, (v1_len - 1) as u64, "{c}");
+    // An incompatibility flag we do not know (0x02), over a stream.
+    let mut odd = tx.encode(&gcs_heartbeat());
+    odd[2] |= 0x02;
+    rx.push_stream(&odd, &counters, &mut out);
+    rx.push_stream(&tx.encode(&gcs_heartbeat()), &counters, &mut out);
+    let c = counters.snapshot();
+    assert_eq!(c.unsupported, 2, "{c}");
+    assert_eq!(out.len(), 2, "{c}");
+    assert_eq!(c.bad_frames(), 2, "{c}");
+    assert_eq!(c.drop_rate_centi_percent(), 5_000, "{c}");
+}
+
+#[test]
+fn bad_frames_and_the_drop_rate_sum_every_refusal() {
+    let c = CounterSnapshot {
+        frames_ok: 3,
+        garbage_bytes: 1_000,
+        bad_crc: 1,
+        unknown_id: 1,
+        truncated: 1,
+        unsupported: 1,
+        refused_unsigned: 1,
+        refused_bad_signature: 1,
+        undecodable: 1,
+        rejected_input: 5,
+        frames_sent: 9,
+    };
+    assert_eq!(c.bad_frames(), 7);
+    assert_eq!(c.drop_rate_centi_percent(), 7_000);
+    assert_eq!(CounterSnapshot::default().drop_rate_centi_percent(), 0);
+    assert_eq!(
+        c.to_string(),
+        "frames ok 3, bad crc 1, unknown id 1, truncated 1, bad payload 1, unsigned refused 1, \
+         bad signature 1, unsupported 1, junk bytes 1000, rejected input 5"
+    );
+}
+
+#[test]
+fn required_signing_with_a_link_id_refuses_unsigned_and_forged_frames() {
+    let signing = Signing {
+        key: SigningKey {
+            secret: [7u8; 32],
+            link_id: 3,
+        },
+        require: true,
+    };
+    let mut rx = Decoder::new(Some(&signing));
+    let counters = Counters::default();
+    let mut out = Vec::new();
+    let mut plain = Encoder::new(255, 190, None);
+    rx.push_datagram(&plain.encode(&gcs_heartbeat()), &counters, &mut out);
+    assert_eq!(counters.snapshot().refused_unsigned, 1);
+    let forger = SigningKey {
+        secret: [8u8; 32],
+        ..signing.key.clone()
+    };
+    let mut forged = Encoder::new(255, 190, Some(&forger));
+    rx.push_datagram(&forged.encode(&gcs_heartbeat()), &counters, &mut out);
+    assert_eq!(counters.snapshot().refused_bad_signature, 1);
+    assert!(out.is_empty());
+    let mut honest = Encoder::new(255, 190, Some(&signing.key));
+    rx.push_datagram(&honest.encode(&gcs_heartbeat()), &counters, &mut out);
+    assert_eq!(out.len(), 1);
+}
+
+#[test]
+fn never_panics_on_random_bytes() {
+    // A fixed xorshift stream: every length, every byte value, some start bytes; the same
+    // decoder fed as datagrams and as a stream.
+    let mut rx = Decoder::new(None);
+    let counters = Counters::default();
+    let mut out = Vec::new();
+    let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+    for n in 0..2000 {
+        let mut buf = Vec::with_capacity(n % 300);
+        for _ in 0..n % 300 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            buf.push(if x.is_multiple_of(17) {
+                0xFD
+            } else {
+                (x >> 24) as u8
+            });
+        }
+        rx.push_datagram(&buf, &counters, &mut out);
+        rx.push_stream(&buf, &counters, &mut out);
+    }
+    assert!(counters.snapshot().garbage_bytes > 0);
+}
+
+#[test]
+fn key_files_are_raw_or_hex() {
+    let hex = "00".repeat(31) + "ff\n";
+    let key = SigningKey::from_bytes(hex.as_bytes(), 0).unwrap();
+    assert_eq!(key.secret[31], 0xFF);
+    assert_eq!(
+        SigningKey::from_bytes(&[9u8; 32], 2).unwrap().secret,
+        [9u8; 32]
+    );
+    assert_eq!(SigningKey::from_bytes(&[9u8; 32], 2).unwrap().link_id, 2);
+    assert!(SigningKey::from_bytes(b"short", 0).is_err());
 }
 
 // ---------------------------------------------------------------- the bridge over UDP

@@ -1,21 +1,27 @@
-//! MAVLink 2 on the wire: a byte-stream decoder that never panics and counts what it
-//! throws away, and an encoder that signs when a key is set.
+//! MAVLink 2 on the wire, for both ends of the link (this crate's bridge and the twin's
+//! PX4-style autopilot, `sim_twin::autopilot`): a decoder that never panics and counts
+//! everything it throws away by kind, and an encoder that signs when a key is set.
 //!
-//! The decoder takes bytes as they arrive (a UDP datagram, a TCP or serial chunk: frames may
-//! be split or glued together) and yields the frames it can check:
+//! The decoder takes bytes as they arrive and yields the frames it can check. A byte stream
+//! (TCP, serial: [`Decoder::push_stream`]) may split or glue frames: a frame cut short waits
+//! for the next chunk. A datagram (UDP: [`Decoder::push_datagram`]) is whole: a frame still
+//! incomplete at its end is truncated.
 //!
-//! 1. hunt for the MAVLink 2 start byte 0xFD (anything else before it is garbage);
+//! 1. hunt for the MAVLink 2 start byte 0xFD: bytes skipped on the way are junk
+//!    ([`Counters::garbage_bytes`]); a MAVLink 1 start byte 0xFE is an unsupported frame;
 //! 2. read the 10-byte header, the payload, the CRC and, with the signed flag, the 13-byte
-//!    signature; an unknown incompatibility flag or a frame still incomplete when the
-//!    datagram ends counts as truncated;
-//! 3. an id outside the `common` dialect counts as unknown (its CRC cannot be checked without
-//!    the message's CRC_EXTRA); a bad CRC is counted and the decoder resynchronises on the
-//!    next 0xFD after the false start;
-//! 4. with signing required, an unsigned frame or a signature that does not verify (or a
-//!    replayed timestamp) is refused and counted;
+//!    signature; a datagram ending inside a frame counts it truncated (unless another start
+//!    byte follows: the length byte may be corrupt and hide a good frame);
+//! 3. an unknown incompatibility flag is unsupported; an id outside the `common` dialect is
+//!    unknown (its CRC cannot be checked without the message's CRC_EXTRA); a bad CRC is
+//!    counted. The bytes of these frames cannot be trusted (a corrupt length byte may hide a
+//!    good frame): the decoder resynchronises on the byte after their start byte;
+//! 4. with signing required, an unsigned frame is refused; with a key, a signed frame whose
+//!    signature does not verify (or whose timestamp is replayed) is refused;
 //! 5. a payload the dialect cannot parse (an enum value out of range) counts as undecodable.
 //!
-//! MAVLink 1 frames (0xFE) are not spoken: they count as garbage bytes.
+//! Frames refused in steps 4–5 passed their CRC: they are skipped whole. Every refused frame
+//! is counted once, by kind; [`CounterSnapshot::bad_frames`] is their sum.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -25,6 +31,8 @@ use mavlink::{SigningConfig, SigningData};
 
 /// MAVLink 2 start-of-frame marker.
 const STX_V2: u8 = 0xFD;
+/// MAVLink 1 start-of-frame marker (not spoken: counted as unsupported).
+const STX_V1: u8 = 0xFE;
 /// Header bytes after the start byte: len, incompat, compat, seq, sysid, compid, msgid×3.
 const HEADER_LEN: usize = 9;
 /// CRC bytes.
@@ -34,29 +42,35 @@ const SIGNATURE_LEN: usize = 13;
 /// The signed-frame incompatibility flag.
 const IFLAG_SIGNED: u8 = 0x01;
 /// Largest frame, bytes.
-const MAX_FRAME: usize = 1 + HEADER_LEN + 255 + CRC_LEN + SIGNATURE_LEN;
+pub const MAX_FRAME: usize = 1 + HEADER_LEN + 255 + CRC_LEN + SIGNATURE_LEN;
 
-/// What the decoder threw away, and what it kept. Shared between the bridge's I/O thread and
-/// its users (atomics: reading them never blocks the link).
+/// What one end of a link threw away, and what it kept, by kind. Atomics: the bridge shares
+/// them between its I/O thread and its users (reading them never blocks the link).
 #[derive(Debug, Default)]
 pub struct Counters {
     /// Frames decoded and accepted.
     pub frames_ok: AtomicU64,
-    /// Bytes skipped while hunting for a start byte (noise, MAVLink 1, the rest of a bad frame).
+    /// Junk: bytes skipped while hunting for a start byte (noise, the body of a MAVLink 1
+    /// frame, the rest of a frame refused before its CRC could be trusted).
     pub garbage_bytes: AtomicU64,
     /// Frames whose CRC did not match.
     pub bad_crc: AtomicU64,
     /// Frames with a message id outside the dialect.
     pub unknown_id: AtomicU64,
-    /// Frames cut short (datagram or stream ended inside one) or with unknown
-    /// incompatibility flags.
+    /// Frames cut short (a datagram ended inside one).
     pub truncated: AtomicU64,
+    /// MAVLink 1 frames, and MAVLink 2 frames with unknown incompatibility flags.
+    pub unsupported: AtomicU64,
     /// Frames refused by signing: unsigned while signing is required.
     pub refused_unsigned: AtomicU64,
     /// Frames refused by signing: bad signature or replayed timestamp.
     pub refused_bad_signature: AtomicU64,
     /// Frames with a valid CRC whose payload the dialect could not parse.
     pub undecodable: AtomicU64,
+    /// Accepted frames whose message the application ignored as input (the twin's autopilot:
+    /// a non-finite setpoint, a quaternion of the wrong norm, a command for another system...).
+    /// Not a bad frame.
+    pub rejected_input: AtomicU64,
     /// Frames sent.
     pub frames_sent: AtomicU64,
 }
@@ -66,20 +80,24 @@ pub struct Counters {
 pub struct CounterSnapshot {
     /// Frames decoded and accepted.
     pub frames_ok: u64,
-    /// Bytes skipped while hunting for a start byte.
+    /// Junk bytes skipped while hunting for a start byte.
     pub garbage_bytes: u64,
     /// Frames whose CRC did not match.
     pub bad_crc: u64,
     /// Frames with a message id outside the dialect.
     pub unknown_id: u64,
-    /// Frames cut short or with unknown incompatibility flags.
+    /// Frames cut short.
     pub truncated: u64,
+    /// MAVLink 1 frames, and frames with unknown incompatibility flags.
+    pub unsupported: u64,
     /// Unsigned frames refused (signing required).
     pub refused_unsigned: u64,
     /// Frames with a bad signature or a replayed timestamp, refused.
     pub refused_bad_signature: u64,
     /// Frames whose payload could not be parsed.
     pub undecodable: u64,
+    /// Accepted frames the application ignored as input.
+    pub rejected_input: u64,
     /// Frames sent.
     pub frames_sent: u64,
 }
@@ -94,11 +112,58 @@ impl Counters {
             bad_crc: r(&self.bad_crc),
             unknown_id: r(&self.unknown_id),
             truncated: r(&self.truncated),
+            unsupported: r(&self.unsupported),
             refused_unsigned: r(&self.refused_unsigned),
             refused_bad_signature: r(&self.refused_bad_signature),
             undecodable: r(&self.undecodable),
+            rejected_input: r(&self.rejected_input),
             frames_sent: r(&self.frames_sent),
         }
+    }
+}
+
+impl CounterSnapshot {
+    /// Frames refused for any reason (every kind but `frames_ok`, `garbage_bytes`,
+    /// `rejected_input` and `frames_sent`): SYS_STATUS `errors_comm`.
+    pub fn bad_frames(&self) -> u64 {
+        self.bad_crc
+            + self.unknown_id
+            + self.truncated
+            + self.unsupported
+            + self.refused_unsigned
+            + self.refused_bad_signature
+            + self.undecodable
+    }
+
+    /// SYS_STATUS `drop_rate_comm`: bad frames per frames received, in c% (0–10000).
+    pub fn drop_rate_centi_percent(&self) -> u16 {
+        let bad = self.bad_frames();
+        let total = bad + self.frames_ok;
+        if total == 0 {
+            return 0;
+        }
+        u16::try_from(bad * 10_000 / total).unwrap_or(10_000)
+    }
+}
+
+/// The receive side, one line (the twin's autopilot prints it at exit; the names are those of
+/// `docs/mavlink.md`).
+impl std::fmt::Display for CounterSnapshot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "frames ok {}, bad crc {}, unknown id {}, truncated {}, bad payload {}, unsigned refused {}, bad signature {}, unsupported {}, junk bytes {}, rejected input {}",
+            self.frames_ok,
+            self.bad_crc,
+            self.unknown_id,
+            self.truncated,
+            self.undecodable,
+            self.refused_unsigned,
+            self.refused_bad_signature,
+            self.unsupported,
+            self.garbage_bytes,
+            self.rejected_input
+        )
     }
 }
 
@@ -175,137 +240,150 @@ pub struct Frame {
     pub message: MavMessage,
 }
 
-/// The byte-stream decoder.
+/// The decoder of one link: the bytes of a stream not yet parsed, and signing.
 pub struct Decoder {
-    buffer: Vec<u8>,
-    signing: Option<(SigningData, bool)>,
+    /// Stream bytes not yet parsed: at most one frame cut short (less than [`MAX_FRAME`]).
+    pending: Vec<u8>,
+    signing: Option<SigningData>,
+    require_signing: bool,
 }
 
 impl std::fmt::Debug for Decoder {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Decoder")
-            .field("buffered", &self.buffer.len())
-            .field("signing", &self.signing.as_ref().map(|(_, r)| *r))
+            .field("pending", &self.pending.len())
+            .field("signing", &self.signing.is_some())
+            .field("require_signing", &self.require_signing)
             .finish()
     }
 }
 
-/// What one look at the front of the buffer found.
-enum Step {
-    /// Not enough bytes yet.
-    NeedMore,
-    /// Drop this many bytes and look again.
-    Skip(usize),
-    /// A frame of this many bytes is at the front.
-    Frame(usize),
+/// The length of the MAVLink 2 frame at the start of `b` (which starts with 0xFD), or None if
+/// `b` ends inside it.
+fn frame_len(b: &[u8]) -> Option<usize> {
+    let header = b.get(..1 + HEADER_LEN)?;
+    let signed = header[2] & IFLAG_SIGNED != 0;
+    let n =
+        1 + HEADER_LEN + usize::from(header[1]) + CRC_LEN + if signed { SIGNATURE_LEN } else { 0 };
+    (b.len() >= n).then_some(n)
 }
 
 impl Decoder {
     /// A decoder; with `signing`, signed frames are verified (and unsigned ones refused when
-    /// it is required).
+    /// it is required). Without, signed frames are accepted unchecked.
     pub fn new(signing: Option<&Signing>) -> Self {
         Self {
-            buffer: Vec::with_capacity(2 * MAX_FRAME),
+            pending: Vec::with_capacity(2 * MAX_FRAME),
             signing: signing.map(|s| {
                 let config = SigningConfig::new(s.key.secret, s.key.link_id, true, !s.require);
-                (SigningData::from_config(config), s.require)
+                SigningData::from_config(config)
             }),
+            require_signing: signing.is_some_and(|s| s.require),
         }
     }
 
     /// Feeds bytes from a stream (TCP, serial): an incomplete frame at the end waits for
     /// the next chunk.
     pub fn push_stream(&mut self, bytes: &[u8], counters: &Counters, out: &mut Vec<Frame>) {
-        self.buffer.extend_from_slice(bytes);
-        self.drain(counters, out);
+        let mut buf = std::mem::take(&mut self.pending);
+        buf.extend_from_slice(bytes);
+        let consumed = self.parse(&buf, false, counters, out);
+        buf.drain(..consumed);
+        self.pending = buf;
     }
 
     /// Feeds one datagram (UDP): a frame cannot span datagrams, so an incomplete one at the
-    /// end is truncated.
+    /// end is truncated. (Independent of the bytes a stream left waiting.)
     pub fn push_datagram(&mut self, bytes: &[u8], counters: &Counters, out: &mut Vec<Frame>) {
-        self.buffer.clear();
-        self.buffer.extend_from_slice(bytes);
-        self.drain(counters, out);
-        if !self.buffer.is_empty() {
-            bump(&counters.truncated);
-            self.buffer.clear();
-        }
+        let consumed = self.parse(bytes, true, counters, out);
+        debug_assert_eq!(consumed, bytes.len());
     }
 
-    fn drain(&mut self, counters: &Counters, out: &mut Vec<Frame>) {
-        let mut start = 0;
-        loop {
-            match self.step(&self.buffer[start..]) {
-                Step::NeedMore => break,
-                Step::Skip(n) => {
+    /// Parses the frames in `buf`; returns the bytes consumed (the rest is a frame cut short
+    /// that a stream will complete, or nothing).
+    fn parse(
+        &self,
+        buf: &[u8],
+        datagram: bool,
+        counters: &Counters,
+        out: &mut Vec<Frame>,
+    ) -> usize {
+        let mut at = 0;
+        while let Some(rest) = buf.get(at..).filter(|r| !r.is_empty()) {
+            match rest[0] {
+                STX_V2 => match frame_len(rest) {
+                    Some(n) => at += self.accept(&rest[..n], counters, out),
+                    // A false start (its length byte may be corrupt): the rest may hold a
+                    // good frame.
+                    None if datagram && rest[1..].contains(&STX_V2) => {
+                        bump(&counters.garbage_bytes);
+                        at += 1;
+                    }
+                    None if datagram => {
+                        bump(&counters.truncated);
+                        return buf.len();
+                    }
+                    None => return at,
+                },
+                STX_V1 => {
+                    // MAVLink 1: not spoken. Its body (not checked: its length byte cannot be
+                    // trusted) is hunted through as junk.
+                    bump(&counters.unsupported);
+                    at += 1;
+                }
+                _ => {
+                    let n = rest
+                        .iter()
+                        .position(|&b| b == STX_V2 || b == STX_V1)
+                        .unwrap_or(rest.len());
                     counters
                         .garbage_bytes
                         .fetch_add(n as u64, Ordering::Relaxed);
-                    start += n;
-                }
-                Step::Frame(n) => {
-                    let consumed = self.accept(start, n, counters, out);
-                    start += consumed;
+                    at += n;
                 }
             }
         }
-        self.buffer.drain(..start);
+        at
     }
 
-    fn step(&self, b: &[u8]) -> Step {
-        let Some(first) = b.first() else {
-            return Step::NeedMore;
-        };
-        if *first != STX_V2 {
-            let n = b.iter().position(|&x| x == STX_V2).unwrap_or(b.len());
-            return Step::Skip(n);
-        }
-        if b.len() < 1 + HEADER_LEN {
-            return Step::NeedMore;
-        }
-        let len = usize::from(b[1]);
-        let signed = b[2] & IFLAG_SIGNED != 0;
-        let n = 1 + HEADER_LEN + len + CRC_LEN + if signed { SIGNATURE_LEN } else { 0 };
-        if b.len() < n {
-            return Step::NeedMore;
-        }
-        Step::Frame(n)
-    }
-
-    /// Checks the frame of `n` bytes at `start`; returns how many bytes to consume (the frame,
-    /// or one byte for a false start so the decoder resynchronises).
-    fn accept(&self, start: usize, n: usize, counters: &Counters, out: &mut Vec<Frame>) -> usize {
-        let b = &self.buffer[start..start + n];
+    /// Checks the whole frame `b`; returns how many bytes to consume: the frame, or one byte
+    /// when its bytes cannot be trusted (the decoder resynchronises after its start byte).
+    fn accept(&self, b: &[u8], counters: &Counters, out: &mut Vec<Frame>) -> usize {
         let incompat = b[2];
         if incompat & !IFLAG_SIGNED != 0 {
             // Unknown incompatibility flag (or the non-standard 32-bit system id): not ours.
-            bump(&counters.truncated);
+            bump(&counters.unsupported);
             return 1;
         }
         let msgid = u32::from_le_bytes([b[7], b[8], b[9], 0]);
-        let known = MavMessage::default_message_from_id(msgid).is_some();
-        let mut raw = MAVLinkV2MessageRaw::new();
-        raw.as_mut_slice()[..n].copy_from_slice(b);
-        if !known {
+        if MavMessage::default_message_from_id(msgid).is_none() {
             // Without CRC_EXTRA the CRC cannot be checked: a corrupted byte could look like an
-            // unknown id; either way the frame is skipped whole.
+            // unknown id.
             bump(&counters.unknown_id);
-            return n;
+            return 1;
         }
+        let mut raw = MAVLinkV2MessageRaw::new();
+        let Some(slot) = raw.as_mut_slice().get_mut(..b.len()) else {
+            // Cannot happen (a frame is at most MAX_FRAME bytes); never panic.
+            bump(&counters.truncated);
+            return 1;
+        };
+        slot.copy_from_slice(b);
         if !raw.has_valid_crc::<MavMessage>() {
             bump(&counters.bad_crc);
             return 1;
         }
-        if let Some((data, require)) = &self.signing {
-            let signed = incompat & IFLAG_SIGNED != 0;
-            if !signed && *require {
-                bump(&counters.refused_unsigned);
-                return n;
-            }
-            if signed && !data.verify_signature(&raw) {
+        let signed = incompat & IFLAG_SIGNED != 0;
+        match &self.signing {
+            Some(data) if signed && !data.verify_signature(&raw) => {
                 bump(&counters.refused_bad_signature);
-                return n;
+                return b.len();
             }
+            _ if !signed && self.require_signing => {
+                bump(&counters.refused_unsigned);
+                return b.len();
+            }
+            _ => {}
         }
         match MavMessage::parse(MavlinkVersion::V2, msgid, raw.payload()) {
             Ok(message) => {
@@ -321,7 +399,7 @@ impl Decoder {
             }
             Err(_) => bump(&counters.undecodable),
         }
-        n
+        b.len()
     }
 }
 
@@ -358,6 +436,14 @@ impl Encoder {
 
     /// One frame of `message`.
     pub fn encode(&mut self, message: &MavMessage) -> Vec<u8> {
+        let mut bytes = Vec::with_capacity(MAX_FRAME);
+        self.encode_into(message, &mut bytes);
+        bytes
+    }
+
+    /// One frame of `message`, appended to `out` (several frames can go out as one datagram
+    /// or write).
+    pub fn encode_into(&mut self, message: &MavMessage, out: &mut Vec<u8>) {
         let header = MavHeader {
             system_id: u32::from(self.system_id),
             component_id: self.component_id,
@@ -372,6 +458,6 @@ impl Encoder {
             }
             None => raw.serialize_message(header, message),
         }
-        raw.raw_bytes().to_vec()
+        out.extend_from_slice(raw.raw_bytes());
     }
 }

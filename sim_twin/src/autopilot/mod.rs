@@ -9,7 +9,7 @@
 //! | [`setpoints`] | SET_ACTUATOR_CONTROL_TARGET groups 0/1/2 and SET_ATTITUDE_TARGET → commands |
 //! | [`control`] | the autopilot's own control: position hold and landing (PID on the twin's truth), the attitude loop, allocation |
 //! | [`telemetry`] | the twin's state → MAVLink messages (NED/FRD via `firmware_bridge::frames`) |
-//! | [`wire`] | frames: parsing with counters for every bad byte, signing, encoding |
+//! | [`wire`] | the link's end of `firmware_bridge::wire`, the one MAVLink 2 codec (parsing with counters for every bad byte, signing, encoding); the autopilot's signing settings |
 //! | [`transport`] | UDP (every peer heard) or a serial device |
 //! | [`server`] | the loop: lockstep or realtime stepping, telemetry streams, commands |
 //!

@@ -18,7 +18,7 @@ use super::modes::{Commander, FORCE_DISARM_MAGIC, FlightMode, Refusal, Transitio
 use super::setpoints::{ActuatorUpdate, SetpointDecoder};
 use super::telemetry::{self, Landed};
 use super::transport::{Endpoint, Incoming, Transport};
-use super::wire::{LinkCounters, Received, Signing, Wire};
+use super::wire::{Frame, LinkCounters, Signing, Wire};
 use crate::ipc::Mode;
 use crate::{Twin, TwinConfig, TwinError};
 
@@ -365,7 +365,7 @@ impl Autopilot {
     }
 
     /// The link's counters.
-    pub fn counters(&self) -> &LinkCounters {
+    pub fn counters(&self) -> LinkCounters {
         self.wire.counters()
     }
 
@@ -438,7 +438,7 @@ impl Autopilot {
             }
             self.tick(&mut on_event);
         }
-        let counters = *self.wire.counters();
+        let counters = self.wire.counters();
         on_event(&AutopilotEvent::Stopped {
             steps: self.steps,
             counters,
@@ -711,7 +711,7 @@ impl Autopilot {
         let m = self.truth();
         Some(match id {
             HEARTBEAT_ID => telemetry::heartbeat(self.mav_type, &self.commander),
-            SYS_STATUS_ID => telemetry::sys_status(self.wire.counters()),
+            SYS_STATUS_ID => telemetry::sys_status(&self.wire.counters()),
             EXTENDED_SYS_STATE_ID => telemetry::extended_sys_state(self.landed_state()),
             ATTITUDE_ID => telemetry::attitude(m),
             GLOBAL_POSITION_INT_ID => telemetry::global_position_int(m),
@@ -725,7 +725,7 @@ impl Autopilot {
     }
 
     /// One received message.
-    fn handle(&mut self, r: &Received, on_event: &mut impl FnMut(&AutopilotEvent)) {
+    fn handle(&mut self, r: &Frame, on_event: &mut impl FnMut(&AutopilotEvent)) {
         let for_us = |system: u8, component: u8| {
             (system == 0 || system == SYSTEM_ID) && (component == 0 || component == COMPONENT_ID)
         };

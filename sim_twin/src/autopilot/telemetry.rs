@@ -253,7 +253,7 @@ pub fn sys_status(counters: &LinkCounters) -> MavMessage {
         errors_count1: sat(counters.bad_crc),
         errors_count2: sat(counters.unknown_id),
         errors_count3: sat(counters.truncated),
-        errors_count4: sat(counters.unsigned_refused + counters.bad_signature),
+        errors_count4: sat(counters.refused_unsigned + counters.refused_bad_signature),
         battery_remaining: -1,
         onboard_control_sensors_present_extended: MavSysStatusSensorExtended::empty(),
         onboard_control_sensors_enabled_extended: MavSysStatusSensorExtended::empty(),
