@@ -39,6 +39,9 @@ gripper go in group 2 at both levels. A refused or unanswered command (arming, o
 stops the flight with the autopilot's answer, exit 1. At the end the bridge stops sending;
 it never disarms (the autopilot's offboard-loss failsafe holds, then lands).
 With --signing-key every frame is signed and unsigned or badly signed frames are refused.
+With --mcap the log also holds /autopilot/state (mode, arming, status, the link's counters,
+once per tick) and /mavlink/raw (every frame in and out, bytes as on the wire), see
+docs/mcap-format.md.
 
 Over ipc the twin must serve the same vehicle and settings (disturbances, motor model, seed):
 the handshake refuses a mismatch naming both values (exit 2). If the twin stops answering
@@ -261,6 +264,8 @@ fn run_mavlink(args: &FlyArgs, address: &Address) -> Result<()> {
         ..MavlinkLinkConfig::new(
             BridgeConfig {
                 signing,
+                // Every frame in and out on the log's /mavlink/raw.
+                capture_raw: config.mcap.is_some(),
                 ..BridgeConfig::new(address.clone())
             },
             level,

@@ -17,11 +17,15 @@
 //!   autopilot's state.
 //! - [`wire`]: framing that never panics and counts garbage, bad CRCs, unknown ids,
 //!   truncated frames and frames refused by MAVLink 2 signing.
+//! - [`capture`]: with [`BridgeConfig::capture_raw`], every frame in and out with its bytes
+//!   as on the wire, handed to the flight side through a bounded queue (the flight log's
+//!   `/mavlink/raw`).
 //!
 //! The contract with the other end (ids, modes, groups, lockstep) is `docs/mavlink.md`.
 
 pub mod address;
 pub mod bridge;
+pub mod capture;
 pub mod frames;
 pub mod setpoint;
 pub mod telemetry;
@@ -29,6 +33,7 @@ pub mod wire;
 
 pub use address::Address;
 pub use bridge::{Bridge, BridgeConfig, BridgeError};
+pub use capture::{CaptureStats, Direction, RawFrame};
 pub use setpoint::{AttitudeSetpoint, SetpointCodec, SetpointError};
 pub use telemetry::{AutopilotState, Telemetry};
 pub use wire::{CounterSnapshot, Signing, SigningKey};
