@@ -40,6 +40,9 @@ gripper go in group 2 at both levels. A refused or unanswered command (arming, o
 stops the flight with the autopilot's answer, exit 1. At the end the bridge stops sending;
 it never disarms (the autopilot's offboard-loss failsafe holds, then lands).
 With --signing-key every frame is signed and unsigned or badly signed frames are refused.
+With --mcap the log also holds /autopilot/state (mode, arming, status, the link's counters,
+once per tick) and /mavlink/raw (every frame in and out, bytes as on the wire), see
+docs/mcap-format.md.
 
 A task flight (`--task T --trajectory scripted`) flies one benchmark rollout of the task's
 scripted policy at --seed over any link; its result (success, steps, criteria, errors) is
@@ -287,6 +290,8 @@ fn mavlink_link_config(args: &FlyArgs, address: &Address) -> Result<MavlinkLinkC
         ..MavlinkLinkConfig::new(
             BridgeConfig {
                 signing,
+                // Every frame in and out on the log's /mavlink/raw.
+                capture_raw: args.track.logs_mcap(),
                 ..BridgeConfig::new(address.clone())
             },
             level,

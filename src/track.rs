@@ -389,6 +389,13 @@ pub(crate) fn run_with(
     Ok(())
 }
 
+impl Args {
+    /// Whether the flight writes an MCAP log (`--mcap`).
+    pub(crate) fn logs_mcap(&self) -> bool {
+        self.mcap.is_some()
+    }
+}
+
 /// Whether `--trajectory` asks for the task's scripted policy.
 pub(crate) fn is_scripted(args: &Args) -> bool {
     args.trajectory == SCRIPTED

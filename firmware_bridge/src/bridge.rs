@@ -9,6 +9,8 @@
 //!  command_long() ◄─── COMMAND_ACKs ─── decode (count garbage, CRC, ids, signing)
 //!  next_measurement() ◄─ measurements ─ telemetry → Measurement when ODOMETRY closes a tick
 //!  autopilot(), counters() ◄─ shared ── heartbeat state, counters
+//!  drain_raw() ◄──── bounded queue ──── every frame in and out, bytes as on the wire
+//!                                       (with `capture_raw`; full → dropped and counted)
 //! ```
 //!
 //! Dropping the [`Bridge`] ends the thread (the runtime stops when the flight side's sender
@@ -30,6 +32,7 @@ use tokio::net::{TcpStream, UdpSocket};
 use tokio::sync::mpsc;
 
 use crate::address::Address;
+use crate::capture::{Capture, CaptureQueue, CaptureStats, RawFrame};
 use crate::setpoint::SetpointError;
 use crate::task_array::TaskArray;
 use crate::telemetry::{AutopilotState, Telemetry, px4_mode};
@@ -65,6 +68,12 @@ pub struct BridgeConfig {
     pub heartbeat_period: Duration,
     /// How long [`Bridge::connect`] waits for a TCP server to accept (default 5 s).
     pub connect_timeout: Duration,
+    /// Capture every frame received (accepted) and sent, bytes as on the wire, for
+    /// [`Bridge::drain_raw`] (default off; `amstack fly` turns it on when it logs MCAP).
+    pub capture_raw: bool,
+    /// Frames the capture holds until the flight side drains them; beyond, frames are
+    /// dropped and counted (default 16384: over 10 s of a 120 Hz flight's traffic).
+    pub capture_capacity: usize,
 }
 
 impl BridgeConfig {
@@ -81,6 +90,8 @@ impl BridgeConfig {
             command_retries: 3,
             heartbeat_period: Duration::from_secs(1),
             connect_timeout: Duration::from_secs(5),
+            capture_raw: false,
+            capture_capacity: 16_384,
         }
     }
 }
@@ -166,6 +177,7 @@ pub struct Bridge {
     measurements: std_mpsc::Receiver<Measurement>,
     shared: Arc<Mutex<Shared>>,
     counters: Arc<Counters>,
+    raw: Option<CaptureQueue>,
     thread: Option<JoinHandle<()>>,
     confirmation: u8,
 }
@@ -274,6 +286,12 @@ impl Bridge {
         let (ready_tx, ready_rx) = std_mpsc::channel();
         let shared = Arc::new(Mutex::new(Shared::default()));
         let counters = Arc::new(Counters::default());
+        let (capture, raw) = if config.capture_raw {
+            let (capture, queue) = crate::capture::capture(config.capture_capacity);
+            (Some(capture), Some(queue))
+        } else {
+            (None, None)
+        };
         let io = Io {
             config: config.clone(),
             telemetry: Telemetry::new(vehicle),
@@ -281,6 +299,7 @@ impl Bridge {
             counters: counters.clone(),
             acks: ack_tx,
             measurements: m_tx,
+            capture,
         };
         let address = config.address.to_string();
         let thread = std::thread::Builder::new()
@@ -307,6 +326,7 @@ impl Bridge {
             measurements: m_rx,
             shared,
             counters,
+            raw,
             thread: Some(thread),
             confirmation: 0,
         })
@@ -509,6 +529,17 @@ impl Bridge {
     pub fn counters(&self) -> CounterSnapshot {
         self.counters.snapshot()
     }
+
+    /// Moves the frames captured since the last call to `out`, oldest first; returns how
+    /// many (always 0 without [`BridgeConfig::capture_raw`]). Never waits.
+    pub fn drain_raw(&self, out: &mut Vec<RawFrame>) -> usize {
+        self.raw.as_ref().map_or(0, |q| q.drain(out))
+    }
+
+    /// The capture's counts (None without [`BridgeConfig::capture_raw`]).
+    pub fn capture_stats(&self) -> Option<CaptureStats> {
+        self.raw.as_ref().map(CaptureQueue::stats)
+    }
 }
 
 impl Drop for Bridge {
@@ -530,6 +561,8 @@ struct Io {
     counters: Arc<Counters>,
     acks: std_mpsc::Sender<COMMAND_ACK_DATA>,
     measurements: std_mpsc::Sender<Measurement>,
+    /// The raw frame capture, when configured.
+    capture: Option<Capture>,
 }
 
 impl Io {
@@ -613,6 +646,9 @@ impl Io {
                             // listening yet): not fatal on a datagram socket.
                             if let Ok((n, from)) = got {
                                 decoder.push_datagram(&buf[..n], &self.counters, &mut frames);
+                                if let Some(c) = &mut self.capture {
+                                    c.input(&buf[..n], true, Instant::now());
+                                }
                                 let target = u32::from(self.config.target_system);
                                 if *learn_peer && frames.iter().any(|f| f.header.system_id == target) {
                                     *peer = Some(from);
@@ -640,7 +676,12 @@ impl Io {
                                 }
                                 // Serial: no data now; do not spin on the device.
                                 Ok(0) => tokio::time::sleep(Duration::from_millis(1)).await,
-                                Ok(n) => decoder.push_stream(&buf[..n], &self.counters, &mut frames),
+                                Ok(n) => {
+                                    decoder.push_stream(&buf[..n], &self.counters, &mut frames);
+                                    if let Some(c) = &mut self.capture {
+                                        c.input(&buf[..n], false, Instant::now());
+                                    }
+                                }
                                 Err(e) => return Some(format!("read failed: {e}")),
                             }
                             Vec::new()
@@ -650,6 +691,9 @@ impl Io {
             };
             for frame in frames.drain(..) {
                 self.handle(&frame);
+            }
+            if let Some(c) = &mut self.capture {
+                c.settle();
             }
             for message in &to_send {
                 let bytes = encoder.encode(message);
@@ -665,6 +709,9 @@ impl Io {
                         self.counters
                             .frames_sent
                             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if let Some(c) = &mut self.capture {
+                            c.sent(message, &bytes, self.telemetry.current().time_s);
+                        }
                     }
                     // A datagram to a port nobody listens on yet: keep going.
                     Err(_) if matches!(transport, Transport::Udp { .. }) => {}
@@ -675,18 +722,36 @@ impl Io {
     }
 
     fn handle(&mut self, frame: &Frame) {
-        if frame.header.system_id != u32::from(self.config.target_system) {
+        let from_target = frame.header.system_id == u32::from(self.config.target_system);
+        let ack = match &frame.message {
+            MavMessage::COMMAND_ACK(ack) => Some(ack),
+            _ => None,
+        };
+        let telemetry = from_target
+            && ack.is_none()
+            && frame.header.component_id == self.config.target_component;
+        let finished = if telemetry {
+            self.telemetry.apply(&frame.message)
+        } else {
+            None
+        };
+        // The capture after the telemetry (an ODOMETRY carries its own time) and before
+        // anything the frame brought reaches the flight side (a measurement, an ack): the
+        // flight side's drain after a measurement then finds the frames that made it.
+        if let Some(c) = &mut self.capture {
+            c.received(frame, self.telemetry.current().time_s);
+        }
+        if !from_target {
             return;
         }
-        if let MavMessage::COMMAND_ACK(ack) = &frame.message {
+        if let Some(ack) = ack {
             let _ = self.acks.send(ack.clone());
             return;
         }
-        if frame.header.component_id != self.config.target_component {
+        if !telemetry {
             return;
         }
         let heartbeat = matches!(frame.message, MavMessage::HEARTBEAT(_));
-        let finished = self.telemetry.apply(&frame.message);
         let mut shared = self.shared.lock().unwrap_or_else(PoisonError::into_inner);
         if heartbeat {
             shared.last_heartbeat = Some(Instant::now());

@@ -20,11 +20,15 @@
 //! - [`wire`]: the MAVLink 2 codec of both ends of the link (the twin's autopilot uses it
 //!   too): framing that never panics and counts garbage, bad CRCs, unknown ids, truncated and
 //!   unsupported frames and frames refused by MAVLink 2 signing; encoding, signed or not.
+//! - [`capture`]: with [`BridgeConfig::capture_raw`], every frame in and out with its bytes
+//!   as on the wire, handed to the flight side through a bounded queue (the flight log's
+//!   `/mavlink/raw`).
 //!
 //! The contract with the other end (ids, modes, groups, lockstep) is `docs/mavlink.md`.
 
 pub mod address;
 pub mod bridge;
+pub mod capture;
 pub mod frames;
 pub mod setpoint;
 pub mod task_array;
@@ -33,6 +37,7 @@ pub mod wire;
 
 pub use address::Address;
 pub use bridge::{Bridge, BridgeConfig, BridgeError};
+pub use capture::{CaptureStats, Direction, RawFrame};
 pub use setpoint::{AttitudeSetpoint, SetpointCodec, SetpointError};
 pub use task_array::TaskArray;
 pub use telemetry::{AutopilotState, Telemetry};

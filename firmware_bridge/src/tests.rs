@@ -17,6 +17,7 @@ use platform::{ActuatorCommand, Vehicle};
 
 use crate::address::Address;
 use crate::bridge::{Bridge, BridgeConfig, BridgeError};
+use crate::capture::{Direction, RawFrame};
 use crate::setpoint::{AttitudeSetpoint, SetpointCodec, SetpointError};
 use crate::telemetry::{Telemetry, px4_mode};
 use crate::wire::{CounterSnapshot, Counters, Decoder, Encoder, Signing, SigningKey};
@@ -999,6 +1000,89 @@ fn garbage_into_the_bridge_socket_is_counted_and_telemetry_still_flows() {
     assert!(c.bad_crc >= 1, "{c:?}");
     assert!(c.unknown_id >= 1, "{c:?}");
     assert!(c.frames_ok >= 2, "{c:?}");
+}
+
+#[test]
+fn the_capture_hands_over_every_frame_in_and_out_as_it_was_on_the_wire() {
+    let v = vehicle("fa-hexa");
+    let mut peer = Peer::new();
+    let config = BridgeConfig {
+        capture_raw: true,
+        ..fast_config(peer.address())
+    };
+    let bridge = Bridge::connect(config, &v).unwrap();
+    peer.learn_bridge();
+    let encode = |sequence: u8, m: &MavMessage| {
+        let mut bytes = Vec::new();
+        let header = MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence,
+        };
+        mavlink::write_v2_msg(&mut bytes, header, m).unwrap();
+        bytes
+    };
+    let hb = encode(
+        4,
+        &MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            base_mode: MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED,
+            ..HEARTBEAT_DATA::default()
+        }),
+    );
+    let odo = encode(5, &MavMessage::ODOMETRY(odometry(2_500_000)));
+    let mut bad = odo.clone();
+    bad[12] ^= 0x55; // bad CRC: refused, not captured
+    // Garbage, a refused frame, then both frames glued in one datagram.
+    peer.send_raw(&noise(3, 50));
+    peer.send_raw(&bad);
+    peer.send_raw(&[&[0x01, 0x02][..], &hb, &odo].concat());
+    bridge
+        .next_measurement(None, Duration::from_secs(2), "ODOMETRY")
+        .unwrap();
+    // Drained at once, the frames that made the measurement are there already.
+    let mut raw = Vec::new();
+    bridge.drain_raw(&mut raw);
+    assert!(
+        raw.iter().any(|f| f.bytes == odo),
+        "the ODOMETRY is queued before its measurement is handed over: {raw:?}"
+    );
+    std::thread::sleep(Duration::from_millis(60)); // a few of our heartbeats
+    bridge.drain_raw(&mut raw);
+    let ins: Vec<&RawFrame> = raw
+        .iter()
+        .filter(|f| f.direction == Direction::In)
+        .collect();
+    assert_eq!(ins.len(), 2, "{raw:?}");
+    assert_eq!(ins[0].bytes, hb);
+    assert_eq!(ins[1].bytes, odo);
+    assert_eq!(
+        (ins[1].message_id, ins[1].message_name, ins[1].sequence),
+        (331, "ODOMETRY", 5)
+    );
+    // The heartbeat came before the first ODOMETRY; the ODOMETRY carries its own time.
+    assert_eq!((ins[0].flight_time_s, ins[1].flight_time_s), (0.0, 2.5));
+    let outs: Vec<&RawFrame> = raw
+        .iter()
+        .filter(|f| f.direction == Direction::Out)
+        .collect();
+    assert!(outs.len() >= 2, "{raw:?}");
+    for f in &outs {
+        let (header, m) = MavlinkReader::new(&f.bytes[..])
+            .read_message::<MavMessage>(MavlinkVersion::V2)
+            .unwrap();
+        assert!(matches!(m, MavMessage::HEARTBEAT(_)), "{m:?}");
+        assert_eq!((header.system_id, header.component_id), (1, 191));
+        assert_eq!((f.system_id, f.component_id), (1, 191));
+    }
+    let stats = bridge.capture_stats().unwrap();
+    assert_eq!((stats.dropped, stats.unmatched), (0, 0));
+    assert_eq!(stats.captured, raw.len() as u64);
+    assert_eq!(bridge.counters().bad_crc, 1);
+    // Off by default.
+    let plain = Bridge::connect(fast_config(Peer::new().address()), &v).unwrap();
+    std::thread::sleep(Duration::from_millis(50));
+    assert_eq!(plain.drain_raw(&mut raw), 0);
+    assert_eq!(plain.capture_stats(), None);
 }
 
 #[test]

@@ -317,6 +317,9 @@ pub fn run_rollout_logged(
             Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
         }
     };
+    if let Some(log) = &mut log {
+        episode.log_tick(log, measurement.time_s)?;
+    }
     let limits_n = (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n);
     let has_rotors = !vehicle.rotors.is_empty();
     let max_steps = config.episode.max_steps(task, rate_hz, policy.end_step());
@@ -361,12 +364,21 @@ pub fn run_rollout_logged(
                 termination = Termination::Diverged;
                 break;
             }
-            Err(StepFailure::Link(e)) => return Err(e.into()),
+            Err(StepFailure::Link(e)) => {
+                // The log is closed with what the link has to say (best effort); the link's
+                // error is the one reported.
+                if let Some(mut log) = log {
+                    let _ = episode.log_tick(&mut log, measurement.time_s);
+                    log.finish()?;
+                }
+                return Err(e.into());
+            }
         };
         scene = episode.task();
         steps += 1;
         if let Some(log) = &mut log {
             log.outcome(&measurement)?;
+            episode.log_tick(log, measurement.time_s)?;
         }
         records.push(TrackingRecord {
             ee_desired,

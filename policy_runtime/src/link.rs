@@ -8,6 +8,8 @@
 use platform::{ActuatorCommand, Measurement};
 use sim_twin::{Twin, TwinError};
 
+use crate::flight_log::FlightLog;
+use crate::record::RecordError;
 use crate::stack::TickRecord;
 use crate::state_source::VehicleSensors;
 
@@ -48,6 +50,18 @@ pub trait Link {
     /// instead of simulated sensors. `None` (the default): the link has no sensors of its own.
     fn vehicle_sensors(&self) -> Option<VehicleSensors> {
         None
+    }
+
+    /// Adds the link's own channels to the flight log (through
+    /// [`FlightLog::link_message`]). The flight loop calls it once per measurement it got from
+    /// [`Self::receive`] — the one at the start, then one per tick after that tick's
+    /// `/rotors` — with that measurement's time `time_s`, and once more with the last
+    /// measurement's time before closing the log after a link failure. The default logs
+    /// nothing. The MAVLink link logs `/autopilot/state` and `/mavlink/raw`
+    /// (`docs/mcap-format.md`).
+    fn log_tick(&mut self, log: &mut FlightLog, time_s: f64) -> Result<(), RecordError> {
+        let _ = (log, time_s);
+        Ok(())
     }
 }
 

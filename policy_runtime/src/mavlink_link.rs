@@ -17,17 +17,26 @@
 //!
 //! Dropping the link stops the setpoints and never disarms: the vehicle may be flying, and
 //! the autopilot's offboard-loss failsafe (hold, then land) is the safe end.
+//!
+//! Flight log ([`Link::log_tick`], once per measurement): `/autopilot/state`, the bridge's
+//! view of the autopilot and its counters at the measurement's time; and, when the bridge
+//! captures them ([`BridgeConfig::capture_raw`]), every frame captured since the last call on
+//! `/mavlink/raw`, each at the flight time it carries (`docs/mcap-format.md`).
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use estimator::{ImuSample, OdometryMeasurement, PoseMeasurement};
 use firmware_bridge::{
-    AttitudeSetpoint, Bridge, BridgeConfig, BridgeError, CounterSnapshot, SetpointCodec,
+    AttitudeSetpoint, Bridge, BridgeConfig, BridgeError, CounterSnapshot, RawFrame, SetpointCodec,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use platform::{ActuatorCommand, Measurement, Vehicle};
 
+use crate::flight_log::{
+    AUTOPILOT_STATE_TOPIC, AutopilotStateMessage, FlightLog, MAVLINK_RAW_TOPIC, MavlinkRawFrame,
+};
 use crate::link::{Link, LinkError};
+use crate::record::RecordError;
 use crate::stack::TickRecord;
 use crate::state_source::VehicleSensors;
 
@@ -134,12 +143,16 @@ pub struct MavlinkLink {
     /// Heartbeats received when the start sequence finished: later ones describe the flight.
     heartbeats_at_start: u64,
     ticks: u64,
-    sent_at: Option<std::time::Instant>,
+    sent_at: Option<Instant>,
     round_trips_ns: Vec<u64>,
     /// The rotor thrusts of the last actuator-level command, N (the autopilot reports only
     /// the realised ones).
     commanded_n: Option<Vec<f64>>,
     thrust_range_n: (f64, f64),
+    /// When the link was opened: the origin of `/mavlink/raw`'s wall times.
+    opened_at: Instant,
+    /// Frames drained from the bridge's capture, reused between ticks.
+    raw: Vec<RawFrame>,
 }
 
 impl MavlinkLink {
@@ -151,6 +164,7 @@ impl MavlinkLink {
             config.bridge.target_component,
         )
         .map_err(BridgeError::from)?;
+        let opened_at = Instant::now();
         let bridge = Bridge::connect(config.bridge.clone(), vehicle)?;
         let latest = bridge.next_measurement(
             None,
@@ -169,6 +183,8 @@ impl MavlinkLink {
             round_trips_ns: Vec::new(),
             commanded_n: None,
             thrust_range_n: (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n),
+            opened_at,
+            raw: Vec::new(),
         })
     }
 
@@ -232,7 +248,7 @@ impl MavlinkLink {
         if !self.started {
             self.start(&messages)?;
         }
-        self.sent_at = Some(std::time::Instant::now());
+        self.sent_at = Some(Instant::now());
         self.bridge.send(messages)?;
         self.ticks += 1;
         Ok(())
@@ -385,6 +401,28 @@ impl Link for MavlinkLink {
                 velocity_std_mps: f64::NAN,
             }),
         })
+    }
+
+    fn log_tick(&mut self, log: &mut FlightLog, time_s: f64) -> Result<(), RecordError> {
+        let b = &self.bridge;
+        let state = AutopilotStateMessage::new(
+            &b.autopilot(),
+            b.heartbeat_age(),
+            b.rejected_values(),
+            &b.counters(),
+            b.capture_stats(),
+        );
+        log.link_message(AUTOPILOT_STATE_TOPIC, time_s, &state)?;
+        self.raw.clear();
+        self.bridge.drain_raw(&mut self.raw);
+        for frame in &self.raw {
+            log.link_message(
+                MAVLINK_RAW_TOPIC,
+                frame.flight_time_s,
+                &MavlinkRawFrame::new(frame, self.opened_at),
+            )?;
+        }
+        Ok(())
     }
 }
 

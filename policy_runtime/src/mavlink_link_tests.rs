@@ -316,6 +316,172 @@ fn a_step_flown_over_mavlink_in_lockstep_matches_the_in_process_flight() {
     );
 }
 
+/// Decodes lower-case hex.
+fn from_hex(text: &str) -> Vec<u8> {
+    (0..text.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&text[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+#[test]
+fn a_logged_flight_holds_the_autopilot_state_and_every_frame_an_independent_reader_decodes() {
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("mavlink.mcap");
+    let config = TrackConfig {
+        mcap: Some(path.clone()),
+        settle_s: 0.0,
+        ..track_config(&vehicle, Trajectory::Step, 0.5)
+    };
+    let fixture = fixture(&vehicle, &config.twin, None);
+    let address = Address::Udp {
+        host: "127.0.0.1".into(),
+        port: fixture.port,
+    };
+    let link_config = MavlinkLinkConfig {
+        tick_timeout: Duration::from_secs(5),
+        ..MavlinkLinkConfig::new(
+            BridgeConfig {
+                capture_raw: true,
+                ..BridgeConfig::new(address)
+            },
+            Level::Actuator,
+        )
+    };
+    let stream_count = u64::from(link_config.stream_count);
+    let mut link = MavlinkLink::connect(&vehicle, link_config).unwrap();
+    let result =
+        run_track_with_link(&config, &mut link, |_| std::ops::ControlFlow::Continue(())).unwrap();
+    drop(link);
+    drop(fixture);
+    let ticks = result.ticks;
+    assert_eq!(ticks, 60);
+
+    // Read back with the mcap crate and parse the frames with the mavlink crate.
+    let bytes = std::fs::read(&path).unwrap();
+    let mut states = Vec::new();
+    let mut raw = Vec::new();
+    let mut base_states = std::collections::BTreeMap::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        let value: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+        let schema = m.channel.schema.as_ref().map(|s| s.name.clone());
+        match m.channel.topic.as_str() {
+            "/autopilot/state" => {
+                assert_eq!(schema.as_deref(), Some("amstack.AutopilotState"));
+                states.push((m.log_time, value));
+            }
+            "/mavlink/raw" => {
+                assert_eq!(schema.as_deref(), Some("amstack.MavlinkRaw"));
+                assert_eq!(m.channel.message_encoding, "json");
+                raw.push((m.log_time, value));
+            }
+            "/base/state" => {
+                base_states.insert(m.log_time, value);
+            }
+            _ => {}
+        }
+    }
+    // One state per measurement: the start, then one per tick, at the measurement times.
+    assert_eq!(states.len() as u64, ticks + 1);
+    let times: Vec<u64> = states.iter().map(|(t, _)| *t).collect();
+    // (The autopilot's time_usec: whole microseconds.)
+    let expected: Vec<u64> = (0..=ticks)
+        .map(|k| (k as f64 / 120.0 * 1e6).round() as u64 * 1000)
+        .collect();
+    assert_eq!(times, expected);
+    let (_, last) = states.last().unwrap();
+    assert_eq!(last["mode"], "OFFBOARD", "{last}");
+    assert_eq!(last["main_mode"], 6, "{last}");
+    assert_eq!(last["link"]["bad_crc"], 0, "{last}");
+    assert_eq!(last["link"]["raw_frames_dropped"], 0, "{last}");
+    assert_eq!(last["link"]["raw_frames_unmatched"], 0, "{last}");
+    // Every captured frame is on /mavlink/raw by the end.
+    assert_eq!(
+        last["link"]["raw_frames_captured"].as_u64().unwrap(),
+        raw.len() as u64
+    );
+
+    let mut odometry_in_flight = 0;
+    let mut checked = 0;
+    let mut group0_out = 0;
+    for (log_time, r) in &raw {
+        let frame = from_hex(r["bytes_hex"].as_str().unwrap());
+        let (header, message) = MavlinkReader::new(&frame[..])
+            .read_message::<MavMessage>(MavlinkVersion::V2)
+            .unwrap();
+        assert_eq!(r["message_id"], mavlink::Message::message_id(&message));
+        assert_eq!(r["sequence"], header.sequence);
+        assert_eq!(
+            *log_time,
+            (r["flight_time_s"].as_f64().unwrap() * 1e9).round() as u64
+        );
+        match (r["direction"].as_str().unwrap(), &message) {
+            ("in", MavMessage::ODOMETRY(o)) => {
+                assert_eq!((header.system_id, header.component_id), (1, 1));
+                // Its flight time is its own; the measurement logged at that time came from it.
+                let t = o.time_usec as f64 * 1e-6;
+                assert_eq!(r["flight_time_s"].as_f64().unwrap(), t);
+                if t > 0.0 {
+                    odometry_in_flight += 1;
+                }
+                if let Some(state) = base_states.get(log_time) {
+                    let p = frames::world_from_ned(&Vector3::new(
+                        f64::from(o.x),
+                        f64::from(o.y),
+                        f64::from(o.z),
+                    ));
+                    let logged: Vec<f64> = state["position_m"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .map(|x| x.as_f64().unwrap())
+                        .collect();
+                    assert_eq!(logged, [p.x, p.y, p.z], "at {log_time} ns");
+                    checked += 1;
+                }
+            }
+            ("out", MavMessage::SET_ACTUATOR_CONTROL_TARGET(s)) => {
+                assert_eq!((header.system_id, header.component_id), (1, 191));
+                if s.group_mlx == 0 {
+                    group0_out += 1;
+                }
+            }
+            _ => {}
+        }
+    }
+    // Lockstep: one ODOMETRY per step; one group-0 setpoint per tick plus the start's stream.
+    assert_eq!(odometry_in_flight, ticks);
+    assert_eq!(group0_out, ticks + stream_count);
+    assert!(checked as u64 > ticks, "{checked} ODOMETRY frames checked");
+
+    // compare's signal paths reach the new channel's numbers.
+    let recording = crate::record::Recording::from_bytes(&bytes).unwrap();
+    let frames_ok = crate::validation::signals::resolve(
+        &recording,
+        "mavlink.mcap",
+        "/autopilot/state.link.frames_ok",
+    )
+    .unwrap();
+    let series =
+        crate::validation::signals::extract(&recording, "mavlink.mcap", &frames_ok[0]).unwrap();
+    assert_eq!(series.values.len() as u64, ticks + 1);
+    assert!(series.values.windows(2).all(|w| w[0] <= w[1]));
+    let imu = crate::validation::signals::resolve(
+        &recording,
+        "mavlink.mcap",
+        "/autopilot/state.imu_accel_body_mps2",
+    )
+    .unwrap();
+    assert_eq!(
+        imu.len(),
+        3,
+        "null until a HIGHRES_IMU, still three signals"
+    );
+    assert_eq!(crate::validation::signals::unit_of(&imu[0]), "m/s²");
+}
+
 #[test]
 fn an_autopilot_that_disarms_mid_flight_stops_it_naming_why() {
     let vehicle = Vehicle::builtin("fa-hexa").unwrap();

@@ -266,6 +266,9 @@ pub fn run_track_with_link(
     let mut sums = Sums::default();
     let started = Instant::now();
     let mut measurement = link.receive()?;
+    if let Some(log) = &mut log {
+        link.log_tick(log, measurement.time_s)?;
+    }
     // The controllers' view of the vehicle: the measurement, or the estimator's.
     // A link with sensors of its own (a MAVLink autopilot) feeds the estimator with them.
     let mut estimate = match (&config.state_source, link.vehicle_sensors()) {
@@ -319,8 +322,11 @@ pub fn run_track_with_link(
         measurement = match link.send_tick(&record).and_then(|()| link.receive()) {
             Ok(m) => m,
             Err(e) => {
-                // The world stopped answering (a twin process gone): the log is still closed.
-                if let Some(log) = log {
+                // The world stopped answering (a twin process gone): the log is still closed,
+                // with what the link has to say about it (a MAVLink link: the frames up to the
+                // failure), best effort: the link's error is the one reported.
+                if let Some(mut log) = log {
+                    let _ = link.log_tick(&mut log, measurement.time_s);
                     log.finish()?;
                 }
                 return Err(e.into());
@@ -328,6 +334,7 @@ pub fn run_track_with_link(
         };
         if let Some(log) = &mut log {
             log.outcome(&measurement)?;
+            link.log_tick(log, measurement.time_s)?;
         }
         if let Some(e) = &mut estimate {
             let scored = t + dt >= config.settle_s;

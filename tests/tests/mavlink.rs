@@ -611,11 +611,162 @@ mod bridge {
         assert_eq!(scores["ticks"], reference["ticks"]);
     }
 
+    /// Lower-case hex → bytes.
+    fn from_hex(text: &str) -> Vec<u8> {
+        (0..text.len())
+            .step_by(2)
+            .map(|i| {
+                u8::from_str_radix(&text[i..i + 2], 16)
+                    .unwrap_or_else(|e| panic!("bad hex {text:?}: {e}"))
+            })
+            .collect()
+    }
+
+    /// A message of the log: topic, log time (ns), JSON payload.
+    type Logged = (String, u64, serde_json::Value);
+
+    /// Every message of `path`, read with the `mcap` crate (not amstack's reader); the schema
+    /// names of the MAVLink channels are checked on the way.
+    fn read_mcap(path: &Path) -> Vec<Logged> {
+        let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let stream = mcap::MessageStream::new(&bytes).unwrap_or_else(|e| panic!("{e}"));
+        stream
+            .map(|m| {
+                let m = m.unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                let topic = m.channel.topic.clone();
+                let schema = m.channel.schema.as_ref().map(|s| s.name.clone());
+                match topic.as_str() {
+                    "/autopilot/state" => {
+                        assert_eq!(schema.as_deref(), Some("amstack.AutopilotState"));
+                    }
+                    "/mavlink/raw" => assert_eq!(schema.as_deref(), Some("amstack.MavlinkRaw")),
+                    _ => {}
+                }
+                let value = serde_json::from_slice(&m.data)
+                    .unwrap_or_else(|e| panic!("{topic} is not JSON: {e}"));
+                (topic, m.log_time, value)
+            })
+            .collect()
+    }
+
+    /// What a bridge flight of `ticks` ticks logs of the autopilot and the wire.
+    fn check_the_mavlink_channels(log: &Path, ticks: u64) {
+        use mavlink::dialects::common::MavMessage;
+        let messages = read_mcap(log);
+        let on = |topic: &str| -> Vec<&Logged> {
+            messages.iter().filter(|(t, _, _)| t == topic).collect()
+        };
+        // /autopilot/state: one per measurement (the start, then each tick), at its time.
+        let states = on("/autopilot/state");
+        assert_eq!(states.len() as u64, ticks + 1);
+        let (_, t0, first) = states[0];
+        assert_eq!(
+            (*t0, &first["armed"]),
+            (0, &serde_json::json!(false)),
+            "{first}"
+        );
+        // Armed in OFFBOARD over the whole flight (the start sequence runs before tick 0's
+        // setpoint: every later measurement sees it).
+        for (_, t, s) in &states[1..] {
+            assert!(*t > 0, "{s}");
+            assert_eq!(s["armed"], true, "at {t} ns: {s}");
+            assert_eq!(s["mode"], "OFFBOARD", "at {t} ns: {s}");
+            assert_eq!(s["main_mode"], 6, "at {t} ns: {s}");
+            assert_eq!(s["system_status"], "MAV_STATE_ACTIVE", "at {t} ns: {s}");
+        }
+        let (_, _, last) = states[states.len() - 1];
+        let link = &last["link"];
+        for clean in [
+            "bad_crc",
+            "unknown_id",
+            "truncated",
+            "undecodable",
+            "raw_frames_dropped",
+            "raw_frames_unmatched",
+        ] {
+            assert_eq!(link[clean], 0, "{clean}: {last}");
+        }
+        assert!(last["heartbeats"].as_u64().unwrap_or(0) >= 1, "{last}");
+
+        // /mavlink/raw: every frame, decoded by the mavlink crate's parser.
+        let raw = on("/mavlink/raw");
+        let captured = link["raw_frames_captured"].as_u64().unwrap_or(0);
+        assert!(raw.len() as u64 >= captured && captured > 0, "{last}");
+        let base_states: std::collections::BTreeMap<u64, &serde_json::Value> = on("/base/state")
+            .into_iter()
+            .map(|(_, t, v)| (*t, v))
+            .collect();
+        let mut odometry_in = 0u64;
+        let mut odometry_times = std::collections::BTreeSet::new();
+        let mut checked = 0u64;
+        let (mut group0_out, mut group2_out) = (0u64, 0u64);
+        for (_, t, r) in &raw {
+            let frame = from_hex(r["bytes_hex"].as_str().unwrap_or_default());
+            let (header, message) = mavlink::MavlinkReader::new(&frame[..])
+                .read_message::<MavMessage>(mavlink::MavlinkVersion::V2)
+                .unwrap_or_else(|e| panic!("{r}: the mavlink crate cannot parse it: {e:?}"));
+            assert_eq!(
+                r["message_id"],
+                mavlink::Message::message_id(&message),
+                "{r}"
+            );
+            assert_eq!(r["sequence"], header.sequence, "{r}");
+            let flight_time = r["flight_time_s"].as_f64().unwrap_or(f64::NAN);
+            assert_eq!(*t, (flight_time * 1e9).round() as u64, "{r}");
+            match (r["direction"].as_str(), &message) {
+                (Some("in"), MavMessage::ODOMETRY(o)) => {
+                    assert_eq!((header.system_id, header.component_id), (1, 1), "{r}");
+                    odometry_in += 1;
+                    if o.time_usec > 0 {
+                        odometry_times.insert(o.time_usec);
+                    }
+                    // The measurement logged at the frame's time is the frame's: NED → world
+                    // of its f32 position, exactly.
+                    if let Some(state) = base_states.get(t) {
+                        let logged = &state["position_m"];
+                        let expected = [f64::from(o.y), f64::from(o.x), -f64::from(o.z)];
+                        for (i, e) in expected.iter().enumerate() {
+                            assert_eq!(logged[i].as_f64(), Some(*e), "at {t} ns: {r}");
+                        }
+                        checked += 1;
+                    }
+                }
+                (Some("out"), MavMessage::SET_ACTUATOR_CONTROL_TARGET(s)) => {
+                    assert_eq!((header.system_id, header.component_id), (1, 191), "{r}");
+                    match s.group_mlx {
+                        0 => group0_out += 1,
+                        2 => group2_out += 1,
+                        _ => {}
+                    }
+                }
+                _ => {}
+            }
+        }
+        // Lockstep: one ODOMETRY per step (k/120 s, k = 1 … ticks) besides the standing
+        // twin's at 10 Hz; one setpoint per tick (group 2 then 0, FA-Hexa) after the start's
+        // stream of 6.
+        assert_eq!(
+            odometry_times.len() as u64,
+            ticks,
+            "distinct ODOMETRY times"
+        );
+        assert!(odometry_in >= ticks, "{odometry_in} ODOMETRY frames in");
+        assert!(checked >= ticks, "{checked} ODOMETRY frames checked");
+        assert_eq!(group0_out, ticks + 6, "group 0 setpoints out");
+        assert_eq!(group2_out, ticks + 6, "group 2 setpoints out");
+        eprintln!(
+            "{} frames on /mavlink/raw over {ticks} ticks ({odometry_in} ODOMETRY in)",
+            raw.len()
+        );
+    }
+
     #[test]
     fn a_log_flown_through_the_bridge_replays_in_the_twin() {
         // The flight's MCAP (written by `fly --link mavlink:`) re-flown in the twin from its
         // references: the same plant, so only the wire's f32 separates the two (measured:
-        // 1.2e-7 m RMS in x); bound 1e-5 m.
+        // 1.2e-7 m RMS in x); bound 1e-5 m. The log also holds the autopilot's state and every
+        // frame on the wire (checked with the mcap and mavlink crates and the Python mcap
+        // reader); replay ignores them, compare reads them like any channel.
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
         let port = free_port();
@@ -635,8 +786,46 @@ mod bridge {
             "--mcap",
             &log_arg,
         ]);
-        let (status, _, stderr) = fly(port, &flags, &dir.path().join("fly.json"));
+        let (status, scores, stderr) = fly(port, &flags, &dir.path().join("fly.json"));
         assert!(status.success(), "fly failed:\n{stderr}");
+        let ticks = scores
+            .and_then(|s| s["ticks"].as_u64())
+            .unwrap_or_else(|| panic!("no ticks:\n{stderr}"));
+        assert_eq!(ticks, 360);
+        check_the_mavlink_channels(&log, ticks);
+        let expect = format!("/autopilot/state={}", ticks + 1);
+        let (code, report) = tests::mcap_check(&log, &["--require-complete", "--expect", &expect]);
+        assert_eq!(code, 0, "mcap_check.py: {report}");
+        // compare's signal paths reach the autopilot's numbers.
+        let self_compared = dir.path().join("self.json");
+        let self_arg = self_compared.to_string_lossy().into_owned();
+        let mut compare = Proc::start(
+            "compare",
+            &[
+                "compare",
+                &log_arg,
+                &log_arg,
+                "--signal",
+                "/autopilot/state.link.frames_ok",
+                "--json",
+                &self_arg,
+            ],
+        );
+        assert!(
+            compare.wait().success(),
+            "compare failed:\n{}",
+            compare.stderr()
+        );
+        let report = read_json(&self_compared);
+        assert_eq!(
+            report["signals"][0]["signal"], "/autopilot/state.link.frames_ok",
+            "{report}"
+        );
+        assert_eq!(
+            number(&report["signals"][0]["whole"], "rmse"),
+            0.0,
+            "{report}"
+        );
         let (replayed_arg, compared_arg) = (
             replayed.to_string_lossy().into_owned(),
             compared.to_string_lossy().into_owned(),
@@ -831,11 +1020,12 @@ mod bridge {
     }
 
     /// `fly --trajectory scripted` over `link` at `level`.
-    fn fly_task(link: &str, level: &str, dir: &Path) -> serde_json::Value {
+    fn fly_task(link: &str, level: &str, dir: &Path, extra: &[&str]) -> serde_json::Value {
         let json = dir.join(format!("{level}.json"));
         let mut flags = FLIGHT.to_vec();
         flags.extend_from_slice(TASK);
         flags.extend_from_slice(&["--level", level]);
+        flags.extend_from_slice(extra);
         let (status, result, stderr) = fly_over(link, &flags, &json);
         assert!(status.success(), "fly over {link} failed:\n{stderr}");
         result.unwrap_or_else(|| panic!("no result:\n{stderr}"))
@@ -876,16 +1066,36 @@ mod bridge {
         let port = free_port();
         let twin = autopilot(port, &task_twin_flags());
         let link = format!("mavlink:udp:127.0.0.1:{port}");
-        let actuator = fly_task(&link, "actuator", dir.path());
+        let log = dir.path().join("task.mcap");
+        let log_arg = log.to_string_lossy().into_owned();
+        let actuator = fly_task(&link, "actuator", dir.path(), &["--mcap", &log_arg]);
         drop(twin);
         assert_same_rollout(&actuator, &reference);
+        // Its log, read by an independent reader: the task's state at every step, the
+        // autopilot's at the start and every step.
+        let steps = number(&actuator, "executed_steps") as u64;
+        let (task_states, autopilot_states) = (
+            format!("/task/state={steps}"),
+            format!("/autopilot/state={}", steps + 1),
+        );
+        let (code, report) = tests::mcap_check(
+            &log,
+            &[
+                "--require-complete",
+                "--expect",
+                &task_states,
+                "--expect",
+                &autopilot_states,
+            ],
+        );
+        assert_eq!(code, 0, "{report}");
         // Attitude level: the autopilot's attitude loop and allocation fly the base, so the
         // flight differs, but the task succeeds with the EE on the script within 2 cm on
         // average (measured: 1329 steps against 1328, 0.99 cm).
         let port = free_port();
         let _twin = autopilot(port, &task_twin_flags());
         let link = format!("mavlink:udp:127.0.0.1:{port}");
-        let attitude = fly_task(&link, "attitude", dir.path());
+        let attitude = fly_task(&link, "attitude", dir.path(), &[]);
         assert_eq!(attitude["success"], true, "{attitude}");
         assert_eq!(attitude["criteria"], reference["criteria"], "{attitude}");
         let (a, b) = (
@@ -929,6 +1139,7 @@ mod bridge {
             &format!("mavlink:serial:{bridge_end}:921600"),
             "actuator",
             dir.path(),
+            &[],
         );
         drop(twin);
         drop(cable.stdin.take());

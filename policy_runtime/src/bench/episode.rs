@@ -19,9 +19,11 @@ use firmware_bridge::TaskArray;
 use platform::{ActuatorCommand, Measurement, Vehicle};
 use sim_twin::{TaskId, TaskObservation, TaskSnapshot, TaskStatus, Twin, TwinConfig, TwinError};
 
+use crate::flight_log::FlightLog;
 use crate::ipc_link::{IpcLink, IpcLinkConfig, IpcLinkError};
 use crate::link::{Link, LinkError};
 use crate::mavlink_link::{MavlinkLink, MavlinkLinkConfig};
+use crate::record::RecordError;
 use crate::stack::TickRecord;
 
 /// Where the benchmark's rollouts run.
@@ -204,6 +206,15 @@ impl Episode {
                 }
             }
         })
+    }
+
+    /// Adds the link's own channels to the rollout's log (over MAVLink: `/autopilot/state`,
+    /// `/mavlink/raw`); nothing for the twin.
+    pub(crate) fn log_tick(&mut self, log: &mut FlightLog, time_s: f64) -> Result<(), RecordError> {
+        match self {
+            Self::Mavlink { link, .. } => link.log_tick(log, time_s),
+            _ => Ok(()),
+        }
     }
 
     /// Whether the task's state is observed (always, but over MAVLink from a vehicle that

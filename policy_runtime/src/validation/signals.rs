@@ -309,7 +309,8 @@ fn leaves(value: &Value, prefix: String, out: &mut Vec<String>) {
 }
 
 /// The unit of a signal, from the naming convention of its last field name: `_m` m, `_mps`
-/// m/s, `_rad` rad, `_radps` rad/s, `_n` N, `_nm` N·m, `_ms` ms, `_s` s; `x`/`y`/`z` of a
+/// m/s, `_mps2` m/s², `_rad` rad, `_radps` rad/s, `_n` N, `_nm` N·m, `_ms` ms, `_s` s, `_v`
+/// V; `x`/`y`/`z` of a
 /// Foxglove position or translation m; booleans and quaternion parts have none (`""`).
 pub fn unit_of(path: &SignalPath) -> &'static str {
     let keys: Vec<&str> = path
@@ -325,6 +326,7 @@ pub fn unit_of(path: &SignalPath) -> &'static str {
     };
     for (suffix, unit) in [
         ("_radps", "rad/s"),
+        ("_mps2", "m/s²"),
         ("_mps", "m/s"),
         ("_nm", "N·m"),
         ("_ms", "ms"),
@@ -332,6 +334,7 @@ pub fn unit_of(path: &SignalPath) -> &'static str {
         ("_m", "m"),
         ("_n", "N"),
         ("_s", "s"),
+        ("_v", "V"),
     ] {
         if last.ends_with(suffix) {
             return unit;
