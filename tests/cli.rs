@@ -379,6 +379,40 @@ fn bench_refuses_unknown_names_and_impossible_combinations_listing_the_choices()
         &amstack(&["bench", "--json", "/nonexistent-dir/results.json"]),
         &["--json", "/nonexistent-dir"],
     );
+    // A scripted task flight needs its task, the truth, and an arm for the base-joint
+    // interface; the benchmark does not run over MAVLink and says what does.
+    assert_bad_input(
+        &amstack(&["fly", "--trajectory", "scripted"]),
+        &["--trajectory scripted", "--task"],
+    );
+    assert_bad_input(
+        &amstack(&[
+            "fly",
+            "--trajectory",
+            "scripted",
+            "--task",
+            "push-slider",
+            "--state-source",
+            "estimator",
+        ]),
+        &["--trajectory scripted", "--state-source truth"],
+    );
+    assert_bad_input(
+        &amstack(&[
+            "track",
+            "--trajectory",
+            "scripted",
+            "--task",
+            "push-slider",
+            "--platform",
+            "ee-only",
+        ]),
+        &["--interface base-joint", "ee-only", "--interface ee"],
+    );
+    assert_bad_input(
+        &amstack(&["bench", "--link", "mavlink:udp:127.0.0.1:14540"]),
+        &["--link mavlink:", "--trajectory scripted"],
+    );
 }
 
 #[test]
