@@ -623,7 +623,8 @@ impl Io {
             self.config.component_id,
             self.config.signing.as_ref().map(|s| &s.key),
         );
-        let mut decoder = Decoder::new(self.config.signing.as_ref());
+        let mut decoder =
+            Decoder::new(self.config.signing.as_ref()).keeping_bytes(self.capture.is_some());
         let mut heartbeat = tokio::time::interval(self.config.heartbeat_period);
         heartbeat.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut buf = vec![0u8; 4096];
@@ -646,9 +647,6 @@ impl Io {
                             // listening yet): not fatal on a datagram socket.
                             if let Ok((n, from)) = got {
                                 decoder.push_datagram(&buf[..n], &self.counters, &mut frames);
-                                if let Some(c) = &mut self.capture {
-                                    c.input(&buf[..n], true, Instant::now());
-                                }
                                 let target = u32::from(self.config.target_system);
                                 if *learn_peer && frames.iter().any(|f| f.header.system_id == target) {
                                     *peer = Some(from);
@@ -678,9 +676,6 @@ impl Io {
                                 Ok(0) => tokio::time::sleep(Duration::from_millis(1)).await,
                                 Ok(n) => {
                                     decoder.push_stream(&buf[..n], &self.counters, &mut frames);
-                                    if let Some(c) = &mut self.capture {
-                                        c.input(&buf[..n], false, Instant::now());
-                                    }
                                 }
                                 Err(e) => return Some(format!("read failed: {e}")),
                             }
@@ -691,9 +686,6 @@ impl Io {
             };
             for frame in frames.drain(..) {
                 self.handle(&frame);
-            }
-            if let Some(c) = &mut self.capture {
-                c.settle();
             }
             for message in &to_send {
                 let bytes = encoder.encode(message);

@@ -6,36 +6,25 @@
 //! it ([`crate::Bridge::drain_raw`]) and it is full, the frame is dropped and counted
 //! ([`CaptureStats::dropped`]). Off unless [`crate::BridgeConfig::capture_raw`] is set.
 //!
-//! Frames received: the decoder ([`crate::wire`]) yields parsed frames, not their bytes, so the
-//! capture keeps the bytes it was given (one datagram, or the tail of a byte stream) and finds
-//! each accepted frame in them: the first MAVLink 2 frame from the front whose header (sequence,
-//! system, component, message id) equals the decoded one and whose CRC is valid. Garbage and
-//! refused frames (bad CRC, unknown id, unsigned or forged) are not captured; the counters say
-//! how many there were. A frame that cannot be found (not expected) is counted in
-//! [`CaptureStats::unmatched`] instead of being logged with other bytes.
+//! Frames received are the decoder's ([`crate::wire`]), which keeps each accepted frame's bytes
+//! when the capture is on ([`crate::wire::Decoder::keeping_bytes`]). Garbage and refused frames
+//! (bad CRC, unknown id, unsigned or forged) are not captured; the link's counters say how
+//! many there were.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::time::Instant;
 
+use mavlink::Message;
 use mavlink::dialects::common::MavMessage;
-use mavlink::{MAVLinkV2MessageRaw, Message};
 
 use crate::wire::Frame;
 
-/// MAVLink 2 start-of-frame marker.
-const STX_V2: u8 = 0xFD;
 /// Start byte and header: STX, len, incompat, compat, seq, sysid, compid, msgid×3.
 const HEADER_LEN: usize = 10;
-/// CRC bytes.
-const CRC_LEN: usize = 2;
-/// Signature bytes.
-const SIGNATURE_LEN: usize = 13;
 /// The signed-frame incompatibility flag.
 const IFLAG_SIGNED: u8 = 0x01;
-/// Largest frame, bytes.
-const MAX_FRAME: usize = HEADER_LEN + 255 + CRC_LEN + SIGNATURE_LEN;
 
 /// Which way a frame went.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -61,8 +50,7 @@ impl Direction {
 pub struct RawFrame {
     /// Received or sent.
     pub direction: Direction,
-    /// When the I/O thread received the datagram holding it or the stream chunk completing it
-    /// (in), or sent it (out).
+    /// When the I/O thread decoded it (in) or sent it (out).
     pub at: Instant,
     /// The time of the newest measurement the bridge had assembled then, s (the autopilot's
     /// time of the last ODOMETRY, this frame included; 0 before the first).
@@ -95,15 +83,12 @@ pub struct CaptureStats {
     pub captured: u64,
     /// Frames dropped because the queue was full (the flight side did not drain it).
     pub dropped: u64,
-    /// Accepted frames whose bytes could not be found in the input (not expected).
-    pub unmatched: u64,
 }
 
 #[derive(Debug, Default)]
 struct Counts {
     captured: AtomicU64,
     dropped: AtomicU64,
-    unmatched: AtomicU64,
 }
 
 /// The I/O thread's end.
@@ -111,12 +96,6 @@ struct Counts {
 pub(crate) struct Capture {
     queue: SyncSender<RawFrame>,
     counts: Arc<Counts>,
-    /// Received bytes not yet matched to frames.
-    input: Vec<u8>,
-    /// When `input`'s newest bytes arrived.
-    received_at: Instant,
-    /// Scratch for the CRC check.
-    raw: MAVLinkV2MessageRaw,
 }
 
 /// The flight side's end.
@@ -134,9 +113,6 @@ pub(crate) fn capture(capacity: usize) -> (Capture, CaptureQueue) {
         Capture {
             queue: tx,
             counts: counts.clone(),
-            input: Vec::with_capacity(2 * MAX_FRAME),
-            received_at: Instant::now(),
-            raw: MAVLinkV2MessageRaw::new(),
         },
         CaptureQueue { queue: rx, counts },
     )
@@ -155,59 +131,28 @@ impl CaptureQueue {
         CaptureStats {
             captured: r(&self.counts.captured),
             dropped: r(&self.counts.dropped),
-            unmatched: r(&self.counts.unmatched),
         }
     }
 }
 
 impl Capture {
-    /// Bytes just received: one whole datagram (`datagram`, replacing what was kept: a frame
-    /// never spans datagrams) or the next chunk of a byte stream.
-    pub(crate) fn input(&mut self, bytes: &[u8], datagram: bool, at: Instant) {
-        if datagram {
-            self.input.clear();
-        }
-        self.input.extend_from_slice(bytes);
-        self.received_at = at;
-    }
-
-    /// A frame the decoder accepted from the last input.
+    /// A frame the decoder accepted, its bytes kept ([`Frame::bytes`]; a frame without them
+    /// is not captured).
     pub(crate) fn received(&mut self, frame: &Frame, flight_time_s: f64) {
-        let message_id = frame.message.message_id();
-        let Some((start, end)) = self.locate(frame, message_id) else {
-            self.counts.unmatched.fetch_add(1, Ordering::Relaxed);
-            return;
-        };
-        let bytes = self.input[start..end].to_vec();
-        self.input.drain(..end);
-        self.push(RawFrame {
-            direction: Direction::In,
-            at: self.received_at,
-            flight_time_s,
-            system_id: bytes[5],
-            component_id: bytes[6],
-            sequence: bytes[4],
-            message_id,
-            message_name: frame.message.message_name(),
-            bytes,
-        });
-    }
-
-    /// The input is handled: keep only what may still begin a frame of the next chunk.
-    pub(crate) fn settle(&mut self) {
-        let keep = MAX_FRAME - 1;
-        if self.input.len() > keep {
-            self.input.drain(..self.input.len() - keep);
-        }
+        self.push(Direction::In, &frame.message, &frame.bytes, flight_time_s);
     }
 
     /// A frame the bridge sent (`bytes` as written to the link).
     pub(crate) fn sent(&mut self, message: &MavMessage, bytes: &[u8], flight_time_s: f64) {
+        self.push(Direction::Out, message, bytes, flight_time_s);
+    }
+
+    fn push(&self, direction: Direction, message: &MavMessage, bytes: &[u8], flight_time_s: f64) {
         if bytes.len() < HEADER_LEN {
             return;
         }
-        self.push(RawFrame {
-            direction: Direction::Out,
+        let frame = RawFrame {
+            direction,
             at: Instant::now(),
             flight_time_s,
             system_id: bytes[5],
@@ -216,49 +161,12 @@ impl Capture {
             message_id: message.message_id(),
             message_name: message.message_name(),
             bytes: bytes.to_vec(),
-        });
-    }
-
-    fn push(&self, frame: RawFrame) {
+        };
         let counter = match self.queue.try_send(frame) {
             Ok(()) => &self.counts.captured,
             Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => &self.counts.dropped,
         };
         counter.fetch_add(1, Ordering::Relaxed);
-    }
-
-    /// The byte range of `frame` in the input: the first start byte from the front that begins
-    /// a complete frame with the same header and a valid CRC.
-    fn locate(&mut self, frame: &Frame, message_id: u32) -> Option<(usize, usize)> {
-        let h = &frame.header;
-        let id = message_id.to_le_bytes();
-        let b = &self.input;
-        let mut from = 0;
-        while let Some(offset) = b[from..].iter().position(|&x| x == STX_V2) {
-            let s = from + offset;
-            from = s + 1;
-            // An incomplete header here: no complete frame starts here or later.
-            let head = b.get(s..s + HEADER_LEN)?;
-            let signed = head[2] & IFLAG_SIGNED != 0;
-            let n = HEADER_LEN
-                + usize::from(head[1])
-                + CRC_LEN
-                + if signed { SIGNATURE_LEN } else { 0 };
-            if head[2] & !IFLAG_SIGNED != 0
-                || head[4] != h.sequence
-                || u32::from(head[5]) != h.system_id
-                || head[6] != h.component_id
-                || head[7..10] != id[..3]
-                || s + n > b.len()
-            {
-                continue;
-            }
-            self.raw.as_mut_slice()[..n].copy_from_slice(&b[s..s + n]);
-            if self.raw.has_valid_crc::<MavMessage>() {
-                return Some((s, s + n));
-            }
-        }
-        None
     }
 }
 
@@ -306,7 +214,7 @@ mod tests {
     /// thread does; returns the captured frames.
     fn run(stream: &[u8], chunk: usize, datagram: bool) -> (Vec<RawFrame>, CaptureStats) {
         let counters = Counters::default();
-        let mut decoder = Decoder::new(None);
+        let mut decoder = Decoder::new(None).keeping_bytes(true);
         let (mut capture, queue) = capture(1000);
         let mut frames = Vec::new();
         for piece in stream.chunks(chunk) {
@@ -315,11 +223,9 @@ mod tests {
             } else {
                 decoder.push_stream(piece, &counters, &mut frames);
             }
-            capture.input(piece, datagram, Instant::now());
             for f in frames.drain(..) {
                 capture.received(&f, 0.0);
             }
-            capture.settle();
         }
         let mut out = Vec::new();
         queue.drain(&mut out);
@@ -350,14 +256,13 @@ mod tests {
             stream.extend_from_slice(f);
         }
         // A false start waits for as many bytes as its length byte claims: pad the end.
-        stream.extend_from_slice(&[0; MAX_FRAME]);
+        stream.extend_from_slice(&[0; crate::wire::MAX_FRAME]);
         // Byte by byte, in odd chunks, and all at once.
         for chunk in [1, 7, 64, stream.len()] {
             let (out, stats) = run(&stream, chunk, false);
             let bytes: Vec<Vec<u8>> = out.iter().map(|f| f.bytes.clone()).collect();
             assert_eq!(bytes, good, "chunks of {chunk}");
-            assert_eq!(stats.unmatched, 0);
-            assert_eq!(stats.captured, 20);
+            assert_eq!((stats.captured, stats.dropped), (20, 0));
             for (f, seq) in out.iter().zip(0..) {
                 assert_eq!((f.sequence, f.system_id, f.component_id), (seq, 1, 1));
                 assert_eq!(f.direction, Direction::In);
@@ -381,7 +286,7 @@ mod tests {
         let b = encoder.encode(&MavMessage::HEARTBEAT(HEARTBEAT_DATA::default()));
         let datagram = [&a[..], &[0xAA, 0xBB][..], &b[..]].concat();
         let (out, stats) = run(&datagram, datagram.len(), true);
-        assert_eq!(stats.unmatched, 0);
+        assert_eq!(stats.captured, 2);
         assert_eq!(out.len(), 2);
         assert_eq!(out[0].bytes, a);
         assert_eq!(out[1].bytes, b);
@@ -403,7 +308,6 @@ mod tests {
             CaptureStats {
                 captured: 2,
                 dropped: 3,
-                unmatched: 0
             }
         );
         assert_eq!(out[0].direction, Direction::Out);

@@ -38,7 +38,7 @@ pub mod wire;
 pub use address::Address;
 pub use bridge::{Bridge, BridgeConfig, BridgeError};
 pub use capture::{CaptureStats, Direction, RawFrame};
-pub use setpoint::{AttitudeSetpoint, SetpointCodec, SetpointError};
+pub use setpoint::{ActuatorUpdate, AttitudeSetpoint, SetpointCodec, SetpointError};
 pub use task_array::TaskArray;
 pub use telemetry::{AutopilotState, Telemetry};
 pub use wire::{CounterSnapshot, Signing, SigningKey};

@@ -19,6 +19,11 @@
 //!
 //! A command holding a non-finite number is refused with an error naming the field: the
 //! bridge never sends one.
+//!
+//! **Receiving** (the twin's autopilot; tests): [`SetpointCodec::decode_actuator`] and
+//! [`SetpointCodec::decode_attitude`] invert both with the same layout. A setpoint with a
+//! non-finite or out-of-range value (beyond f32 slack), or for a group the vehicle does not
+//! use, is refused whole; values within range are clamped to their limits.
 
 use mavlink::dialects::common::{
     AttitudeTargetTypemask, MavMessage, SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA,
@@ -51,6 +56,22 @@ pub enum SetpointError {
     /// The command does not match the vehicle.
     #[error("setpoint does not fit the vehicle: {0}")]
     Shape(String),
+    /// A received setpoint is refused (the receiver's side).
+    #[error("setpoint refused: {0}")]
+    Refused(String),
+}
+
+/// Slack on the [−1, 1] and [0, 1] ranges before a received control counts as out of range
+/// (f32 rounding of a sender at the limits).
+const RANGE_SLACK: f32 = 1e-3;
+
+/// What one received SET_ACTUATOR_CONTROL_TARGET commanded.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ActuatorUpdate {
+    /// Group 0: the rotor thrusts, N; a control tick is complete.
+    Motors(Vec<f64>),
+    /// Group 1 or 2: joint targets updated.
+    Joints,
 }
 
 /// One linear channel: a configuration index and the range mapped onto [−1, 1].
@@ -381,51 +402,138 @@ impl SetpointCodec {
         ])
     }
 
-    /// Rotor thrusts, N, from a group-0 message's controls (the receiver's side).
-    pub fn thrusts_from_controls(&self, controls: &[f32; 8]) -> Vec<f64> {
-        controls
-            .iter()
-            .take(self.rotor_count)
-            .map(|&u| self.curve.thrust_n(f64::from(u)))
-            .collect()
-    }
-
-    /// Writes the joint targets a group-1 or group-2 message commands into `joint_targets`
-    /// (configuration order; the receiver's side). Other groups leave it unchanged.
-    pub fn joint_targets_from_controls(
+    /// Decodes one SET_ACTUATOR_CONTROL_TARGET (the receiver's side): group 0 → rotor thrusts
+    /// through the thrust curve; groups 1 and 2 → their joints' targets in `joint_targets`
+    /// (configuration order), which is left unchanged when the message is refused.
+    pub fn decode_actuator(
         &self,
-        group: u8,
-        controls: &[f32; 8],
+        data: &SET_ACTUATOR_CONTROL_TARGET_DATA,
         joint_targets: &mut [f64],
-    ) {
-        let mut set = |dof: usize, v: f64| {
-            if let Some(q) = joint_targets.get_mut(dof) {
-                *q = v;
+    ) -> Result<ActuatorUpdate, SetpointError> {
+        let refuse = |why: String| Err(SetpointError::Refused(why));
+        let group = data.group_mlx;
+        if let Some(c) = data.controls.iter().find(|c| !c.is_finite()) {
+            return refuse(format!("group {group}: control {c} not finite"));
+        }
+        let in_unit = |c: &f32| (-1.0 - RANGE_SLACK..=1.0 + RANGE_SLACK).contains(c);
+        let mut set = |ch: &Channel, c: f32| {
+            if let Some(q) = joint_targets.get_mut(ch.dof) {
+                *q = ch.position_of(c);
             }
         };
         match group {
-            GROUP_TILT => {
-                for (ch, &c) in self.tilts.iter().zip(controls) {
-                    set(ch.dof, ch.position_of(c));
+            GROUP_MOTORS => {
+                let controls = &data.controls[..self.rotor_count.min(CONTROLS_PER_GROUP)];
+                if let Some(u) = controls
+                    .iter()
+                    .find(|&&u| !(-RANGE_SLACK..=1.0 + RANGE_SLACK).contains(&u))
+                {
+                    return refuse(format!("group 0: motor command {u} outside [0, 1]"));
                 }
+                Ok(ActuatorUpdate::Motors(
+                    controls
+                        .iter()
+                        .map(|&u| self.curve.thrust_n(f64::from(u).clamp(0.0, 1.0)))
+                        .collect(),
+                ))
+            }
+            GROUP_TILT if self.has_tilt() => {
+                let controls = &data.controls[..self.tilts.len()];
+                if let Some(c) = controls.iter().find(|c| !in_unit(c)) {
+                    return refuse(format!("group 1: control {c} outside [-1, 1]"));
+                }
+                for (ch, &c) in self.tilts.iter().zip(controls) {
+                    set(ch, c);
+                }
+                Ok(ActuatorUpdate::Joints)
             }
             GROUP_ARM => {
+                let used = self.arm.len() + usize::from(self.gripper.is_some());
+                let controls = &data.controls[..used];
+                if let Some(c) = controls.iter().find(|c| !in_unit(c)) {
+                    return refuse(format!("group 2: control {c} outside [-1, 1]"));
+                }
                 for (ch, &c) in self.arm.iter().zip(controls) {
-                    set(ch.dof, ch.position_of(c));
+                    set(ch, c);
                 }
                 if let Some(g) = &self.gripper {
                     let c = controls[self.arm.len()];
                     for &(dof, closed, open) in &g.fingers {
-                        let ch = Channel {
+                        let finger = Channel {
                             dof,
                             lower: closed,
                             upper: open,
                         };
-                        set(dof, ch.position_of(c));
+                        set(&finger, c);
                     }
                 }
+                Ok(ActuatorUpdate::Joints)
             }
-            _ => {}
+            g => refuse(format!("group {g}: not used by this vehicle")),
         }
+    }
+
+    /// Decodes one SET_ATTITUDE_TARGET (the receiver's side): the attitude, the body force
+    /// (`thrust_body` × rotor count × T_max; without `thrust_body`, the collective `thrust`
+    /// along body up, as PX4 takes it for a multicopter) and the body rates (ignored ones 0).
+    pub fn decode_attitude(
+        &self,
+        data: &SET_ATTITUDE_TARGET_DATA,
+    ) -> Result<AttitudeSetpoint, SetpointError> {
+        let refuse = |why: String| Err(SetpointError::Refused(why));
+        if data
+            .type_mask
+            .contains(AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE)
+        {
+            return refuse("attitude ignored by type_mask: an attitude is needed".to_owned());
+        }
+        let Some(ned_from_frd) = frames::quaternion_from_mavlink(data.q) else {
+            return refuse(format!("q {:?} is not a unit quaternion", data.q));
+        };
+        let mut thrust: Vector3<f64> =
+            Vector3::from_iterator(data.thrust_body.iter().map(|&t| f64::from(t)));
+        if thrust == Vector3::zeros() && data.thrust != 0.0 {
+            thrust = Vector3::new(0.0, 0.0, -f64::from(data.thrust));
+        }
+        if thrust
+            .iter()
+            .any(|t| !t.is_finite() || t.abs() > 1.0 + f64::from(RANGE_SLACK))
+        {
+            return refuse(format!(
+                "thrust_body {:?} (thrust {}) outside [-1, 1]",
+                data.thrust_body, data.thrust
+            ));
+        }
+        let mask = data.type_mask;
+        let rate = |v: f32, ignore: AttitudeTargetTypemask| {
+            if mask.contains(ignore) {
+                0.0
+            } else {
+                f64::from(v)
+            }
+        };
+        let rates_frd = Vector3::new(
+            rate(
+                data.body_roll_rate,
+                AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE,
+            ),
+            rate(
+                data.body_pitch_rate,
+                AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE,
+            ),
+            rate(
+                data.body_yaw_rate,
+                AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE,
+            ),
+        );
+        if rates_frd.iter().any(|r| !r.is_finite()) {
+            return refuse(format!("body rates {rates_frd:?} not finite"));
+        }
+        let scale = self.rotor_count as f64 * self.thrust_max_n;
+        Ok(AttitudeSetpoint {
+            world_from_body: frames::world_from_body_attitude(&ned_from_frd),
+            force_in_body_n: frames::flu_from_frd(&thrust.map(|t| t.clamp(-1.0, 1.0))) * scale,
+            body_rates_radps: Some(frames::flu_from_frd(&rates_frd)),
+        })
     }
 }

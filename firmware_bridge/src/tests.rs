@@ -7,9 +7,9 @@ use std::net::UdpSocket;
 use std::time::Duration;
 
 use mavlink::dialects::common::{
-    ACTUATOR_OUTPUT_STATUS_DATA, COMMAND_ACK_DATA, DEBUG_FLOAT_ARRAY_DATA, HEARTBEAT_DATA,
-    MavAutopilot, MavCmd, MavFrame, MavMessage, MavModeFlag, MavResult, MavState, MavType,
-    ODOMETRY_DATA,
+    ACTUATOR_OUTPUT_STATUS_DATA, AttitudeTargetTypemask, COMMAND_ACK_DATA, DEBUG_FLOAT_ARRAY_DATA,
+    HEARTBEAT_DATA, MavAutopilot, MavCmd, MavFrame, MavMessage, MavModeFlag, MavResult, MavState,
+    MavType, ODOMETRY_DATA, SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA,
 };
 use mavlink::{MavHeader, MavlinkReader, MavlinkVersion, SigningConfig, SigningData};
 use nalgebra::{UnitQuaternion, Vector3};
@@ -18,7 +18,7 @@ use platform::{ActuatorCommand, Vehicle};
 use crate::address::Address;
 use crate::bridge::{Bridge, BridgeConfig, BridgeError};
 use crate::capture::{Direction, RawFrame};
-use crate::setpoint::{AttitudeSetpoint, SetpointCodec, SetpointError};
+use crate::setpoint::{ActuatorUpdate, AttitudeSetpoint, SetpointCodec, SetpointError};
 use crate::telemetry::{Telemetry, px4_mode};
 use crate::wire::{CounterSnapshot, Counters, Decoder, Encoder, Signing, SigningKey};
 
@@ -31,6 +31,17 @@ fn hover_command(v: &Vehicle, thrust_n: f64) -> ActuatorCommand {
         rotor_thrusts_n: vec![thrust_n; v.rotors.len()],
         joint_targets: v.initial_configuration(),
         direct_wrench_in_body: None,
+    }
+}
+
+/// A SET_ACTUATOR_CONTROL_TARGET of group `group` with `controls`, as received.
+fn target(group: u8, controls: [f32; 8]) -> SET_ACTUATOR_CONTROL_TARGET_DATA {
+    SET_ACTUATOR_CONTROL_TARGET_DATA {
+        time_usec: 0,
+        controls,
+        group_mlx: group,
+        target_system: 1,
+        target_component: 1,
     }
 }
 
@@ -68,7 +79,13 @@ fn half_thrust_on_the_fa_hexa_curve_is_the_root_of_the_quadratic() {
     }
     assert_eq!(&motors[6..], &[0.0, 0.0]);
     // And back: the receiver's thrusts are 11.5 N within f32 precision.
-    for t in codec.thrusts_from_controls(&motors) {
+    let mut q = v.initial_configuration();
+    let Ok(ActuatorUpdate::Motors(thrusts)) = codec.decode_actuator(&target(0, motors), &mut q)
+    else {
+        panic!("group 0 completes a tick");
+    };
+    assert_eq!(thrusts.len(), 6);
+    for t in thrusts {
         assert!((t - 11.5).abs() < 1e-5, "{t}");
     }
     for m in &msgs {
@@ -129,7 +146,10 @@ fn arm_joints_and_gripper_map_linearly_onto_minus_one_to_one() {
     }
     // Back to joint targets: the same positions.
     let mut back = vec![f64::NAN; c.joint_targets.len()];
-    codec.joint_targets_from_controls(2, &arm.1, &mut back);
+    assert_eq!(
+        codec.decode_actuator(&target(2, arm.1), &mut back),
+        Ok(ActuatorUpdate::Joints)
+    );
     for &(dof, ..) in &limits {
         assert!((back[dof] - c.joint_targets[dof]).abs() < 1e-6);
     }
@@ -1075,7 +1095,7 @@ fn the_capture_hands_over_every_frame_in_and_out_as_it_was_on_the_wire() {
         assert_eq!((f.system_id, f.component_id), (1, 191));
     }
     let stats = bridge.capture_stats().unwrap();
-    assert_eq!((stats.dropped, stats.unmatched), (0, 0));
+    assert_eq!(stats.dropped, 0);
     assert_eq!(stats.captured, raw.len() as u64);
     assert_eq!(bridge.counters().bad_crc, 1);
     // Off by default.
@@ -1241,4 +1261,132 @@ fn the_bridge_works_over_a_pseudo_terminal_pair() {
     let device = name_rx.recv().unwrap();
     let address = Address::parse(&format!("serial:{device}:921600")).unwrap();
     fly_the_peer(fast_config(address), peer);
+}
+
+// ---------------------------------------------------------------- setpoints received
+
+#[test]
+fn received_motor_commands_follow_the_thrust_curve_and_bad_ones_are_refused() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    let curve = v.rotors.thrust_curve;
+    let mut q = v.initial_configuration();
+    let controls = [0.0, 0.25, 0.5, 0.75, 1.0, 0.5, 0.0, 0.0];
+    let Ok(ActuatorUpdate::Motors(t)) = codec.decode_actuator(&target(0, controls), &mut q) else {
+        panic!("group 0 completes a tick");
+    };
+    assert_eq!(t.len(), 6);
+    assert!((t[0] - curve.thrust_min_n).abs() < 1e-12);
+    assert!((t[4] - curve.thrust_max_n).abs() < 1e-12);
+    // Round trip through the inverse curve.
+    assert!((curve.command(t[2]) - 0.5).abs() < 1e-6);
+    assert!(codec.decode_actuator(&target(0, [1.5; 8]), &mut q).is_err());
+    assert!(
+        codec
+            .decode_actuator(&target(0, [f32::NAN; 8]), &mut q)
+            .is_err()
+    );
+}
+
+#[test]
+fn received_arm_and_gripper_controls_are_linear_over_their_limits() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    let mut q = v.initial_configuration();
+    // Arm joint 0 at −1 → its lower limit, joint 1 at +1 → its upper limit, the gripper
+    // (after the arm's joints) at +1 → open.
+    let n = v.arm_joints.len();
+    let mut controls = [0.0f32; 8];
+    controls[0] = -1.0;
+    controls[1] = 1.0;
+    controls[n] = 1.0;
+    assert_eq!(
+        codec.decode_actuator(&target(2, controls), &mut q),
+        Ok(ActuatorUpdate::Joints)
+    );
+    let j0 = &v.model.joints[v.arm_joints[0]];
+    let j1 = &v.model.joints[v.arm_joints[1]];
+    assert!((q[j0.dof.unwrap()] - j0.limits.unwrap().lower).abs() < 1e-9);
+    assert!((q[j1.dof.unwrap()] - j1.limits.unwrap().upper).abs() < 1e-9);
+    let g = v.gripper.as_ref().unwrap();
+    for (k, &j) in g.joints.iter().enumerate() {
+        assert!((q[v.model.joints[j].dof.unwrap()] - g.open[k]).abs() < 1e-9);
+    }
+    // Out of range: refused whole, the targets untouched.
+    let before = q.clone();
+    controls[0] = 1.5;
+    assert!(codec.decode_actuator(&target(2, controls), &mut q).is_err());
+    assert_eq!(q, before);
+    // The FA-Hexa has no tilt servos: group 1 is refused.
+    assert!(codec.decode_actuator(&target(1, [0.0; 8]), &mut q).is_err());
+}
+
+#[test]
+fn received_omni_hexa_tilts_use_group_1() {
+    let v = vehicle("omni-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    assert!(codec.has_tilt());
+    let mut q = v.initial_configuration();
+    codec.decode_actuator(&target(1, [1.0; 8]), &mut q).unwrap();
+    let t = v.rotors.rotors[0].tilt.as_ref().unwrap();
+    let dof = v.model.joints[v.model.joint_id(&t.joint).unwrap()]
+        .dof
+        .unwrap();
+    assert!((q[dof] - t.limits_rad.1).abs() < 1e-9);
+}
+
+#[test]
+fn a_received_attitude_target_converts_frames() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    // PX4 level, facing north (identity NED←FRD) = amstack yaw +90°; thrust straight up
+    // (FRD −z) at 0.5 of the vehicle's total → FLU +z.
+    let data = SET_ATTITUDE_TARGET_DATA {
+        time_boot_ms: 0,
+        q: [1.0, 0.0, 0.0, 0.0],
+        body_roll_rate: 0.1,
+        body_pitch_rate: 0.0,
+        body_yaw_rate: 0.0,
+        thrust: 0.0,
+        target_system: 1,
+        target_component: 1,
+        type_mask: AttitudeTargetTypemask::empty(),
+        thrust_body: [0.0, 0.0, -0.5],
+    };
+    let sp = codec.decode_attitude(&data).unwrap();
+    let north = UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+    assert!(sp.world_from_body.angle_to(&north) < 1e-6);
+    let total = 6.0 * v.rotors.thrust_max_n;
+    assert!((sp.force_in_body_n - Vector3::new(0.0, 0.0, 0.5 * total)).norm() < 1e-6);
+    let rates = sp.body_rates_radps.unwrap();
+    assert!((rates - Vector3::new(0.1, 0.0, 0.0)).norm() < 1e-6);
+    let bad = SET_ATTITUDE_TARGET_DATA {
+        q: [0.0; 4],
+        ..data.clone()
+    };
+    assert!(codec.decode_attitude(&bad).is_err());
+    // Without thrust_body, the collective thrust pushes along body up.
+    let collective = SET_ATTITUDE_TARGET_DATA {
+        thrust: 0.25,
+        thrust_body: [0.0; 3],
+        ..data.clone()
+    };
+    let sp = codec.decode_attitude(&collective).unwrap();
+    assert!((sp.force_in_body_n - Vector3::new(0.0, 0.0, 0.25 * total)).norm() < 1e-6);
+    // What the codec sends, it reads back.
+    let sent = AttitudeSetpoint {
+        world_from_body: UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
+        force_in_body_n: Vector3::new(1.0, -2.0, 60.0),
+        body_rates_radps: Some(Vector3::new(0.3, 0.0, -0.1)),
+    };
+    let msgs = codec
+        .attitude_messages(0, &hover_command(&v, 0.0), &sent)
+        .unwrap();
+    let Some(MavMessage::SET_ATTITUDE_TARGET(d)) = msgs.last() else {
+        panic!("attitude target last");
+    };
+    let back = codec.decode_attitude(d).unwrap();
+    assert!(back.world_from_body.angle_to(&sent.world_from_body) < 1e-6);
+    assert!((back.force_in_body_n - sent.force_in_body_n).norm() < 1e-4);
+    assert!((back.body_rates_radps.unwrap() - Vector3::new(0.3, 0.0, -0.1)).norm() < 1e-6);
 }

@@ -238,6 +238,9 @@ pub struct Frame {
     pub header: MavHeader,
     /// The message.
     pub message: MavMessage,
+    /// The frame as it was on the wire (start byte to CRC, and the signature when signed)
+    /// from a decoder that keeps them ([`Decoder::keeping_bytes`]); empty otherwise.
+    pub bytes: Vec<u8>,
 }
 
 /// The decoder of one link: the bytes of a stream not yet parsed, and signing.
@@ -246,6 +249,8 @@ pub struct Decoder {
     pending: Vec<u8>,
     signing: Option<SigningData>,
     require_signing: bool,
+    /// Whether accepted frames keep their bytes ([`Frame::bytes`]).
+    keep_bytes: bool,
 }
 
 impl std::fmt::Debug for Decoder {
@@ -279,7 +284,15 @@ impl Decoder {
                 SigningData::from_config(config)
             }),
             require_signing: signing.is_some_and(|s| s.require),
+            keep_bytes: false,
         }
+    }
+
+    /// With `keep`, every accepted frame carries its bytes as they were on the wire
+    /// ([`Frame::bytes`]: the flight log's `/mavlink/raw`).
+    pub fn keeping_bytes(mut self, keep: bool) -> Self {
+        self.keep_bytes = keep;
+        self
     }
 
     /// Feeds bytes from a stream (TCP, serial): an incomplete frame at the end waits for
@@ -395,6 +408,11 @@ impl Decoder {
                         sequence: raw.sequence(),
                     },
                     message,
+                    bytes: if self.keep_bytes {
+                        b.to_vec()
+                    } else {
+                        Vec::new()
+                    },
                 });
             }
             Err(_) => bump(&counters.undecodable),

@@ -96,6 +96,22 @@ impl Vehicle {
             .collect()
     }
 
+    /// Configuration indices of the tilt hinges, in rotor order (rotors without a tilt
+    /// hinge skipped).
+    pub fn tilt_dofs(&self) -> Vec<usize> {
+        self.rotors
+            .rotors
+            .iter()
+            .filter_map(|r| {
+                r.tilt
+                    .as_ref()
+                    .and_then(|t| self.model.joint_id(&t.joint))
+                    .and_then(|j| self.model.joints.get(j))
+                    .and_then(|j| j.dof)
+            })
+            .collect()
+    }
+
     /// The end-effector link frame in the base frame at configuration `q`.
     pub fn base_from_ee(&self, q: &[f64]) -> Isometry3<f64> {
         self.model.root_from_link(q, self.ee_link)

@@ -22,7 +22,6 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Instant;
 
-use allocation::AllocationMethod;
 use controllers::ControllerConfig;
 use nalgebra::{Isometry3, Quaternion, UnitQuaternion};
 use platform::Vehicle;
@@ -41,7 +40,7 @@ use crate::metrics::{
     CriteriaLatch, RolloutSummary, RunSummary, TrackingRecord, summarize_rollout, summarize_run,
 };
 use crate::record::{McapRecorder, RecordError, RunMetadata};
-use crate::stack::{Action, EeTarget, FlightStack, StackError, ThrustLimits};
+use crate::stack::{Action, EeTarget, FlightStack, StackError};
 use crate::task_policies::{PolicyContext, gripper_override, scripted};
 use crate::track::Interface;
 
@@ -264,21 +263,9 @@ pub fn run_rollout_logged(
         seed,
         ..config.twin.clone()
     };
-    let dt = twin_config.control_dt_s();
     let rate_hz = twin_config.control_rate_hz;
     let mut episode = Episode::open(&config.link, vehicle, &twin_config)?;
-    let limits = if config.twin.disturbances.saturation {
-        ThrustLimits::Enforced
-    } else {
-        ThrustLimits::Ideal
-    };
-    let mut stack = FlightStack::new(
-        vehicle.clone(),
-        &config.controller,
-        AllocationMethod::PseudoInverse,
-        limits,
-        dt,
-    )?;
+    let mut stack = FlightStack::for_twin(vehicle.clone(), &config.controller, &twin_config)?;
     let mut measurement = episode.measurement()?;
     stack.reset_at(&measurement.base, &measurement.joint_positions);
     let mut scene = episode.task();

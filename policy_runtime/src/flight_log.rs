@@ -447,8 +447,6 @@ pub struct LinkCounters {
     pub raw_frames_captured: u64,
     /// Frames the capture dropped because its queue was full (not on `/mavlink/raw`).
     pub raw_frames_dropped: u64,
-    /// Accepted frames whose bytes the capture could not find (not on `/mavlink/raw`).
-    pub raw_frames_unmatched: u64,
 }
 
 fn v3_option(v: Option<&nalgebra::Vector3<f64>>) -> [Option<f64>; 3] {
@@ -493,7 +491,6 @@ impl AutopilotStateMessage {
                 undecodable: counters.undecodable,
                 raw_frames_captured: capture.captured,
                 raw_frames_dropped: capture.dropped,
-                raw_frames_unmatched: capture.unmatched,
             },
         }
     }

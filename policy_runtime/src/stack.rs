@@ -10,6 +10,7 @@ use controllers::{
 use nalgebra::Isometry3;
 use platform::{ActuatorCommand, Measurement, RigidBodyState, Vehicle, Wrench};
 use serde::Serialize;
+use sim_twin::{TiltThrust, TwinConfig};
 
 /// What the flight stack is asked to do at one tick: the base + arm-joint interface.
 /// (The end-effector interface maps onto this through whole-body IK.)
@@ -178,17 +179,7 @@ impl FlightStack {
         let gripper_dofs = vehicle.gripper.as_ref().map_or_else(Vec::new, |g| {
             g.joints.iter().filter_map(|&j| dof_of(j)).collect()
         });
-        let tilt_dofs: Vec<usize> = vehicle
-            .rotors
-            .rotors
-            .iter()
-            .filter_map(|r| {
-                r.tilt
-                    .as_ref()
-                    .and_then(|t| vehicle.model.joint_id(&t.joint))
-                    .and_then(dof_of)
-            })
-            .collect();
+        let tilt_dofs = vehicle.tilt_dofs();
         let vehicle_initial = vehicle.initial_configuration();
         // The vehicle's IK profile: the EE interface's solver, and the margin the base keeps
         // from obstacle faces (also for the MPC, which has no IK).
@@ -254,6 +245,30 @@ impl FlightStack {
     /// joint interface of the scripted policies, converted as the reference does).
     pub fn ee_to_base_joint_target(&mut self, ee: &EeTarget) -> BaseJointTarget {
         self.ee_to_base_joint(ee).0
+    }
+
+    /// The stack that flies the twin of `twin` (in this process or over a link): the
+    /// pseudo-inverse allocator, the rotor limits the twin enforces (ideal unbounded rotors
+    /// unless `saturation` is on), the twin's control period, and the tilt projection where its
+    /// tilting rotors push along the measured hinge angle.
+    pub fn for_twin(
+        vehicle: Vehicle,
+        config: &ControllerConfig,
+        twin: &TwinConfig,
+    ) -> Result<Self, StackError> {
+        let limits = if twin.disturbances.saturation {
+            ThrustLimits::Enforced
+        } else {
+            ThrustLimits::Ideal
+        };
+        Ok(Self::new(
+            vehicle,
+            config,
+            AllocationMethod::PseudoInverse,
+            limits,
+            twin.control_dt_s(),
+        )?
+        .with_tilt_projection(twin.tilt_thrust == TiltThrust::Measured))
     }
 
     /// Whether each tilting rotor's thrust is projected on its measured direction (for links

@@ -16,7 +16,6 @@ use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use allocation::AllocationMethod;
 use controllers::ControllerConfig;
 use nalgebra::{Isometry3, Quaternion, UnitQuaternion};
 use platform::Vehicle;
@@ -29,7 +28,7 @@ use sim_twin::{Twin, TwinConfig};
 use crate::flight_log::{FlightLog, rotors_saturated};
 use crate::link::{Link, LinkError, TwinLink};
 use crate::record::{McapRecorder, RecordError, RunMetadata};
-use crate::stack::{Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits};
+use crate::stack::{Action, BaseJointTarget, EeTarget, FlightStack, StackError};
 use crate::state_source::{
     EstimateError, EstimatorSummary, StateEstimate, StateSource, VehicleSensors,
 };
@@ -229,19 +228,7 @@ pub fn run_track_with_link(
     validate(config)?;
     let vehicle = &config.vehicle;
     let dt = config.twin.control_dt_s();
-    let limits = if config.twin.disturbances.saturation {
-        ThrustLimits::Enforced
-    } else {
-        ThrustLimits::Ideal
-    };
-    let mut stack = FlightStack::new(
-        vehicle.clone(),
-        &config.controller,
-        AllocationMethod::PseudoInverse,
-        limits,
-        dt,
-    )?
-    .with_tilt_projection(config.twin.tilt_thrust == sim_twin::TiltThrust::Measured);
+    let mut stack = FlightStack::for_twin(vehicle.clone(), &config.controller, &config.twin)?;
     let mut log = match &config.mcap {
         None => None,
         Some(path) => {

@@ -682,7 +682,6 @@ mod bridge {
             "truncated",
             "undecodable",
             "raw_frames_dropped",
-            "raw_frames_unmatched",
         ] {
             assert_eq!(link[clean], 0, "{clean}: {last}");
         }

@@ -46,15 +46,9 @@ fn scripted_start(
         seed,
         ..TwinConfig::default()
     };
+    let mut stack = FlightStack::for_twin(cfg.vehicle.clone(), &cfg.controller, &twin_config)
+        .unwrap_or_else(|e| panic!("{e}"));
     let twin = Twin::new(cfg.vehicle.clone(), twin_config).unwrap_or_else(|e| panic!("{e}"));
-    let mut stack = FlightStack::new(
-        cfg.vehicle.clone(),
-        &cfg.controller,
-        AllocationMethod::PseudoInverse,
-        ThrustLimits::Ideal,
-        1.0 / 120.0,
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
     let m = twin.truth().clone();
     stack.reset_at(&m.base, &m.joint_positions);
     let ctx = PolicyContext {

@@ -21,7 +21,6 @@
 
 use std::path::PathBuf;
 
-use allocation::AllocationMethod;
 use controllers::{ControllerConfig, ControllerKind, InputHealth};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use platform::{ActuatorCommand, Measurement, Vehicle, Wrench};
@@ -34,9 +33,7 @@ use crate::link::{Link, LinkError, TwinLink};
 use crate::metrics::CriteriaLatch;
 use crate::record::foxglove::PoseInFrame;
 use crate::record::{McapRecorder, RecordError, RecordedMessage, RunMetadata};
-use crate::stack::{
-    Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits, TickRecord,
-};
+use crate::stack::{Action, BaseJointTarget, EeTarget, FlightStack, StackError, TickRecord};
 
 /// What a replay feeds the twin.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -509,20 +506,7 @@ pub fn replay_flight(
             .fold(0.0, f64::max)
     });
     let mut link = TwinLink::new(twin);
-    let dt = config.twin.control_dt_s();
-    let limits = if config.twin.disturbances.saturation {
-        ThrustLimits::Enforced
-    } else {
-        ThrustLimits::Ideal
-    };
-    let mut stack = FlightStack::new(
-        vehicle.clone(),
-        &config.controller,
-        AllocationMethod::PseudoInverse,
-        limits,
-        dt,
-    )?
-    .with_tilt_projection(config.twin.tilt_thrust == sim_twin::TiltThrust::Measured);
+    let mut stack = FlightStack::for_twin(vehicle.clone(), &config.controller, &config.twin)?;
     let mut run = RunMetadata::new(&vehicle.id, config.controller.name(), config.twin.seed)
         .with_trajectory(format!(
             "replay-{}:{}",

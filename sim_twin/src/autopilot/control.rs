@@ -4,19 +4,9 @@
 
 use allocation::{Allocation, AllocationMethod, Allocator};
 use controllers::{BaseController, BodyParams, ControllerConfig, ControllerKind, attitude_error};
+use firmware_bridge::AttitudeSetpoint;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use platform::{ActuatorCommand, GRAVITY_MPS2, Measurement, Vehicle, Wrench};
-
-/// An attitude-level setpoint in amstack's frames.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AttitudeSetpoint {
-    /// Desired attitude, `world_from_body`.
-    pub world_from_body: UnitQuaternion<f64>,
-    /// Desired body force, FLU, N.
-    pub force_in_body_n: Vector3<f64>,
-    /// Feed-forward body rates, FLU, rad/s.
-    pub rates_in_body_radps: Vector3<f64>,
-}
 
 /// The internal controller and the attitude loop of one vehicle.
 #[derive(Debug)]
@@ -53,18 +43,7 @@ impl Control {
         )
         .map_err(|e| format!("{}: allocation: {e}", vehicle.id))?;
         let allocation = allocator.new_allocation();
-        let tilt_dofs: Vec<usize> = vehicle
-            .rotors
-            .rotors
-            .iter()
-            .filter_map(|r| {
-                r.tilt
-                    .as_ref()
-                    .and_then(|t| vehicle.model.joint_id(&t.joint))
-                    .and_then(|j| vehicle.model.joints.get(j))
-                    .and_then(|j| j.dof)
-            })
-            .collect();
+        let tilt_dofs = vehicle.tilt_dofs();
         Ok(Self {
             body,
             controller,
@@ -111,7 +90,8 @@ impl Control {
         let r_d = setpoint.world_from_body.to_rotation_matrix().into_inner();
         let e_r = attitude_error(&r, &r_d);
         // Desired rates are given in the desired body frame; expressed in the current one.
-        let omega_d = r.transpose() * r_d * setpoint.rates_in_body_radps;
+        let rates = setpoint.body_rates_radps.unwrap_or_else(Vector3::zeros);
+        let omega_d = r.transpose() * r_d * rates;
         let omega = base.angular_velocity_in_body_radps;
         let e_omega = omega - omega_d;
         let j = self.body.inertia_kgm2;

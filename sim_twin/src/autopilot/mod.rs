@@ -6,7 +6,7 @@
 //! | file | concept |
 //! |---|---|
 //! | [`modes`] | PX4 custom modes, the commander: arming, mode switches, offboard-loss failsafe |
-//! | [`setpoints`] | SET_ACTUATOR_CONTROL_TARGET groups 0/1/2 and SET_ATTITUDE_TARGET → commands |
+//! | setpoints | decoded by `firmware_bridge::SetpointCodec` (`decode_actuator`, `decode_attitude`): the layout the bridge encodes with |
 //! | [`control`] | the autopilot's own control: position hold and landing (PID on the twin's truth), the attitude loop, allocation |
 //! | [`telemetry`] | the twin's state → MAVLink messages (NED/FRD via `firmware_bridge::frames`) |
 //! | [`wire`] | the link's end of `firmware_bridge::wire`, the one MAVLink 2 codec (parsing with counters for every bad byte, signing, encoding); the autopilot's signing settings |
@@ -22,12 +22,10 @@
 pub mod control;
 pub mod modes;
 pub mod server;
-pub mod setpoints;
 pub mod telemetry;
 pub mod transport;
 pub mod wire;
 
-pub use control::AttitudeSetpoint;
 pub use modes::{Commander, FlightMode, Transition};
 pub use server::{
     Autopilot, AutopilotConfig, AutopilotError, AutopilotEvent, COMPONENT_ID, SYSTEM_ID,

@@ -13,14 +13,14 @@ use mavlink::{MavHeader, Message};
 use nalgebra::{Isometry3, Vector3};
 use platform::{Actuation, ActuatorCommand, Measurement, Vehicle};
 
-use super::control::{AttitudeSetpoint, Control, hold_target};
+use super::control::{Control, hold_target};
 use super::modes::{Commander, FORCE_DISARM_MAGIC, FlightMode, Refusal, Transition, VehicleFacts};
-use super::setpoints::{ActuatorUpdate, SetpointDecoder};
 use super::telemetry::{self, Landed};
 use super::transport::{Endpoint, Incoming, Transport};
 use super::wire::{Frame, LinkCounters, Signing, Wire};
 use crate::ipc::Mode;
 use crate::{Twin, TwinConfig, TwinError};
+use firmware_bridge::{ActuatorUpdate, AttitudeSetpoint, SetpointCodec};
 
 /// The autopilot's MAVLink system id.
 pub const SYSTEM_ID: u8 = 1;
@@ -226,7 +226,8 @@ pub struct Autopilot {
     seed: u64,
     config: AutopilotConfig,
     mav_type: MavType,
-    decoder: SetpointDecoder,
+    /// The setpoints' layout on the wire (the bridge's codec, decoding).
+    decoder: SetpointCodec,
     control: Control,
     commander: Commander,
     wire: Wire,
@@ -296,13 +297,9 @@ impl Autopilot {
                 vehicle.id
             )));
         }
-        if vehicle.rotors.len() > 8 {
-            return Err(AutopilotError::Vehicle(format!(
-                "{}: {} rotors do not fit SET_ACTUATOR_CONTROL_TARGET's 8 controls",
-                vehicle.id,
-                vehicle.rotors.len()
-            )));
-        }
+        // The setpoints' layout (at most 8 rotors, tilts and arm controls a group).
+        let decoder = SetpointCodec::new(&vehicle, SYSTEM_ID, COMPONENT_ID)
+            .map_err(|e| AutopilotError::Vehicle(format!("{}: {e}", vehicle.id)))?;
         let mav_type = match vehicle.rotors.len() {
             4 => MavType::MAV_TYPE_QUADROTOR,
             8 => MavType::MAV_TYPE_OCTOROTOR,
@@ -310,7 +307,6 @@ impl Autopilot {
         };
         let dt_s = twin_config.control_dt_s();
         let rest_z_m = resting_height_m(&vehicle, &twin_config)?;
-        let decoder = SetpointDecoder::new(&vehicle);
         let control = Control::new(&vehicle, dt_s).map_err(AutopilotError::Vehicle)?;
         let seed = twin_config.seed;
         let joint_targets = vehicle.initial_configuration();
@@ -744,7 +740,7 @@ impl Autopilot {
                     return;
                 }
                 let mut targets = self.joint_targets.clone();
-                match self.decoder.actuator(s, &mut targets) {
+                match self.decoder.decode_actuator(s, &mut targets) {
                     Ok(ActuatorUpdate::Joints) => self.joint_targets = targets,
                     Ok(ActuatorUpdate::Motors(thrusts)) => {
                         self.offboard = Offboard::Motors(thrusts);
@@ -758,7 +754,7 @@ impl Autopilot {
                     self.wire.count_rejected_input();
                     return;
                 }
-                match self.decoder.attitude(s) {
+                match self.decoder.decode_attitude(s) {
                     Ok(sp) => {
                         self.offboard = Offboard::Attitude(sp);
                         self.setpoint_arrived(on_event);
