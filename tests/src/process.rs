@@ -129,6 +129,13 @@ impl Proc {
         }
     }
 
+    /// Ctrl-C (SIGINT): the process closes its logs and services and exits.
+    pub fn interrupt(&self) {
+        let _ = Command::new("kill")
+            .args(["-INT", &self.child.id().to_string()])
+            .status();
+    }
+
     /// A crash: SIGKILL, nothing cleaned up by the process itself.
     pub fn kill(&mut self) {
         let _ = self.child.kill();
@@ -142,9 +149,7 @@ impl Drop for Proc {
             return;
         }
         // Ctrl-C first (the process closes its logs and services), then SIGKILL.
-        let _ = Command::new("kill")
-            .args(["-INT", &self.child.id().to_string()])
-            .status();
+        self.interrupt();
         let started = Instant::now();
         while started.elapsed() < Duration::from_secs(3) {
             if matches!(self.child.try_wait(), Ok(Some(_))) {

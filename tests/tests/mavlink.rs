@@ -7,13 +7,12 @@
 //! installs pymavlink from PyPI into the shared venv.
 
 use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
+use std::sync::{Mutex, MutexGuard};
 
 use platform::{GRAVITY_MPS2, Vehicle};
 use serde_json::Value;
-use tests::process::{PATIENCE, amstack};
+use tests::process::{Proc, amstack};
 
 /// One test at a time (each runs a twin and a Python peer on a small machine).
 fn serial() -> MutexGuard<'static, ()> {
@@ -22,80 +21,45 @@ fn serial() -> MutexGuard<'static, ()> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
-/// `amstack twin serve --mavlink udp:127.0.0.1:0 …`, its stderr collected line by line.
+/// `amstack twin serve --mavlink udp:127.0.0.1:0 …`: the process, and the port and resting
+/// height it announced.
 struct Autopilot {
-    child: Child,
-    lines: Arc<Mutex<Vec<String>>>,
+    proc: Proc,
     port: u16,
     rest_z_m: f64,
 }
 
 impl Autopilot {
     fn start(args: &[&str]) -> Self {
-        let mut child = Command::new(amstack())
-            .args(["twin", "serve", "--mavlink", "udp:127.0.0.1:0"])
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap_or_else(|e| panic!("cannot start the autopilot: {e}"));
-        let lines = Arc::new(Mutex::new(Vec::new()));
-        if let Some(stderr) = child.stderr.take() {
-            let sink = Arc::clone(&lines);
-            std::thread::spawn(move || {
-                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                    sink.lock()
-                        .unwrap_or_else(std::sync::PoisonError::into_inner)
-                        .push(line);
-                }
-            });
-        }
-        let mut ap = Self {
-            child,
-            lines,
-            port: 0,
-            rest_z_m: f64::NAN,
-        };
+        let mut all = vec!["twin", "serve", "--mavlink", "udp:127.0.0.1:0"];
+        all.extend_from_slice(args);
+        let mut proc = Proc::start("twin serve --mavlink", &all);
         // "… on udp:127.0.0.1:PORT (lockstep, …); resting height 0.025 m"
-        let ready = ap.wait_for("serving");
-        ap.port = ready
+        let ready = proc.wait_for("serving");
+        let port = ready
             .split("udp:127.0.0.1:")
             .nth(1)
             .and_then(|s| s.split(' ').next())
             .and_then(|p| p.parse().ok())
             .unwrap_or_else(|| panic!("no port in {ready:?}"));
-        ap.rest_z_m = ready
+        let rest_z_m = ready
             .split("resting height ")
             .nth(1)
             .and_then(|s| s.trim_end_matches(" m").parse().ok())
             .unwrap_or_else(|| panic!("no resting height in {ready:?}"));
-        ap
+        Self {
+            proc,
+            port,
+            rest_z_m,
+        }
     }
 
     fn stderr(&self) -> String {
-        self.lines
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .join("\n")
+        self.proc.stderr()
     }
 
     fn wait_for(&mut self, needle: &str) -> String {
-        let started = Instant::now();
-        loop {
-            if let Some(line) = self.stderr().lines().find(|l| l.contains(needle)) {
-                return line.to_owned();
-            }
-            let exited = matches!(self.child.try_wait(), Ok(Some(_)));
-            if exited || started.elapsed() > PATIENCE {
-                std::thread::sleep(Duration::from_millis(200));
-                if let Some(line) = self.stderr().lines().find(|l| l.contains(needle)) {
-                    return line.to_owned();
-                }
-                panic!("no line with {needle:?}:\n{}", self.stderr());
-            }
-            std::thread::sleep(Duration::from_millis(5));
-        }
+        self.proc.wait_for(needle)
     }
 
     /// Runs the pymavlink peer in `mode`; its JSON.
@@ -116,20 +80,8 @@ impl Autopilot {
 
     /// Ctrl-C, then the exit line with the link's counters.
     fn stop(&mut self) -> String {
-        let _ = Command::new("kill")
-            .args(["-INT", &self.child.id().to_string()])
-            .status();
+        self.proc.interrupt();
         self.wait_for("stopped after")
-    }
-}
-
-impl Drop for Autopilot {
-    fn drop(&mut self) {
-        if matches!(self.child.try_wait(), Ok(Some(_))) {
-            return;
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 
@@ -491,17 +443,7 @@ mod bridge {
     use std::path::Path;
     use std::process::{Command, ExitStatus, Stdio};
 
-    use tests::process::Proc;
-
-    use super::serial;
-
-    /// A UDP port free right now on loopback.
-    fn free_port() -> u16 {
-        std::net::UdpSocket::bind("127.0.0.1:0")
-            .and_then(|s| s.local_addr())
-            .map(|a| a.port())
-            .unwrap_or_else(|e| panic!("no free port: {e}"))
-    }
+    use super::{Proc, serial};
 
     fn read_json(path: &Path) -> serde_json::Value {
         let text = std::fs::read_to_string(path)
@@ -515,30 +457,8 @@ mod bridge {
             .unwrap_or_else(|| panic!("no number {key} in {v}"))
     }
 
-    /// The twin's autopilot on `port`, lockstep, with `twin_flags` (the same flags as the
-    /// flight's: vehicle, disturbances, seed).
-    fn autopilot(port: u16, twin_flags: &[&str]) -> Proc {
-        autopilot_in(port, "--lockstep", twin_flags)
-    }
-
-    /// The twin's autopilot on `port` in `mode` (`--lockstep` or `--realtime`).
-    fn autopilot_in(port: u16, mode: &str, twin_flags: &[&str]) -> Proc {
-        let address = format!("udp:127.0.0.1:{port}");
-        let mut args = vec!["twin", "serve", "--mavlink", &address, mode];
-        args.extend_from_slice(twin_flags);
-        Proc::start("twin serve --mavlink", &args)
-    }
-
-    /// `amstack fly` over MAVLink to `port`; returns the exit status and the JSON scores.
-    fn fly(
-        port: u16,
-        flags: &[&str],
-        json: &Path,
-    ) -> (ExitStatus, Option<serde_json::Value>, String) {
-        fly_over(&format!("mavlink:udp:127.0.0.1:{port}"), flags, json)
-    }
-
-    /// `amstack fly --link <link>`; returns the exit status and the JSON scores.
+    /// `amstack fly --link <link>` with `flags`; the exit status, the JSON result and
+    /// stderr.
     fn fly_over(
         link: &str,
         flags: &[&str],
@@ -555,10 +475,47 @@ mod bridge {
             &json_arg,
         ];
         args.extend_from_slice(flags);
-        let mut p = Proc::start("fly --link mavlink", &args);
+        let mut p = Proc::start("fly", &args);
         let status = p.wait();
-        let scores = json.is_file().then(|| read_json(json));
-        (status, scores, p.stderr())
+        let result = json.is_file().then(|| read_json(json));
+        (status, result, p.stderr())
+    }
+
+    /// A flight that must succeed: `fly --link <link>` with [`FLIGHT`] and `flags`; its JSON
+    /// result (written to `dir/<name>.json`) and stderr.
+    fn flown(link: &str, flags: &[&str], dir: &Path, name: &str) -> (serde_json::Value, String) {
+        let mut all = FLIGHT.to_vec();
+        all.extend_from_slice(flags);
+        let (status, result, stderr) = fly_over(link, &all, &dir.join(format!("{name}.json")));
+        assert!(status.success(), "fly {name} over {link} failed:\n{stderr}");
+        let result = result.unwrap_or_else(|| panic!("fly {name} wrote no result:\n{stderr}"));
+        (result, stderr)
+    }
+
+    /// The flight in this process (`fly --link twin`, as `amstack track`): the reference.
+    fn in_process(flags: &[&str], dir: &Path) -> serde_json::Value {
+        flown("twin", flags, dir, "in-process").0
+    }
+
+    /// A flight against the twin's autopilot, started here (`mode`: `--lockstep` or
+    /// `--realtime`) with [`FLIGHT`] and `twin_flags`, over UDP; stopped after the flight.
+    fn against_autopilot(
+        mode: &str,
+        twin_flags: &[&str],
+        flags: &[&str],
+        dir: &Path,
+        name: &str,
+    ) -> (serde_json::Value, String) {
+        let port = std::net::UdpSocket::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .map(|a| a.port())
+            .unwrap_or_else(|e| panic!("no free port: {e}"));
+        let address = format!("udp:127.0.0.1:{port}");
+        let mut args = vec!["twin", "serve", "--mavlink", &address, mode];
+        args.extend_from_slice(FLIGHT);
+        args.extend_from_slice(twin_flags);
+        let _autopilot = Proc::start("twin serve --mavlink", &args);
+        flown(&format!("mavlink:{address}"), flags, dir, name)
     }
 
     const FLIGHT: &[&str] = &[
@@ -574,31 +531,11 @@ mod bridge {
     fn a_step_at_actuator_level_over_udp_matches_the_in_process_flight() {
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let port = free_port();
-        let _twin = autopilot(port, FLIGHT);
-        let over = dir.path().join("mavlink.json");
-        let mut flags = FLIGHT.to_vec();
-        flags.extend_from_slice(&[
-            "--trajectory",
-            "step",
-            "--duration",
-            "4",
-            "--level",
-            "actuator",
-        ]);
-        let (status, scores, stderr) = fly(port, &flags, &over);
-        assert!(status.success(), "fly failed:\n{stderr}");
-        let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
-        // The same flight in process.
-        let local = dir.path().join("local.json");
-        let mut args = vec!["track", "--json"];
-        let local_arg = local.to_string_lossy().into_owned();
-        args.push(&local_arg);
-        args.extend_from_slice(FLIGHT);
-        args.extend_from_slice(&["--trajectory", "step", "--duration", "4"]);
-        let mut track = Proc::start("track", &args);
-        assert!(track.wait().success(), "track failed:\n{}", track.stderr());
-        let reference = read_json(&local);
+        let step = ["--trajectory", "step", "--duration", "4"];
+        let mut flags = step.to_vec();
+        flags.extend_from_slice(&["--level", "actuator"]);
+        let (scores, _) = against_autopilot("--lockstep", &[], &flags, dir.path(), "mavlink");
+        let reference = in_process(&step, dir.path());
         // Lockstep from the same reset state, f32 on the wire: the same flight within 0.1 mm of
         // RMS error (the fixture of policy_runtime's MavlinkLink tests measured 6e-9 m).
         for key in ["ee_pos_rmse_m", "base_pos_rmse_m", "base_z_rmse_m"] {
@@ -768,28 +705,24 @@ mod bridge {
         // reader); replay ignores them, compare reads them like any channel.
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let port = free_port();
-        let _twin = autopilot(port, FLIGHT);
         let (log, replayed, compared) = (
             dir.path().join("bridge.mcap"),
             dir.path().join("replay.mcap"),
             dir.path().join("compare.json"),
         );
         let log_arg = log.to_string_lossy().into_owned();
-        let mut flags = FLIGHT.to_vec();
-        flags.extend_from_slice(&[
+        let flags = [
             "--trajectory",
             "step",
             "--duration",
             "3",
             "--mcap",
             &log_arg,
-        ]);
-        let (status, scores, stderr) = fly(port, &flags, &dir.path().join("fly.json"));
-        assert!(status.success(), "fly failed:\n{stderr}");
-        let ticks = scores
-            .and_then(|s| s["ticks"].as_u64())
-            .unwrap_or_else(|| panic!("no ticks:\n{stderr}"));
+        ];
+        let (scores, _) = against_autopilot("--lockstep", &[], &flags, dir.path(), "fly");
+        let ticks = scores["ticks"]
+            .as_u64()
+            .unwrap_or_else(|| panic!("no ticks: {scores}"));
         assert_eq!(ticks, 360);
         check_the_mavlink_channels(&log, ticks);
         let expect = format!("/autopilot/state={}", ticks + 1);
@@ -866,21 +799,15 @@ mod bridge {
     fn hover_at_attitude_level_holds_altitude() {
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let port = free_port();
-        let _twin = autopilot(port, FLIGHT);
-        let out = dir.path().join("attitude.json");
-        let mut flags = FLIGHT.to_vec();
-        flags.extend_from_slice(&[
+        let flags = [
             "--trajectory",
             "hover",
             "--duration",
             "4",
             "--level",
             "attitude",
-        ]);
-        let (status, scores, stderr) = fly(port, &flags, &out);
-        assert!(status.success(), "fly failed:\n{stderr}");
-        let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
+        ];
+        let (scores, stderr) = against_autopilot("--lockstep", &[], &flags, dir.path(), "attitude");
         // The autopilot's own attitude loop and allocation hold the hover at 1 m: within 5 cm
         // RMS after the 2 s settling, and the base barely tilts.
         let z = number(&scores, "base_z_rmse_m");
@@ -898,21 +825,10 @@ mod bridge {
         // base RMSE on a 1 m step).
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let port = free_port();
-        let _twin = autopilot(port, FLIGHT);
-        let out = dir.path().join("estimator.json");
-        let mut flags = FLIGHT.to_vec();
-        flags.extend_from_slice(&[
-            "--trajectory",
-            "step",
-            "--duration",
-            "4",
-            "--state-source",
-            "estimator",
-        ]);
-        let (status, scores, stderr) = fly(port, &flags, &out);
-        assert!(status.success(), "fly failed:\n{stderr}");
-        let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
+        let step = ["--trajectory", "step", "--duration", "4"];
+        let mut flags = step.to_vec();
+        flags.extend_from_slice(&["--state-source", "estimator"]);
+        let (scores, _) = against_autopilot("--lockstep", &[], &flags, dir.path(), "estimator");
         let e = &scores["estimator"];
         assert_eq!(e["sensors"], "vehicle", "{scores}");
         let ticks = number(&scores, "ticks");
@@ -920,14 +836,7 @@ mod bridge {
         assert_eq!(number(e, "rejected"), 0.0, "{e}");
         assert!(number(e, "position_rmse_m") < 1e-3, "{e}");
         // The same flight in process on the truth.
-        let local = dir.path().join("truth.json");
-        let local_arg = local.to_string_lossy().into_owned();
-        let mut args = vec!["track", "--json", &local_arg];
-        args.extend_from_slice(FLIGHT);
-        args.extend_from_slice(&["--trajectory", "step", "--duration", "4"]);
-        let mut track = Proc::start("track", &args);
-        assert!(track.wait().success(), "track failed:\n{}", track.stderr());
-        let truth = read_json(&local);
+        let truth = in_process(&step, dir.path());
         let (a, b) = (
             number(&scores, "base_pos_rmse_m"),
             number(&truth, "base_pos_rmse_m"),
@@ -946,14 +855,8 @@ mod bridge {
         // second), and the hover holds.
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let port = free_port();
-        let _twin = autopilot_in(port, "--realtime", FLIGHT);
-        let out = dir.path().join("realtime.json");
-        let mut flags = FLIGHT.to_vec();
-        flags.extend_from_slice(&["--trajectory", "hover", "--duration", "3"]);
-        let (status, scores, stderr) = fly(port, &flags, &out);
-        assert!(status.success(), "fly failed:\n{stderr}");
-        let scores = scores.unwrap_or_else(|| panic!("no scores:\n{stderr}"));
+        let flags = ["--trajectory", "hover", "--duration", "3"];
+        let (scores, stderr) = against_autopilot("--realtime", &[], &flags, dir.path(), "realtime");
         let rate = number(&scores, "ticks_per_second");
         assert!(
             rate <= 120.0 * 1.05,
@@ -968,7 +871,10 @@ mod bridge {
         // Nobody on the port: the bridge waits for the first ODOMETRY, then says so (exit 1).
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let port = free_port();
+        let port = std::net::UdpSocket::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .map(|a| a.port())
+            .unwrap_or_else(|e| panic!("no free port: {e}"));
         let link = format!("mavlink:udp:127.0.0.1:{port}");
         let json = dir.path().join("none.json");
         let json_arg = json.to_string_lossy().into_owned();
@@ -999,36 +905,8 @@ mod bridge {
     /// The task flight of the must-show: Push Slider's scripted policy, seed 3, FA-Hexa.
     const TASK: &[&str] = &["--task", "push-slider", "--trajectory", "scripted"];
 
-    /// The task flight in this process (`fly --link twin`): the reference.
-    fn task_in_process(dir: &Path) -> serde_json::Value {
-        let json = dir.join("in-process.json");
-        let json_arg = json.to_string_lossy().into_owned();
-        let mut args = vec!["fly", "--json", &json_arg];
-        args.extend_from_slice(FLIGHT);
-        args.extend_from_slice(TASK);
-        let mut p = Proc::start("fly --link twin", &args);
-        assert!(p.wait().success(), "fly failed:\n{}", p.stderr());
-        read_json(&json)
-    }
-
-    /// The twin's autopilot serving the task scene (the same flags as the flight's).
-    fn task_twin_flags() -> Vec<&'static str> {
-        let mut flags = FLIGHT.to_vec();
-        flags.extend_from_slice(&["--task", "push-slider"]);
-        flags
-    }
-
-    /// `fly --trajectory scripted` over `link` at `level`.
-    fn fly_task(link: &str, level: &str, dir: &Path, extra: &[&str]) -> serde_json::Value {
-        let json = dir.join(format!("{level}.json"));
-        let mut flags = FLIGHT.to_vec();
-        flags.extend_from_slice(TASK);
-        flags.extend_from_slice(&["--level", level]);
-        flags.extend_from_slice(extra);
-        let (status, result, stderr) = fly_over(link, &flags, &json);
-        assert!(status.success(), "fly over {link} failed:\n{stderr}");
-        result.unwrap_or_else(|| panic!("no result:\n{stderr}"))
-    }
+    /// The task scene the twin's autopilot serves for [`TASK`].
+    const TASK_SCENE: &[&str] = &["--task", "push-slider"];
 
     /// The actuator-level task flight is the in-process rollout: the same outcome, step for
     /// step, and errors within 1e-6 m. The flights are lockstep from the same reset; only the
@@ -1060,15 +938,14 @@ mod bridge {
     fn push_slider_flies_over_udp_at_both_levels_as_in_process() {
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let reference = task_in_process(dir.path());
+        let reference = in_process(TASK, dir.path());
         // Actuator level: our allocation flies, the same rollout.
-        let port = free_port();
-        let twin = autopilot(port, &task_twin_flags());
-        let link = format!("mavlink:udp:127.0.0.1:{port}");
         let log = dir.path().join("task.mcap");
         let log_arg = log.to_string_lossy().into_owned();
-        let actuator = fly_task(&link, "actuator", dir.path(), &["--mcap", &log_arg]);
-        drop(twin);
+        let mut flags = TASK.to_vec();
+        flags.extend_from_slice(&["--level", "actuator", "--mcap", &log_arg]);
+        let (actuator, _) =
+            against_autopilot("--lockstep", TASK_SCENE, &flags, dir.path(), "actuator");
         assert_same_rollout(&actuator, &reference);
         // Its log, read by an independent reader: the task's state at every step, the
         // autopilot's at the start and every step.
@@ -1091,10 +968,10 @@ mod bridge {
         // Attitude level: the autopilot's attitude loop and allocation fly the base, so the
         // flight differs, but the task succeeds with the EE on the script within 2 cm on
         // average (measured: 1329 steps against 1328, 0.99 cm).
-        let port = free_port();
-        let _twin = autopilot(port, &task_twin_flags());
-        let link = format!("mavlink:udp:127.0.0.1:{port}");
-        let attitude = fly_task(&link, "attitude", dir.path(), &[]);
+        let mut flags = TASK.to_vec();
+        flags.extend_from_slice(&["--level", "attitude"]);
+        let (attitude, _) =
+            against_autopilot("--lockstep", TASK_SCENE, &flags, dir.path(), "attitude");
         assert_eq!(attitude["success"], true, "{attitude}");
         assert_eq!(attitude["criteria"], reference["criteria"], "{attitude}");
         let (a, b) = (
@@ -1112,7 +989,7 @@ mod bridge {
         // autopilot opens one as its serial port, the bridge the other.
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let reference = task_in_process(dir.path());
+        let reference = in_process(TASK, dir.path());
         let mut cable = Command::new(tests::python())
             .arg(tests::scripts_dir().join("pty_pair.py"))
             .stdin(Stdio::piped())
@@ -1131,14 +1008,14 @@ mod bridge {
         };
         let device = format!("serial:{twin_end}:921600");
         let mut args = vec!["twin", "serve", "--mavlink", &device, "--lockstep"];
-        let twin_flags = task_twin_flags();
-        args.extend_from_slice(&twin_flags);
+        args.extend_from_slice(FLIGHT);
+        args.extend_from_slice(TASK_SCENE);
         let twin = Proc::start("twin serve --mavlink serial", &args);
-        let serial = fly_task(
+        let (serial, _) = flown(
             &format!("mavlink:serial:{bridge_end}:921600"),
-            "actuator",
+            TASK,
             dir.path(),
-            &[],
+            "serial",
         );
         drop(twin);
         drop(cable.stdin.take());
