@@ -245,16 +245,15 @@ pub fn run_rollout(
     run_rollout_logged(config, task, index, stop, log.as_deref())
 }
 
-/// Runs one rollout of `task`, logged to `log` if given (`amstack fly --trajectory scripted`
+/// Runs one rollout of `task`, logged to `log_path` if given (`amstack fly --trajectory scripted`
 /// flies one rollout this way).
 pub fn run_rollout_logged(
     config: &BenchConfig,
     task: TaskId,
     index: usize,
     stop: &AtomicBool,
-    log: Option<&Path>,
+    log_path: Option<&Path>,
 ) -> Result<RolloutResult, BenchError> {
-    let log_path = log;
     let started = Instant::now();
     let seed = rollout_seed(config.seed, index);
     let vehicle = &config.vehicle;

@@ -25,7 +25,7 @@
 
 use std::time::{Duration, Instant};
 
-use estimator::{ImuSample, OdometryMeasurement, PoseMeasurement};
+use estimator::ImuSample;
 use firmware_bridge::{
     AttitudeSetpoint, Bridge, BridgeConfig, BridgeError, CounterSnapshot, RawFrame, SetpointCodec,
 };
@@ -389,17 +389,7 @@ impl Link for MavlinkLink {
         };
         Some(VehicleSensors {
             imu,
-            odometry: Some(OdometryMeasurement {
-                pose: PoseMeasurement {
-                    time_s: m.time_s,
-                    position_in_world_m: m.base.position_in_world_m,
-                    world_from_body: m.base.world_from_body,
-                    position_std_m: f64::NAN,
-                    attitude_std_rad: f64::NAN,
-                },
-                velocity_in_world_mps: m.base.velocity_in_world_mps,
-                velocity_std_mps: f64::NAN,
-            }),
+            odometry: Some(VehicleSensors::odometry_of(m)),
         })
     }
 

@@ -145,21 +145,63 @@ pub struct VehicleSensors {
     pub odometry: Option<OdometryMeasurement>,
 }
 
+impl VehicleSensors {
+    /// The odometry a link reports with measurement `m` (the base's pose and world velocity
+    /// at its time), without noise figures (the settings' are used).
+    pub fn odometry_of(m: &Measurement) -> OdometryMeasurement {
+        OdometryMeasurement {
+            pose: estimator::PoseMeasurement {
+                time_s: m.time_s,
+                position_in_world_m: m.base.position_in_world_m,
+                world_from_body: m.base.world_from_body,
+                position_std_m: f64::NAN,
+                attitude_std_rad: f64::NAN,
+            },
+            velocity_in_world_mps: m.base.velocity_in_world_mps,
+            velocity_std_mps: f64::NAN,
+        }
+    }
+}
+
 /// Where the filter's inputs come from.
 #[derive(Debug)]
 enum Feed {
     /// The twin's measurement through simulated sensors.
     Simulated(Box<SimulatedSensors>),
-    /// The vehicle's sensors as the link reports them; the noise the settings give.
+    /// The vehicle's sensors as the link reports them.
     Vehicle {
-        position_std_m: f64,
-        attitude_std_rad: f64,
-        velocity_std_mps: f64,
+        /// The noise assumed where the link gives none.
+        noise: OdometryNoise,
         /// Capture time of the last odometry fused, s (a repeated one is not fused twice).
         last_odometry_s: Option<f64>,
         /// Time of the last IMU sample fed, s (likewise).
         last_imu_s: Option<f64>,
     },
+}
+
+/// The noise the filter assumes for a vehicle's odometry that does not report it.
+#[derive(Debug, Clone, Copy)]
+struct OdometryNoise {
+    position_std_m: f64,
+    attitude_std_rad: f64,
+    velocity_std_mps: f64,
+}
+
+impl OdometryNoise {
+    /// `o` with the link's noise where it gave one, else this.
+    fn fill(&self, mut o: OdometryMeasurement) -> OdometryMeasurement {
+        let keep = |given: f64, default: f64| {
+            if given.is_finite() && given > 0.0 {
+                given
+            } else {
+                default
+            }
+        };
+        o.pose.position_std_m = keep(o.pose.position_std_m, self.position_std_m);
+        o.pose.attitude_std_rad = keep(o.pose.attitude_std_rad, self.attitude_std_rad);
+        o.velocity_std_mps = keep(o.velocity_std_mps, self.velocity_std_mps);
+        o
+    }
 }
 
 /// Velocity noise assumed for a vehicle's odometry that does not report it, m/s: a
@@ -176,31 +218,6 @@ pub(crate) struct StateEstimate {
     error_sum: f64,
     error_max: f64,
     scored: u64,
-}
-
-impl Feed {
-    /// `o` with the noise the filter assumes: the link's where it gave it, else the settings'.
-    fn with_noise(&self, mut o: OdometryMeasurement) -> OdometryMeasurement {
-        if let Self::Vehicle {
-            position_std_m,
-            attitude_std_rad,
-            velocity_std_mps,
-            ..
-        } = self
-        {
-            let keep = |given: f64, default: f64| {
-                if given.is_finite() && given > 0.0 {
-                    given
-                } else {
-                    default
-                }
-            };
-            o.pose.position_std_m = keep(o.pose.position_std_m, *position_std_m);
-            o.pose.attitude_std_rad = keep(o.pose.attitude_std_rad, *attitude_std_rad);
-            o.velocity_std_mps = keep(o.velocity_std_mps, *velocity_std_mps);
-        }
-        o
-    }
 }
 
 impl StateEstimate {
@@ -240,36 +257,24 @@ impl StateEstimate {
     ) -> Result<Self, EstimateError> {
         settings.validate()?;
         let mut estimator = Estimator::new(settings.estimator)?;
-        let mut feed = Feed::Vehicle {
+        let noise = OdometryNoise {
             position_std_m: settings.pose.position_std_m,
             attitude_std_rad: settings.pose.attitude_std_rad,
             velocity_std_mps: ODOMETRY_VELOCITY_STD_MPS,
-            last_odometry_s: None,
-            last_imu_s: None,
         };
-        let start = sensors.odometry.unwrap_or(OdometryMeasurement {
-            pose: estimator::PoseMeasurement {
-                time_s: first.time_s,
-                position_in_world_m: first.base.position_in_world_m,
-                world_from_body: first.base.world_from_body,
-                position_std_m: f64::NAN,
-                attitude_std_rad: f64::NAN,
-            },
-            velocity_in_world_mps: first.base.velocity_in_world_mps,
-            velocity_std_mps: f64::NAN,
-        });
-        let start = feed.with_noise(start);
+        let start = sensors
+            .odometry
+            .unwrap_or_else(|| VehicleSensors::odometry_of(first));
+        let start = noise.fill(start);
         estimator
             .correct(&Fix::Pose(start.pose))
             .map_err(EstimateError::Start)?;
-        if let Feed::Vehicle {
-            last_odometry_s, ..
-        } = &mut feed
-        {
-            *last_odometry_s = Some(start.pose.time_s);
-        }
         Ok(Self {
-            feed,
+            feed: Feed::Vehicle {
+                noise,
+                last_odometry_s: Some(start.pose.time_s),
+                last_imu_s: None,
+            },
             estimator,
             nis_sum: 0.0,
             error_sum: 0.0,
@@ -304,18 +309,14 @@ impl StateEstimate {
                         .collect::<Vec<_>>(),
                 )
             }
-            feed @ Feed::Vehicle { .. } => {
+            Feed::Vehicle {
+                noise,
+                last_odometry_s,
+                last_imu_s,
+            } => {
                 // Only readings newer than the last ones fed: a link that did not advance
                 // repeats them.
                 let newer = |last: Option<f64>, t: f64| last.is_none_or(|l| t > l);
-                let Feed::Vehicle {
-                    last_odometry_s,
-                    last_imu_s,
-                    ..
-                } = feed
-                else {
-                    unreachable!("matched above")
-                };
                 let imu = vehicle
                     .and_then(|v| v.imu)
                     .filter(|i| newer(*last_imu_s, i.time_s));
@@ -329,7 +330,7 @@ impl StateEstimate {
                     *last_odometry_s = Some(o.pose.time_s);
                 }
                 let fixes = odometry
-                    .map(|o| Fix::Odometry(feed.with_noise(o)))
+                    .map(|o| Fix::Odometry(noise.fill(o)))
                     .into_iter()
                     .collect();
                 (imu, fixes)
@@ -434,7 +435,7 @@ mod tests {
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
     use platform::{Measurement, RigidBodyState};
 
-    use estimator::{ImuSample, OdometryMeasurement, PoseMeasurement};
+    use estimator::ImuSample;
     use nalgebra::Vector3;
 
     use super::{EstimatorSettings, StateEstimate, VehicleSensors};
@@ -494,17 +495,7 @@ mod tests {
                     * Vector3::new(0.0, 0.0, platform::GRAVITY_MPS2),
                 angular_velocity_in_body_radps: Vector3::zeros(),
             }),
-            odometry: Some(OdometryMeasurement {
-                pose: PoseMeasurement {
-                    time_s: m.time_s,
-                    position_in_world_m: m.base.position_in_world_m,
-                    world_from_body: m.base.world_from_body,
-                    position_std_m: f64::NAN,
-                    attitude_std_rad: f64::NAN,
-                },
-                velocity_in_world_mps: m.base.velocity_in_world_mps,
-                velocity_std_mps: f64::NAN,
-            }),
+            odometry: Some(VehicleSensors::odometry_of(m)),
         }
     }
 
