@@ -28,7 +28,7 @@ mod profile;
 mod so3;
 
 pub use controller::{
-    BaseController, BodyParams, ControllerStatus, DT_MAX_S, DT_MIN_S, InputHealth,
+    AttitudeTarget, BaseController, BodyParams, ControllerStatus, DT_MAX_S, DT_MIN_S, InputHealth,
     SATURATION_TOLERANCE,
 };
 pub use desired::{DesiredState, DesiredStateGenerator, is_finite_pose};

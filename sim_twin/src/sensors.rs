@@ -7,19 +7,14 @@
 //! ā = (v_k − v_{k−1})/dt, as specific force in the body frame at mid-period,
 //! f = R(q_mid)ᵀ(ā + g e_z), q_mid the attitude halfway between q_{k−1} and q_k; and the mean
 //! body rate Log(q_{k−1}⁻¹ ⊗ q_k)/dt (the delta angle over the period). The noise streams
-//! come from ChaCha stream [`SENSOR_RNG_STREAM`] of the run seed, apart from every other draw.
+//! come from the run seed's [`RandomStream::Sensors`] stream, apart from every other draw.
 
 use estimator::{
     ConfigError, ImuModel, ImuSample, ImuSensor, PoseMeasurement, PoseModel, PoseSensor,
 };
 use nalgebra::Vector3;
-use platform::{GRAVITY_MPS2, Measurement, RigidBodyState};
-use rand::SeedableRng;
+use platform::{GRAVITY_MPS2, Measurement, RandomStream, RigidBodyState};
 use rand_chacha::ChaCha8Rng;
-
-/// The ChaCha stream of the run seed the simulated sensors draw from (the twin uses 0 and 1,
-/// the benchmark's policy and noise 2 and 3).
-pub const SENSOR_RNG_STREAM: u64 = 4;
 
 /// What a perfect integrating IMU at the base origin reads over the control period from
 /// `previous` to `current` (`dt_s` apart), stamped `time_s` (the period's end).
@@ -68,8 +63,7 @@ impl SimulatedSensors {
         control_rate_hz: f64,
         seed: u64,
     ) -> Result<Self, ConfigError> {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(SENSOR_RNG_STREAM);
+        let mut rng = RandomStream::Sensors.rng(seed);
         let imu = ImuSensor::new(
             ImuModel {
                 rate_hz: control_rate_hz,
