@@ -51,3 +51,11 @@ pub use stack::{
 pub use state_source::{EstimatorSettings, EstimatorSummary, StateSource};
 pub use track::{TrackConfig, TrackError, TrackResult, run_track, run_track_with_link};
 pub use trajectory::Trajectory;
+
+#[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "tests: a failed set-up fails loudly"
+)]
+mod tests;

@@ -453,12 +453,3 @@ impl Link for MavlinkLink {
         }
     }
 }
-
-#[cfg(test)]
-#[allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    reason = "tests: a failed set-up fails loudly"
-)]
-#[path = "mavlink_link_tests.rs"]
-mod tests;

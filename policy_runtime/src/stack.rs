@@ -711,7 +711,3 @@ pub fn ee_link_target(vehicle: &Vehicle, target: &BaseJointTarget) -> Isometry3<
     }
     target.world_from_base * vehicle.model.root_from_link(&q, vehicle.ee_link)
 }
-
-#[cfg(test)]
-#[path = "stack_mpc_tests.rs"]
-mod mpc_tests;

@@ -38,7 +38,7 @@ pub use self::observer::{
     TrackMetrics,
 };
 pub use self::source::{
-    ActionSource, Observation, ScriptedTask, SourceError, Step, TrajectorySource,
+    ActionSource, EpisodeLength, Observation, ScriptedTask, SourceError, Step, TrajectorySource,
 };
 use crate::link::{Link, LinkError, LinkMessage};
 use crate::record::RecordError;

@@ -9,9 +9,9 @@
 
 use nalgebra::Isometry3;
 use platform::{Measurement, RandomStream, Vehicle};
+use serde::Serialize;
 use sim_twin::{TaskId, TaskSnapshot};
 
-use crate::bench::EpisodeLength;
 use crate::stack::{Action, EeTarget, FlightStack, TickRecord};
 use crate::task_policies::{PolicyContext, TaskPolicy, gripper_override, scripted};
 use crate::trajectory::Trajectory;
@@ -175,5 +175,34 @@ impl ActionSource for ScriptedTask {
             }),
             ee_reference: None,
         })
+    }
+}
+
+/// How long a rollout may run before it times out.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EpisodeLength {
+    /// The task's episode length (AMBENCH_SPEC §4): ⌈length·rate⌉ − 1 steps.
+    Spec,
+    /// The task's length, or longer where the scripted policy needs it: up to its last
+    /// waypoint plus one second. The reference records its scripted demonstrations with the
+    /// episode length given on the command line (`--env_length_s`), which longer scripts
+    /// need (Wipe Window's script visits its four stains over 3540 steps, the task's
+    /// episode has 2399); only Wipe Window is affected.
+    Script,
+    /// A fixed length, s.
+    Seconds(f64),
+}
+
+impl EpisodeLength {
+    /// The most env steps of a rollout of `task` whose script ends at `script_end`.
+    pub fn max_steps(self, task: TaskId, rate_hz: f64, script_end: u64) -> u64 {
+        let spec = task.max_steps(rate_hz);
+        match self {
+            Self::Spec => spec,
+            // The rate is a small positive number: the cast is exact.
+            Self::Script => spec.max(script_end + rate_hz.round() as u64),
+            Self::Seconds(s) => ((s * rate_hz).ceil() as u64).saturating_sub(1),
+        }
     }
 }

@@ -17,12 +17,13 @@ use mavlink::dialects::common::{
     COMMAND_ACK_DATA, HEARTBEAT_DATA, MavCmd, MavMessage, MavModeFlag, MavResult,
 };
 use mavlink::{MavHeader, MavlinkReader, MavlinkVersion};
+use nalgebra::{UnitQuaternion, Vector3};
 use platform::{ActuatorCommand, Measurement, Vehicle};
 use sim_twin::autopilot::telemetry;
 use sim_twin::{Twin, TwinConfig};
 
-use super::*;
 use crate::link::{Setpoint, SetpointLevel};
+use crate::mavlink_link::{Level, MavlinkLink, MavlinkLinkConfig};
 use crate::track::{Interface, TrackConfig, run_track, run_track_with_link};
 use crate::trajectory::Trajectory;
 
