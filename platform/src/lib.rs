@@ -49,6 +49,6 @@ pub use parts::{CameraMount, Gripper, JointDrive};
 pub use random::RandomStream;
 pub use rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 pub use state::RigidBodyState;
-pub use vehicle::{GRAVITY_MPS2, Vehicle};
+pub use vehicle::{ControlPresets, GRAVITY_MPS2, Vehicle};
 pub use vehicle_file::{VEHICLE_SCHEMA, VehicleFile};
 pub use wrench::Wrench;

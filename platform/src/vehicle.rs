@@ -53,6 +53,22 @@ pub struct Vehicle {
     pub cameras: Vec<CameraMount>,
     /// Normaliser of the tracking metrics, m.
     pub max_arm_reach_m: Option<f64>,
+    /// The controller and IK presets that fly it (`[control]`).
+    pub control: ControlPresets,
+}
+
+/// The presets of the `controllers` crate a vehicle is flown with (its `[control]` section):
+/// names, resolved by `controllers::profile` and `controllers::ik::IkConfig::preset`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct ControlPresets {
+    /// Base controller of `--controller pid`.
+    pub pid: String,
+    /// L1 preset, if L1 is offered.
+    pub l1: Option<String>,
+    /// Whole-body MPC preset, if the MPC is offered.
+    pub mpc: Option<String>,
+    /// Whole-body IK preset (None: the end effector is the base).
+    pub ik: Option<String>,
 }
 
 impl Vehicle {
@@ -302,6 +318,28 @@ impl Assembler<'_> {
         let rotors = self.rotors(f)?;
         let drives = self.drives(f)?;
         let cameras = self.cameras(f)?;
+        let Some(c) = &f.control else {
+            return Err(self.invalid(
+                "control",
+                "missing section [control]: name the controller and IK presets that fly this \
+                 vehicle (pid = \"…\", and ik = \"…\" for an arm), as \
+                 platform/vehicles/fa-hexa.toml does"
+                    .to_owned(),
+            ));
+        };
+        if c.ik.is_none() && ee_link != base_link {
+            return Err(self.invalid(
+                "control.ik",
+                "missing: a vehicle with an arm needs the IK preset of its end-effector interface"
+                    .to_owned(),
+            ));
+        }
+        let control = ControlPresets {
+            pid: c.pid.clone(),
+            l1: c.l1.clone(),
+            mpc: c.mpc.clone(),
+            ik: c.ik.clone(),
+        };
 
         Ok(Vehicle {
             id: f.id.clone(),
@@ -318,6 +356,7 @@ impl Assembler<'_> {
             drives,
             cameras,
             max_arm_reach_m: f.max_arm_reach_m,
+            control,
         })
     }
 

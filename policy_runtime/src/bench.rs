@@ -259,7 +259,10 @@ pub fn run_rollout_logged(
                 .with_trajectory(format!("task:{}", task.name()))
                 .with_config(&twin_config)?
                 .with_controller_config(&config.controller)?;
-            Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
+            Some(
+                FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
+                    .with_rotor_limits(twin_config.disturbances.saturation),
+            )
         }
     };
     let limits_n = (!vehicle.rotors.is_empty())

@@ -446,6 +446,9 @@ pub struct FlightLog {
     link_channels: LinkChannels,
     joint_names: Vec<String>,
     limits: (f64, f64),
+    /// Whether the flight's rotors are limited (else `/rotors.saturated` counts only clamped
+    /// commands).
+    limits_enforced: bool,
 }
 
 fn nanos(time_s: f64) -> u64 {
@@ -476,8 +479,17 @@ impl FlightLog {
                 .map(|d| vehicle.model.dof_joint(d).name.clone())
                 .collect(),
             limits: (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n),
+            limits_enforced: true,
             recorder,
         })
+    }
+
+    /// Whether the flight's rotors are limited (the twin's `saturation` disturbance, or a real
+    /// vehicle): with ideal rotors (`false`) no thrust is "at a limit", and `/rotors.saturated`
+    /// reads true only for a command the motor model clamped. Limited by default.
+    pub fn with_rotor_limits(mut self, enforced: bool) -> Self {
+        self.limits_enforced = enforced;
+        self
     }
 
     /// Logs one tick: the measurement it acted on, what it decided, the EE reference.
@@ -688,7 +700,11 @@ impl FlightLog {
                     commanded_n: m.rotors.iter().map(|r| r.commanded_n).collect(),
                     realised_n: m.rotors.iter().map(|r| r.realised_n).collect(),
                     applied_n: m.rotors.iter().map(|r| r.applied_n).collect(),
-                    saturated: rotors_saturated(m, self.limits),
+                    saturated: if self.limits_enforced {
+                        rotors_saturated(m, self.limits)
+                    } else {
+                        m.rotors.iter().any(|r| r.saturated)
+                    },
                 },
             )?;
         }

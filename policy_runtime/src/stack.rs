@@ -277,7 +277,7 @@ impl FlightStack {
         let vehicle_initial = vehicle.initial_configuration();
         // The vehicle's IK profile: the EE interface's solver, and the margin the base keeps
         // from obstacle faces (also for the MPC, which has no IK).
-        let ik_config = IkConfig::for_vehicle(&vehicle.id).unwrap_or_default();
+        let ik_config = IkConfig::for_vehicle(&vehicle).map_err(|e| StackError(e.to_string()))?;
         let safety_margin_m = ik_config.safety_margin_m;
         // The EE interface needs IK unless the end effector is the controlled body.
         let ee = if vehicle.ee_link == vehicle.base_link {

@@ -206,7 +206,10 @@ pub fn run_track_with_link(
                 .with_trajectory(config.trajectory.name())
                 .with_config(&config.twin)?
                 .with_controller_config(&config.controller)?;
-            Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
+            Some(
+                FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
+                    .with_rotor_limits(config.twin.disturbances.saturation),
+            )
         }
     };
     let action_noise = if config.twin.disturbances.action_noise {

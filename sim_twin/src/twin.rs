@@ -525,7 +525,9 @@ impl Twin {
             }
             disturbances.ground_effect_n += base_rotation.inverse() * (after_ground - thrust);
             disturbances.near_wall_n += base_rotation.inverse() * (after_wall - after_ground);
-            report.applied_n = after_wall.norm();
+            // Signed along the rotor's axis: an ideal rotor may push backwards (a negative
+            // thrust), and the report keeps that sign.
+            report.applied_n = after_wall.norm().copysign(after_wall.dot(&axis));
             self.rotors[i].force_in_rotor = world_from_rotor.rotation.inverse() * after_wall;
             reports.push(report);
         }

@@ -4,3 +4,4 @@
 mod mavlink_flight;
 mod mpc_flight;
 mod mpc_stack;
+mod rotor_log;

@@ -569,7 +569,8 @@ pub fn replay_flight(
     if let Some(interface) = &logged.run.interface {
         run = run.with_interface(interface.clone());
     }
-    let mut log = FlightLog::new(McapRecorder::create(&config.out, &run)?, vehicle)?;
+    let mut log = FlightLog::new(McapRecorder::create(&config.out, &run)?, vehicle)?
+        .with_rotor_limits(config.twin.disturbances.saturation);
     let task = link.twin().task();
     let criteria_names = task.map(|t| t.criteria_names()).unwrap_or_default();
     // The replay's own success, as a bench rollout logs it; the replay flies every tick.
