@@ -26,6 +26,7 @@ mod link;
 mod mass;
 mod model;
 mod parts;
+mod px4_hil;
 mod rotor;
 mod state;
 mod vehicle;
@@ -45,6 +46,7 @@ pub use model::{
     Shape, UNIT_AXIS_TOLERANCE,
 };
 pub use parts::{CameraMount, Gripper, JointDrive};
+pub use px4_hil::{PX4_HIL_CONTROLS, Px4HilFile, Px4HilMap};
 pub use rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 pub use state::RigidBodyState;
 pub use vehicle::{GRAVITY_MPS2, Vehicle};

@@ -12,6 +12,7 @@ use crate::actuation::Actuation;
 use crate::error::{DescriptionError, Problem};
 use crate::model::{JointId, JointKind, KinematicModel, LinkId, UNIT_AXIS_TOLERANCE};
 use crate::parts::{CameraMount, Gripper, JointDrive};
+use crate::px4_hil::{Fit, Px4HilMap};
 use crate::rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 use crate::vehicle_file::{Initial, VehicleFile};
 
@@ -53,6 +54,8 @@ pub struct Vehicle {
     pub cameras: Vec<CameraMount>,
     /// Normaliser of the tracking metrics, m.
     pub max_arm_reach_m: Option<f64>,
+    /// PX4 HIL channel map (None: the vehicle file has no `[px4_hil]`).
+    pub px4_hil: Option<Px4HilMap>,
 }
 
 impl Vehicle {
@@ -302,6 +305,19 @@ impl Assembler<'_> {
         let rotors = self.rotors(f)?;
         let drives = self.drives(f)?;
         let cameras = self.cameras(f)?;
+        let px4_hil = f
+            .px4_hil
+            .as_ref()
+            .map(|map| {
+                let fit = Fit {
+                    rotors: rotors.rotors.len(),
+                    tilts: rotors.rotors.iter().filter(|r| r.tilt.is_some()).count(),
+                    arm_joints: arm_joints.len(),
+                    gripper: gripper.is_some(),
+                };
+                Px4HilMap::check(self.file, map, &fit)
+            })
+            .transpose()?;
 
         Ok(Vehicle {
             id: f.id.clone(),
@@ -318,6 +334,7 @@ impl Assembler<'_> {
             drives,
             cameras,
             max_arm_reach_m: f.max_arm_reach_m,
+            px4_hil,
         })
     }
 

@@ -53,6 +53,10 @@ pub struct VehicleFile {
     /// Cameras.
     #[serde(default)]
     pub camera: Vec<CameraFile>,
+    /// The PX4 HIL channel map (`amstack twin serve --px4-hil`; absent: the vehicle cannot
+    /// be served to PX4).
+    #[serde(default)]
+    pub px4_hil: Option<crate::px4_hil::Px4HilFile>,
 }
 
 /// `[gripper]`.
