@@ -392,7 +392,11 @@ impl StandIn {
                         // them would be a HIL_SENSOR sent without waiting for the reply.
                         while self.anything_waiting() {
                             match self.next() {
-                                Some(MavMessage::HIL_SENSOR(_)) => self.record.early_sensors += 1,
+                                Some(MavMessage::HIL_SENSOR(s)) => {
+                                    // Sent without waiting for the reply (realtime only).
+                                    self.record.early_sensors += 1;
+                                    self.record.sensors.push(s);
+                                }
                                 Some(MavMessage::HIL_STATE_QUATERNION(t)) => {
                                     self.record.truth.push(t)
                                 }
@@ -775,5 +779,71 @@ fn px4_airframe_prints_the_allocation_parameters() {
         "param set-default THR_MDL_FAC 0.3000",
     ] {
         assert!(text.lines().any(|l| l == line), "{line} missing:\n{text}");
+    }
+}
+
+/// A PX4 that stops answering in lockstep is reported and the twin waits for the next one,
+/// which gets a fresh session from the reset state.
+#[test]
+fn a_silent_px4_is_reported_and_the_next_connection_is_served() {
+    let _serial = serial();
+    let (mut twin, port) = start_twin(&["--sessions", "2", "--stall-ms", "300"]);
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let mut silent = StandIn::connect(port, &vehicle);
+    // Answer 10 HIL_SENSOR, then keep the connection open and say nothing.
+    let mut answered = 0;
+    while answered < 10 {
+        if let Some(MavMessage::HIL_SENSOR(s)) = silent.next() {
+            silent.send(&MavMessage::HIL_ACTUATOR_CONTROLS(
+                HIL_ACTUATOR_CONTROLS_DATA {
+                    time_usec: s.time_usec,
+                    flags: HilActuatorControlsFlags::HIL_ACTUATOR_CONTROLS_FLAGS_LOCKSTEP,
+                    controls: [0.0; 16],
+                    mode: MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                },
+            ));
+            answered += 1;
+        }
+    }
+    let ended = twin.wait_for("session 1 ended");
+    assert!(
+        ended.contains("PX4 stopped answering in lockstep"),
+        "{ended}"
+    );
+    assert!(ended.contains("waiting for the next connection"), "{ended}");
+    // Never armed: the vehicle was held at its start.
+    assert!(!twin.stderr().contains("PX4 armed"), "{}", twin.stderr());
+    drop(silent);
+    let mut px4 = StandIn::connect(port, &vehicle);
+    px4.fly(&[], 24);
+    twin.wait_for("session 2 ended");
+    assert_eq!(twin.wait().code(), Some(0));
+    // The new session starts again at PX4's first tick, from the reset state.
+    assert_eq!(px4.record.sensors[0].time_usec, 8333);
+    assert_eq!(px4.record.truth[0].alt, 489_000);
+}
+
+/// `--realtime`: the twin ticks on the wall clock; PX4's clock still advances one period per
+/// HIL_SENSOR and the replies fly the vehicle.
+#[test]
+fn realtime_ticks_one_period_per_hil_sensor() {
+    let _serial = serial();
+    let (mut twin, port) = start_twin(&["--sessions", "1", "--realtime"]);
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let mut px4 = StandIn::connect(port, &vehicle);
+    px4.fly(&[], 120);
+    let ended = twin.wait_for("session 1 ended");
+    assert!(ended.contains("PX4 disconnected"), "{ended}");
+    assert!(twin.stderr().contains("PX4 armed"), "{}", twin.stderr());
+    assert!(
+        !twin.stderr().contains("lockstep with PX4"),
+        "{}",
+        twin.stderr()
+    );
+    let r = &px4.record;
+    assert!(r.sensors.len() > 120);
+    for (n, s) in r.sensors.iter().enumerate() {
+        let want = ((n as f64 + 1.0) * 1e6 / RATE_HZ).round() as u64;
+        assert_eq!(s.time_usec, want, "tick {n}");
     }
 }
