@@ -25,7 +25,7 @@ enum TwinCommand {
     /// Run the twin in this process and serve it over iceoryx2 shared memory to one flight
     /// process at a time (`--ipc`, for `amstack fly --link ipc:<service>`), or as a PX4-style
     /// autopilot over MAVLink 2 (`--mavlink`, for `amstack fly --link mavlink:…`, a ground
-    /// station, or any offboard program).
+    /// station, or any offboard program), or as PX4's simulator (`--px4-hil`, for PX4 SITL).
     Serve(Box<ServeArgs>),
 }
 
@@ -68,8 +68,15 @@ Example with pymavlink as the ground station (QGroundControl: add a UDP link to 
   amstack twin serve --mavlink udp:127.0.0.1:14540 --platform fa-hexa --realtime &
   PY=$(bash scripts/setup-python.sh)    # a venv with pymavlink
   $PY scripts/mavlink_gcs.py rates --connect udpout:127.0.0.1:14540 --seconds 3
-  (it measures the message rates, requests AUTOPILOT_VERSION, arms and disarms: JSON)")]
-#[command(group(clap::ArgGroup::new("link").required(true).args(["ipc", "mavlink"])))]
+  (it measures the message rates, requests AUTOPILOT_VERSION, arms and disarms: JSON)
+
+PX4 HIL (--px4-hil): the twin is PX4's simulator. PX4 SITL's simulator_mavlink connects over
+TCP; the twin sends HIL_SENSOR, HIL_GPS, HIL_STATE_QUATERNION and applies HIL_ACTUATOR_CONTROLS
+through the vehicle file's [px4_hil] channel map, in lockstep (one reply per HIL_SENSOR) or
+--realtime. The vehicle is held at its start until PX4 arms. `amstack px4-airframe` prints
+the vehicle's PX4 parameters. The contract: docs/px4-hil.md.
+  amstack twin serve --px4-hil tcp:0.0.0.0:4560 --platform fa-hexa --task wipe-window --mcap hil.mcap")]
+#[command(group(clap::ArgGroup::new("link").required(true).args(["ipc", "mavlink", "px4_hil"])))]
 pub struct ServeArgs {
     /// iceoryx2 service name the flight process connects to (`--link ipc:<NAME>`).
     #[arg(long, value_name = "NAME")]
@@ -78,6 +85,17 @@ pub struct ServeArgs {
     /// every peer heard from) or open a serial device.
     #[arg(long, value_name = "udp:HOST:PORT|serial:DEVICE:BAUD")]
     mavlink: Option<String>,
+    /// Serve as PX4's simulator (PX4 SITL's simulator_mavlink connects here over TCP; HIL
+    /// messages, lockstep): docs/px4-hil.md.
+    #[arg(long, value_name = "tcp:HOST:PORT")]
+    px4_hil: Option<String>,
+    /// --px4-hil lockstep: before PX4's first reply, how long each HIL_SENSOR waits for one
+    /// (default one control period: PX4 boots in real time), ms.
+    #[arg(long, value_name = "MS", requires = "px4_hil")]
+    first_reply_ms: Option<u64>,
+    /// --px4-hil: the MCAP log of the sessions (FILE, then FILE-2.mcap, ...).
+    #[arg(long, value_name = "FILE", requires = "px4_hil")]
+    mcap: Option<PathBuf>,
     /// Vehicle id (ua-quad, ua-hexa, fa-hexa, omni-hexa, ee-only, or one added with --vehicle).
     #[arg(long, default_value = "fa-hexa")]
     platform: String,
@@ -90,7 +108,7 @@ pub struct ServeArgs {
     /// --ipc: how long a lost flight process's last command is held before the failsafe, ms.
     #[arg(long, value_name = "MS", default_value_t = 500)]
     hold_ms: u64,
-    /// --ipc lockstep: a flight process alive but silent this long counts as lost, ms.
+    /// --ipc, --px4-hil lockstep: a peer alive but silent this long counts as lost, ms.
     #[arg(long, value_name = "MS", default_value_t = 5000)]
     stall_ms: u64,
     /// --ipc: let each flight process choose its session's episode, the task scene and the
@@ -98,7 +116,7 @@ pub struct ServeArgs {
     /// else must still match. Without it, sessions run --task and --seed.
     #[arg(long)]
     flight_chooses_episode: bool,
-    /// --ipc: exit after serving this many sessions (default: until Ctrl-C).
+    /// --ipc, --px4-hil: exit after serving this many sessions (default: until Ctrl-C).
     #[arg(long, value_name = "N")]
     sessions: Option<u64>,
     /// --mavlink: armed in OFFBOARD, no setpoint for this long starts the failsafe (and
@@ -137,6 +155,24 @@ pub fn run(args: &TwinArgs) -> Result<()> {
 fn run_serve(args: &ServeArgs) -> Result<()> {
     if let Some(link) = &args.mavlink {
         return run_mavlink(args, link);
+    }
+    if let Some(endpoint) = &args.px4_hil {
+        let mut twin = args.twin.twin_config()?;
+        args.scene.apply(&mut twin)?;
+        return crate::px4_hil::run_serve(&crate::px4_hil::Serve {
+            endpoint: endpoint.clone(),
+            vehicle: find_vehicle(&args.vehicles, &args.platform)?,
+            twin,
+            mode: if args.realtime {
+                Mode::Realtime
+            } else {
+                Mode::Lockstep
+            },
+            stall_ms: args.stall_ms,
+            first_reply_ms: args.first_reply_ms,
+            sessions: args.sessions,
+            mcap: args.mcap.clone(),
+        });
     }
     let ipc = args.ipc.clone().unwrap_or_default();
     if ipc.is_empty() || ipc.contains(char::is_whitespace) {

@@ -27,6 +27,7 @@ mod mass;
 mod model;
 mod parts;
 pub mod random;
+mod px4_hil;
 mod rotor;
 mod state;
 mod vehicle;
@@ -47,6 +48,7 @@ pub use model::{
 };
 pub use parts::{CameraMount, Gripper, JointDrive};
 pub use random::RandomStream;
+pub use px4_hil::{PX4_HIL_CONTROLS, Px4HilFile, Px4HilMap};
 pub use rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 pub use state::RigidBodyState;
 pub use vehicle::{ControlPresets, GRAVITY_MPS2, Vehicle};

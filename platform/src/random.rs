@@ -11,7 +11,10 @@
 //! | [`RandomStream::Policy`] | seed, stream 2 | the scripted policies' offsets |
 //! | [`RandomStream::ActionNoise`] | seed, stream 3 | N(0, σ²) on every action value (AMBENCH_SPEC §3.1) |
 //! | [`RandomStream::Sensors`] | seed, stream 4 | the simulated IMU and pose sensor (and their biases) |
-//! | [`RandomStream::VisualDomain`] | seed, stream 5 | the cameras' visual domain randomisation |
+//! | [`RandomStream::Magnetometer`] | seed, stream 5 | the simulated magnetometer (bias, noise) |
+//! | [`RandomStream::Barometer`] | seed, stream 6 | the simulated barometer (bias, drift, noise) |
+//! | [`RandomStream::Gnss`] | seed, stream 7 | the simulated GNSS receiver |
+//! | [`RandomStream::VisualDomain`] | seed, stream 8 | the cameras' visual domain randomisation |
 //! | [`RandomStream::TrackActionNoise`] | seed XOR `"action"`, stream 0 | `amstack track`'s action noise on the reference's base + joint target |
 //!
 //! `TrackActionNoise` is its own seeding for a historical reason: `track` drew its action
@@ -34,6 +37,12 @@ pub enum RandomStream {
     ActionNoise,
     /// The simulated sensors (IMU, pose).
     Sensors,
+    /// The simulated magnetometer.
+    Magnetometer,
+    /// The simulated barometer.
+    Barometer,
+    /// The simulated GNSS receiver.
+    Gnss,
     /// Visual domain randomisation of the cameras.
     VisualDomain,
     /// `amstack track`'s action noise (its historical seeding, kept for its results).
@@ -52,7 +61,10 @@ impl RandomStream {
             Self::Policy => (seed, 2),
             Self::ActionNoise => (seed, 3),
             Self::Sensors => (seed, 4),
-            Self::VisualDomain => (seed, 5),
+            Self::Magnetometer => (seed, 5),
+            Self::Barometer => (seed, 6),
+            Self::Gnss => (seed, 7),
+            Self::VisualDomain => (seed, 8),
             Self::TrackActionNoise => (seed ^ TRACK_ACTION_SEED_XOR, 0),
         };
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -92,6 +104,9 @@ mod tests {
             RandomStream::Policy,
             RandomStream::ActionNoise,
             RandomStream::Sensors,
+            RandomStream::Magnetometer,
+            RandomStream::Barometer,
+            RandomStream::Gnss,
             RandomStream::VisualDomain,
             RandomStream::TrackActionNoise,
         ];

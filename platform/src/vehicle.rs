@@ -12,6 +12,7 @@ use crate::actuation::Actuation;
 use crate::error::{DescriptionError, Problem};
 use crate::model::{JointId, JointKind, KinematicModel, LinkId, UNIT_AXIS_TOLERANCE};
 use crate::parts::{CameraMount, Gripper, JointDrive};
+use crate::px4_hil::{Fit, Px4HilMap};
 use crate::rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 use crate::vehicle_file::{Initial, VehicleFile};
 
@@ -55,6 +56,8 @@ pub struct Vehicle {
     pub max_arm_reach_m: Option<f64>,
     /// The controller and IK presets that fly it (`[control]`).
     pub control: ControlPresets,
+    /// PX4 HIL channel map (None: the vehicle file has no `[px4_hil]`).
+    pub px4_hil: Option<Px4HilMap>,
 }
 
 /// The presets of the `controllers` crate a vehicle is flown with (its `[control]` section):
@@ -340,6 +343,19 @@ impl Assembler<'_> {
             mpc: c.mpc.clone(),
             ik: c.ik.clone(),
         };
+        let px4_hil = f
+            .px4_hil
+            .as_ref()
+            .map(|map| {
+                let fit = Fit {
+                    rotors: rotors.rotors.len(),
+                    tilts: rotors.rotors.iter().filter(|r| r.tilt.is_some()).count(),
+                    arm_joints: arm_joints.len(),
+                    gripper: gripper.is_some(),
+                };
+                Px4HilMap::check(self.file, map, &fit)
+            })
+            .transpose()?;
 
         Ok(Vehicle {
             id: f.id.clone(),
@@ -357,6 +373,7 @@ impl Assembler<'_> {
             cameras,
             max_arm_reach_m: f.max_arm_reach_m,
             control,
+            px4_hil,
         })
     }
 

@@ -57,6 +57,10 @@ pub struct VehicleFile {
     /// refused with one line naming the section, not a parser's message).
     #[serde(default)]
     pub control: Option<ControlFile>,
+    /// The PX4 HIL channel map (`amstack twin serve --px4-hil`; absent: the vehicle cannot
+    /// be served to PX4).
+    #[serde(default)]
+    pub px4_hil: Option<crate::px4_hil::Px4HilFile>,
 }
 
 /// `[control]`: which presets of the `controllers` crate fly this vehicle. Names, not numbers:
