@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::Result;
-use sim_twin::autopilot::{Autopilot, AutopilotConfig, AutopilotError, Endpoint, Signing};
+use twin_autopilot::{Autopilot, AutopilotConfig, AutopilotError, Endpoint, Signing};
 use sim_twin::ipc::{Mode, ServeConfig, ServeError, TwinServer};
 
 use crate::cli_error::bad_input;

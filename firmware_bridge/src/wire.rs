@@ -1,5 +1,5 @@
 //! MAVLink 2 on the wire, for both ends of the link (this crate's bridge and the twin's
-//! PX4-style autopilot, `sim_twin::autopilot`): a decoder that never panics and counts
+//! PX4-style autopilot, `twin_autopilot`): a decoder that never panics and counts
 //! everything it throws away by kind, and an encoder that signs when a key is set.
 //!
 //! The decoder takes bytes as they arrive and yields the frames it can check. A byte stream

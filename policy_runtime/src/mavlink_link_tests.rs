@@ -18,7 +18,7 @@ use mavlink::dialects::common::{
 };
 use mavlink::{MavHeader, MavlinkReader, MavlinkVersion};
 use platform::{ActuatorCommand, Measurement, Vehicle};
-use sim_twin::autopilot::telemetry;
+use twin_autopilot::telemetry;
 use sim_twin::{Twin, TwinConfig};
 
 use super::*;

@@ -321,7 +321,7 @@ impl EpisodeError {
 )]
 mod tests {
     use mavlink::dialects::common::MavMessage;
-    use sim_twin::autopilot::telemetry::task_array;
+    use twin_autopilot::telemetry::task_array;
 
     use super::*;
 

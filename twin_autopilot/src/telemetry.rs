@@ -17,9 +17,9 @@ use mavlink::dialects::common::{
 use nalgebra::Vector3;
 use platform::{GRAVITY_MPS2, Measurement};
 
-use super::modes::{Commander, Failsafe};
-use super::wire::LinkCounters;
-use crate::tasks::{TaskId, TaskSnapshot};
+use crate::modes::{Commander, Failsafe};
+use crate::wire::LinkCounters;
+use sim_twin::{TaskId, TaskSnapshot};
 
 /// Where the twin's world origin is on the globe: PX4 SITL's default home (Zürich).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -3,6 +3,10 @@
 //! (QGroundControl, pymavlink) talks to it as to a PX4 vehicle. The contract, as implemented, is
 //! `docs/mavlink.md`.
 //!
+//! A crate of its own, apart from `sim_twin`: the twin's physics, task scenes and iceoryx2
+//! server build without the MAVLink crates (`mavlink`, `tokio-serial`, `firmware_bridge`) and
+//! without `controllers`; only this crate (and the CLI's `twin serve --mavlink`) needs them.
+//!
 //! | file | concept |
 //! |---|---|
 //! | [`modes`] | PX4 custom modes, the commander: arming, mode switches, offboard-loss failsafe |

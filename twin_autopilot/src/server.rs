@@ -13,13 +13,13 @@ use mavlink::{MavHeader, Message};
 use nalgebra::{Isometry3, Vector3};
 use platform::{Actuation, ActuatorCommand, Measurement, Vehicle};
 
-use super::control::{Control, hold_target};
-use super::modes::{Commander, FORCE_DISARM_MAGIC, FlightMode, Refusal, Transition, VehicleFacts};
-use super::telemetry::{self, Landed};
-use super::transport::{Endpoint, Incoming, Transport};
-use super::wire::{Frame, LinkCounters, Signing, Wire};
-use crate::ipc::Mode;
-use crate::{Twin, TwinConfig, TwinError};
+use crate::control::{Control, hold_target};
+use crate::modes::{Commander, FORCE_DISARM_MAGIC, FlightMode, Refusal, Transition, VehicleFacts};
+use crate::telemetry::{self, Landed};
+use crate::transport::{Endpoint, Incoming, Transport};
+use crate::wire::{Frame, LinkCounters, Signing, Wire};
+use sim_twin::ipc::Mode;
+use sim_twin::{Twin, TwinConfig, TwinError};
 use firmware_bridge::{ActuatorUpdate, AttitudeSetpoint, SetpointCodec};
 
 /// The autopilot's MAVLink system id.
