@@ -258,7 +258,11 @@ fn attitude_setpoint_is_ned_frd_with_thrust_over_total_max() {
         (a.body_roll_rate, a.body_pitch_rate, a.body_yaw_rate),
         (0.1, -0.2, -0.3)
     );
-    assert!(a.type_mask.is_empty());
+    // Rates used, thrust_body flagged (PX4 reads it only with THRUST_BODY_SET).
+    assert_eq!(
+        a.type_mask,
+        AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET
+    );
     assert_eq!(a.time_boot_ms, 5_000);
     // A force beyond every rotor's maximum is clamped to −1.
     let sp = AttitudeSetpoint {

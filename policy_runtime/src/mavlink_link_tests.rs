@@ -18,8 +18,8 @@ use mavlink::dialects::common::{
 };
 use mavlink::{MavHeader, MavlinkReader, MavlinkVersion};
 use platform::{ActuatorCommand, Measurement, Vehicle};
-use twin_autopilot::telemetry;
 use sim_twin::{Twin, TwinConfig};
+use twin_autopilot::telemetry;
 
 use super::*;
 use crate::track::{Interface, TrackConfig, run_track, run_track_with_link};
