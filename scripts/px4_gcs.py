@@ -16,6 +16,8 @@ on stdout; tests/tests/px4.rs asserts on it. Run it with the venv of scripts/set
             dialect has no thrust_body) level with a forward body force: the motion.
   rates     lockstep body-rate setpoints (attitude ignored) of 50 rad/s, 1e30 rad/s and NaN:
             the largest roll rate seen.
+  actuator  SET_ACTUATOR_CONTROL_TARGET without --allow-actuator-setpoints: motors refused
+            with a STATUSTEXT, OFFBOARD refused (no setpoint stream), the arm group accepted.
   v1        a MAVLink 1 ground station (pymavlink's default): heartbeat and an ACK in v1.
   fuzz      --frames random, garbled, truncated, MAVLink 1, unknown-id frames and valid
             frames of every setpoint and protocol message with non-finite and huge values;
@@ -515,6 +517,28 @@ def cmd_rates(args):
     return out
 
 
+def cmd_actuator_off(args):
+    m = g.connect(args)
+    if g.wait_heartbeat(m) is None:
+        return {"error": "no heartbeat"}
+    out = {}
+    texts = []
+    for _ in range(5):
+        m.mav.set_actuator_control_target_send(0, 0, 1, 1, [0.5] * 8)
+        time.sleep(0.05)
+    end = time.time() + 1.0
+    while time.time() < end:
+        msg = m.recv_match(type="STATUSTEXT", blocking=True, timeout=0.1)
+        if msg is not None:
+            texts.append(msg.text)
+    out["texts"] = texts
+    out["offboard"], _ = g.command(m, mavlink2.MAV_CMD_DO_SET_MODE, 1, 6, 0)
+    # The arm group is taken (not counted as rejected input: the test reads the exit line).
+    m.mav.set_actuator_control_target_send(0, 2, 1, 1, [1.0] + [0.0] * 7)
+    time.sleep(0.3)
+    return out
+
+
 def cmd_v1(args):
     os.environ.pop("MAVLINK20", None)
     from pymavlink.dialects.v10 import common as mavlink1
@@ -664,7 +688,7 @@ def main():
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("mode", choices=["params", "mission", "auto", "position", "attitude", "rates",
-                                    "v1", "fuzz"])
+                                    "actuator", "v1", "fuzz"])
     p.add_argument("--connect", required=True)
     p.add_argument("--takeoff-alt", type=float, default=1.8)
     p.add_argument("--alt", type=float, default=1.5)
@@ -680,7 +704,8 @@ def main():
     p.add_argument("--seed", type=int, default=1)
     args = p.parse_args()
     fn = {"params": cmd_params, "mission": cmd_mission, "auto": cmd_auto,
-          "position": cmd_position, "attitude": cmd_attitude, "rates": cmd_rates, "v1": cmd_v1,
+          "position": cmd_position, "attitude": cmd_attitude, "rates": cmd_rates,
+          "actuator": cmd_actuator_off, "v1": cmd_v1,
           "fuzz": cmd_fuzz}[args.mode]
     print(json.dumps(fn(args)))
 

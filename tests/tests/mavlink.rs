@@ -1019,7 +1019,15 @@ mod bridge {
             panic!("pty_pair.py printed {line:?}");
         };
         let device = format!("serial:{twin_end}:921600");
-        let mut args = vec!["twin", "serve", "--mavlink", &device, "--lockstep"];
+        // Actuator level: the twin's SITL extension.
+        let mut args = vec![
+            "twin",
+            "serve",
+            "--mavlink",
+            &device,
+            "--lockstep",
+            "--allow-actuator-setpoints",
+        ];
         args.extend_from_slice(FLIGHT);
         args.extend_from_slice(TASK_SCENE);
         let twin = Proc::start("twin serve --mavlink serial", &args);

@@ -305,9 +305,28 @@ fn body_rates_beyond_the_limits_are_clamped_and_non_finite_ones_refused() {
     let roll = f(&res["1e30"]["max_roll_rate"]);
     assert!(roll <= 90f64.to_radians() * 1.05 && roll > 0.5, "{r}");
     // NaN: refused with a reason, counted.
-    assert!(res["nan"]["texts"].to_string().contains("not"), "{r}");
+    assert!(
+        res["nan"]["texts"].to_string().contains("NaN not finite"),
+        "{r}"
+    );
     let line = ap.stop();
     assert!(!line.contains("rejected input 0"), "{line}");
+}
+
+#[test]
+fn actuator_setpoints_are_refused_with_a_reason_unless_allowed() {
+    let _one = serial();
+    let mut ap = Autopilot::start("fa-hexa");
+    let r = ap.peer("actuator", &[]);
+    // One STATUSTEXT a second at most, saying why; no setpoint stream, so no OFFBOARD.
+    assert_eq!(
+        r["texts"],
+        serde_json::json!(["Actuator setpoints off: PX4 has none (use SET_ATTIT"]),
+        "{r}"
+    );
+    assert_eq!(r["offboard"], "TEMPORARILY_REJECTED", "{r}");
+    let line = ap.stop();
+    assert!(line.contains("rejected input 5"), "{line}");
 }
 
 #[test]

@@ -36,6 +36,7 @@ use crate::realtime::{RealtimeMonitor, RealtimePolicy};
 use crate::telemetry::{self, Landed};
 use crate::transport::{Endpoint, Incoming, Transport};
 use crate::wire::{Frame, LinkCounters, Signing, Wire};
+use firmware_bridge::setpoint::GROUP_ARM;
 use firmware_bridge::{ActuatorUpdate, SetpointCodec};
 use guidance::Guidance;
 use sim_twin::ipc::Mode;
@@ -980,7 +981,10 @@ impl Autopilot {
                     self.wire.count_rejected_input();
                     return;
                 }
-                if !self.config.allow_actuator_setpoints {
+                // Groups 0 (motors) and 1 (tilt servos) are what PX4 would fly: a SITL
+                // extension. Group 2 (arm and gripper) is not PX4's on a real vehicle either (the
+                // companion drives the arm on its own bus): accepted as that bus's stand-in.
+                if !self.config.allow_actuator_setpoints && s.group_mlx != GROUP_ARM {
                     self.wire.count_rejected_input();
                     self.refuse_input(
                         "actuator",
@@ -1027,7 +1031,7 @@ impl Autopilot {
                         self.wire.count_rejected_input();
                         self.refuse_input(
                             "attitude",
-                            &format!("Attitude setpoint refused: {why}"),
+                            &format!("Attitude refused: {why}"),
                             on_event,
                         );
                     }
@@ -1053,7 +1057,7 @@ impl Autopilot {
                         self.wire.count_rejected_input();
                         self.refuse_input(
                             "position",
-                            &format!("Position setpoint refused: {why}"),
+                            &format!("Position refused: {why}"),
                             on_event,
                         );
                     }
