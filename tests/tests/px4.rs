@@ -321,7 +321,7 @@ fn actuator_setpoints_are_refused_with_a_reason_unless_allowed() {
     // One STATUSTEXT a second at most, saying why; no setpoint stream, so no OFFBOARD.
     assert_eq!(
         r["texts"],
-        serde_json::json!(["Actuator setpoints off: PX4 has none (use SET_ATTIT"]),
+        serde_json::json!(["Actuator setpoints refused: not in PX4 (SITL flag)"]),
         "{r}"
     );
     assert_eq!(r["offboard"], "TEMPORARILY_REJECTED", "{r}");

@@ -412,6 +412,6 @@ mod tests {
             (index, e.to_string()),
             (None, "[pm] unknown param: NO_SUCH".to_owned())
         );
-        assert_eq!(p.get(Param::MpcXyVelMax), 12.0, "unchanged by refusals");
+        assert_eq!(p.get(Param::MpcXyVelMax), 2.0, "unchanged by refusals");
     }
 }

@@ -46,6 +46,10 @@ use sim_twin::{Twin, TwinConfig, TwinError};
 pub const SYSTEM_ID: u8 = 1;
 /// The autopilot's MAVLink component id (MAV_COMP_ID_AUTOPILOT1).
 pub const COMPONENT_ID: u8 = 1;
+/// The STATUSTEXT (≤ 50 characters) refusing SET_ACTUATOR_CONTROL_TARGET without
+/// `--allow-actuator-setpoints`; the log line adds how to allow them.
+pub const ACTUATOR_REFUSAL: &str = "Actuator setpoints refused: not in PX4 (SITL flag)";
+
 /// Refusals of the same kind are announced by STATUSTEXT at most this often (a refused
 /// setpoint stream would flood the link otherwise); every one is counted.
 pub const REFUSAL_TEXT_PERIOD: Duration = Duration::from_secs(1);
@@ -986,11 +990,7 @@ impl Autopilot {
                 // companion drives the arm on its own bus): accepted as that bus's stand-in.
                 if !self.config.allow_actuator_setpoints && s.group_mlx != GROUP_ARM {
                     self.wire.count_rejected_input();
-                    self.refuse_input(
-                        "actuator",
-                        "Actuator setpoints off: PX4 has none (use SET_ATTITUDE_TARGET; SITL: --allow-actuator-setpoints)",
-                        on_event,
-                    );
+                    self.refuse_input("actuator", ACTUATOR_REFUSAL, on_event);
                     return;
                 }
                 let mut targets = self.joint_targets.clone();
@@ -1147,10 +1147,15 @@ impl Autopilot {
             self.refusal_texts.push((kind, now));
         }
         self.status_text(MavSeverity::MAV_SEVERITY_WARNING, text);
+        let reason = if text == ACTUATOR_REFUSAL {
+            "current PX4 has no actuator offboard over MAVLink (fly SET_ATTITUDE_TARGET or SET_POSITION_TARGET_LOCAL_NED; in SITL: twin serve --allow-actuator-setpoints)".to_owned()
+        } else {
+            text.to_owned()
+        };
         on_event(&AutopilotEvent::Refused {
             at_s: self.twin.time_s(),
             command: format!("{kind} setpoint"),
-            reason: text.to_owned(),
+            reason,
         });
     }
 
