@@ -691,7 +691,7 @@ fn a_decoder_accepting_v1_checks_mavlink_1_frames_and_the_encoder_answers_in_kin
     rx.push_datagram(&v1[..5], &counters, &mut out);
     assert_eq!(counters.snapshot().truncated, 1);
     // MAVLink 1 cannot carry ids above 255 nor be signed.
-    let odometry = MavMessage::ODOMETRY(mavlink::dialects::common::ODOMETRY_DATA::default());
+    let odometry = MavMessage::ODOMETRY(ODOMETRY_DATA::default());
     let mut none = Vec::new();
     assert!(!tx.encode_v1_into(&odometry, &mut none));
     assert!(none.is_empty());

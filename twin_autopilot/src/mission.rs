@@ -128,7 +128,7 @@ fn place(
             "point too far from home".into(),
         ));
     }
-    if !(z_world.abs() <= MAX_DISTANCE_M) {
+    if !(z_world.is_finite() && z_world.abs() <= MAX_DISTANCE_M) {
         return Err((
             MavMissionResult::MAV_MISSION_INVALID_PARAM7,
             "altitude out of range".into(),

@@ -858,7 +858,7 @@ impl Autopilot {
             match d {
                 guidance::Deferred::Transition(t) => self.transition(t, on_event),
                 guidance::Deferred::Notice(text) => self.notice(text, on_event),
-                guidance::Deferred::Send(msg) => self.send(&[msg]),
+                guidance::Deferred::Send(msg) => self.send(&[*msg]),
             }
         }
     }

@@ -208,7 +208,7 @@ impl Autopilot {
                         return;
                     }
                 };
-                if !(z.abs() <= MAX_GOAL_M) {
+                if !(z.is_finite() && z.abs() <= MAX_GOAL_M) {
                     self.refuse(
                         from,
                         c.command,
@@ -251,7 +251,7 @@ impl Autopilot {
                         return;
                     }
                 };
-                if !(goal.norm() <= MAX_GOAL_M) {
+                if !(goal.norm().is_finite() && goal.norm() <= MAX_GOAL_M) {
                     self.refuse(
                         from,
                         c.command,

@@ -77,7 +77,7 @@ impl Guidance {
 pub(super) enum Deferred {
     Transition(Transition),
     Notice(String),
-    Send(MavMessage),
+    Send(Box<MavMessage>),
 }
 
 impl Autopilot {
@@ -183,13 +183,13 @@ impl Autopilot {
                 let mut limits = self.limits(self.cruise_mps());
                 limits.up_speed_mps = self.params.get(Param::MpcTkoSpeed);
                 let arrived = carrot.toward(&goal, &limits, dt);
-                if arrived && self.within(&goal, acceptance) {
-                    if let Some(t) = self
+                if arrived
+                    && self.within(&goal, acceptance)
+                    && let Some(t) = self
                         .commander
                         .switch(FlightMode::AutoLoiter, "takeoff done")
-                    {
-                        self.deferred.push(Deferred::Transition(t));
-                    }
+                {
+                    self.deferred.push(Deferred::Transition(t));
                 }
             }
             Guidance::Land => {
@@ -224,9 +224,9 @@ impl Autopilot {
 
     fn reached(&mut self, seq: u16) {
         self.deferred
-            .push(Deferred::Send(MavMessage::MISSION_ITEM_REACHED(
+            .push(Deferred::Send(Box::new(MavMessage::MISSION_ITEM_REACHED(
                 MISSION_ITEM_REACHED_DATA { seq },
-            )));
+            ))));
         self.deferred
             .push(Deferred::Notice(format!("mission item {seq} reached")));
     }
@@ -235,7 +235,7 @@ impl Autopilot {
         self.mission_seq = self.mission_seq.saturating_add(1);
         self.guidance = Guidance::Mission(ItemPhase::Flying);
         let msg = self.mission_current();
-        self.deferred.push(Deferred::Send(msg));
+        self.deferred.push(Deferred::Send(Box::new(msg)));
         if usize::from(self.mission_seq) >= self.missions.items().len() {
             self.deferred.push(Deferred::Notice(
                 "mission complete: holding at the last point".to_owned(),
