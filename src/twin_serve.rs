@@ -7,8 +7,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::Result;
-use sim_twin::autopilot::{Autopilot, AutopilotConfig, AutopilotError, Endpoint, Signing};
 use sim_twin::ipc::{Mode, ServeConfig, ServeError, TwinServer};
+use twin_autopilot::{
+    Autopilot, AutopilotConfig, AutopilotError, Endpoint, RealtimePolicy, Signing,
+};
 
 use crate::cli_error::bad_input;
 use crate::twin_flags::{SceneFlag, TwinFlags};
@@ -47,13 +49,20 @@ Example:
   amstack twin serve --ipc sitl --platform fa-hexa &
   amstack fly --link ipc:sitl --platform fa-hexa --trajectory step --json r.json
 
-MAVLINK (--mavlink): the twin is a PX4 vehicle, MAVLink 2 system 1 component 1: HEARTBEAT
-(PX4 custom modes), SYS_STATUS, EXTENDED_SYS_STATE, ATTITUDE, GLOBAL_POSITION_INT, and at
-every twin step DEBUG_FLOAT_ARRAY 'joints', ACTUATOR_OUTPUT_STATUS (newtons), HIGHRES_IMU,
-ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ODOMETRY. It arms, switches to OFFBOARD (only
-while setpoints stream, >= 2 Hz) and flies SET_ACTUATOR_CONTROL_TARGET (groups 0 motors,
-1 tilts, 2 arm + gripper) or SET_ATTITUDE_TARGET (its own attitude loop). Every COMMAND_LONG
-gets a COMMAND_ACK, refusals a STATUSTEXT with the reason. It starts disarmed in POSCTL,
+MAVLINK (--mavlink): the twin is a PX4 vehicle, MAVLink 2 system 1 component 1 (MAVLink 1 to
+a peer until it speaks MAVLink 2): HEARTBEAT (PX4 custom modes), SYS_STATUS (health),
+EXTENDED_SYS_STATE, ATTITUDE, GLOBAL_POSITION_INT, GPS_RAW_INT, ALTITUDE, HOME_POSITION,
+MISSION_CURRENT, and at every twin step DEBUG_FLOAT_ARRAY 'joints', ACTUATOR_OUTPUT_STATUS
+(newtons), HIGHRES_IMU, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ODOMETRY. Parameters
+(PARAM_*: COM_OF_LOSS_T, COM_OBL_RC_ACT, MPC_*, MIS_TAKEOFF_ALT, NAV_ACC_RAD, RTL_RETURN_ALT,
+MC_*RATE_MAX), missions (MISSION_INT; AUTO.MISSION flies takeoff, waypoints, land, RTL),
+COMMAND_LONG and COMMAND_INT (arm, modes, NAV_TAKEOFF, DO_REPOSITION, NAV_RETURN_TO_LAUNCH,
+NAV_LAND, MISSION_START...). OFFBOARD (only while setpoints stream) flies what PX4 accepts:
+SET_POSITION_TARGET_LOCAL_NED (position, velocity, acceleration; its own PID) and
+SET_ATTITUDE_TARGET (attitude or body rates, thrust or thrust_body; its own attitude loop).
+SET_ACTUATOR_CONTROL_TARGET (groups 0 motors, 1 tilts, 2 arm + gripper), which current PX4
+does not have, only with --allow-actuator-setpoints. Every command gets a COMMAND_ACK,
+refusals a STATUSTEXT with the reason. It starts disarmed in POSCTL,
 level, 1 m up (the benchmark's reset); POSCTL and AUTO modes hold/land with its own PID.
 With --lockstep (what SITL tests use) the twin steps once per setpoint tick while armed in
 OFFBOARD; with --realtime it runs on the wall clock from the first arming.
@@ -136,6 +145,15 @@ pub struct ServeArgs {
     /// --mavlink: link id written into outgoing signatures.
     #[arg(long, value_name = "ID", default_value_t = 0)]
     signing_link_id: u8,
+    /// --mavlink: accept SET_ACTUATOR_CONTROL_TARGET (motors, tilts, arm), a SITL extension:
+    /// current PX4 has no actuator offboard over MAVLink. Off: refused with a STATUSTEXT.
+    #[arg(long)]
+    allow_actuator_setpoints: bool,
+    /// --mavlink --realtime: when the twin cannot keep up with the wall clock (its real-time
+    /// factor, printed once per second, below 0.98): warn (keep running at the slower pace)
+    /// or fail (exit 1).
+    #[arg(long, value_name = "warn|fail", default_value = "warn")]
+    realtime_policy: String,
     /// The twin's settings, as in `amstack track`; every session starts from the seed.
     #[command(flatten)]
     twin: TwinFlags,
@@ -223,6 +241,8 @@ fn run_mavlink(args: &ServeArgs, link: &str) -> Result<()> {
             "--offboard-timeout-ms 0: must be positive".to_owned(),
         ));
     }
+    let realtime_policy = RealtimePolicy::parse(&args.realtime_policy)
+        .map_err(|e| bad_input(format!("--realtime-policy {e}")))?;
     let signing = match &args.signing_key {
         None => None,
         Some(path) => {
@@ -253,6 +273,8 @@ fn run_mavlink(args: &ServeArgs, link: &str) -> Result<()> {
         offboard_timeout: Duration::from_millis(args.offboard_timeout_ms),
         failsafe_hold_s: args.failsafe_hold_s,
         signing,
+        allow_actuator_setpoints: args.allow_actuator_setpoints,
+        realtime_policy,
         ..AutopilotConfig::new(endpoint, mode)
     };
     let mut autopilot = Autopilot::new(vehicle, twin, config).map_err(|e| match e {

@@ -359,7 +359,7 @@ impl SetpointCodec {
         // MAVLink carries f32; the narrowing is the protocol's.
         #[allow(clippy::cast_possible_truncation)]
         let thrust_body = force_frd.map(|f| f.clamp(-1.0, 1.0) as f32);
-        let (rates, type_mask) = match &setpoint.body_rates_radps {
+        let (rates, rate_mask) = match &setpoint.body_rates_radps {
             Some(r) => (frames::frd_from_flu(r), AttitudeTargetTypemask::empty()),
             None => (
                 Vector3::zeros(),
@@ -368,6 +368,9 @@ impl SetpointCodec {
                     | AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE,
             ),
         };
+        // PX4 reads thrust_body only with THRUST_BODY_SET (else the collective `thrust`).
+        let type_mask =
+            rate_mask | AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET;
         let q = frames::quaternion_to_mavlink(&frames::ned_from_frd_attitude(
             &setpoint.world_from_body,
         ));

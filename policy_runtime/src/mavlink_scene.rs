@@ -103,7 +103,7 @@ pub(crate) fn check_scene(model: &TaskSnapshot, wire: &TaskArray) -> Result<(), 
 mod tests {
     use mavlink::dialects::common::MavMessage;
     use platform::Vehicle;
-    use sim_twin::autopilot::telemetry::task_array;
+    use twin_autopilot::telemetry::task_array;
     use sim_twin::{Twin, TwinConfig};
 
     use super::*;

@@ -19,8 +19,8 @@ use mavlink::dialects::common::{
 use mavlink::{MavHeader, MavlinkReader, MavlinkVersion};
 use nalgebra::{UnitQuaternion, Vector3};
 use platform::{ActuatorCommand, Measurement, Vehicle};
-use sim_twin::autopilot::telemetry;
 use sim_twin::{Twin, TwinConfig};
+use twin_autopilot::telemetry;
 
 use crate::link::{Setpoint, SetpointLevel};
 use crate::mavlink_link::{Level, MavlinkLink, MavlinkLinkConfig};
