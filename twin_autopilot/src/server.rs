@@ -40,6 +40,7 @@ use firmware_bridge::setpoint::GROUP_ARM;
 use firmware_bridge::{ActuatorUpdate, SetpointCodec};
 use guidance::Guidance;
 use sim_twin::ipc::Mode;
+use sim_twin::sensors::{NavigationModels, NavigationSensors};
 use sim_twin::{Twin, TwinConfig, TwinError};
 
 /// The autopilot's MAVLink system id.
@@ -326,6 +327,10 @@ pub struct Autopilot {
     /// When each kind of refusal was last announced.
     refusal_texts: Vec<(&'static str, Instant)>,
     realtime: RealtimeMonitor,
+    /// The twin's navigation sensors (GNSS for GPS_RAW_INT), sampled after every step.
+    navigation: NavigationSensors,
+    /// The GNSS receiver's latest fix.
+    gnss_fix: Option<estimator::GnssFix>,
     /// Set when `--realtime-policy fail` stops the autopilot.
     realtime_failure: Option<String>,
     previous_velocity: Vector3<f64>,
@@ -425,6 +430,9 @@ impl Autopilot {
             .set(Param::ComOfLossT, config.offboard_timeout.as_secs_f64())
             .map_err(|e| AutopilotError::Vehicle(format!("--offboard-timeout-ms: {e}")))?;
         let hover_force = Vector3::z() * (control.body().mass_kg * GRAVITY_MPS2);
+        let mut navigation = NavigationSensors::new(NavigationModels::default(), seed)
+            .map_err(|e| AutopilotError::Vehicle(format!("navigation sensors: {e}")))?;
+        let gnss_fix = navigation.sample(twin.truth()).gnss;
         let previous_velocity = twin.truth().base.velocity_in_world_mps;
         Ok(Self {
             specific_force: telemetry::specific_force(twin.truth(), &previous_velocity, dt_s),
@@ -458,6 +466,8 @@ impl Autopilot {
             deferred: Vec::new(),
             refusal_texts: Vec::new(),
             realtime: RealtimeMonitor::new(),
+            navigation,
+            gnss_fix,
             realtime_failure: None,
             next_step: None,
             clock_started: false,
@@ -832,6 +842,10 @@ impl Autopilot {
                 self.next_idle_telemetry = Instant::now() + IDLE_TELEMETRY_PERIOD;
                 self.specific_force =
                     telemetry::specific_force(self.truth(), &self.previous_velocity, self.dt_s);
+                let readings = self.navigation.sample(self.twin.truth());
+                if readings.gnss.is_some() {
+                    self.gnss_fix = readings.gnss;
+                }
                 self.send_per_step();
             }
             Err(e) => {
@@ -941,7 +955,7 @@ impl Autopilot {
             EXTENDED_SYS_STATE_ID => telemetry::extended_sys_state(self.landed_state()),
             ATTITUDE_ID => telemetry::attitude(m),
             GLOBAL_POSITION_INT_ID => telemetry::global_position_int(m),
-            GPS_RAW_INT_ID => telemetry::gps_raw_int(m, &telemetry::gnss_fix(m)),
+            GPS_RAW_INT_ID => telemetry::gps_raw_int(m, self.gnss_fix.as_ref()?),
             ALTITUDE_ID => telemetry::altitude(m, &self.home_m),
             MISSION_CURRENT_ID => self.mission_current(),
             HOME_POSITION_ID => telemetry::home_position(m, &self.home_m),

@@ -428,45 +428,11 @@ pub fn autopilot_version() -> MavMessage {
     })
 }
 
-/// A fix of the simulated GNSS receiver. The twin's autopilot takes it from the truth
-/// (exact, 3D fix, 12 satellites, accuracies of a good receiver) until the GNSS sensor model
-/// of `sim_twin::sensors` is in place; GPS_RAW_INT and GLOBAL_POSITION_INT come from it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GnssFix {
-    /// Latitude, degrees.
-    pub lat_deg: f64,
-    /// Longitude, degrees.
-    pub lon_deg: f64,
-    /// Altitude AMSL, m.
-    pub alt_m: f64,
-    /// Velocity, NED, m/s.
-    pub velocity_ned_mps: Vector3<f64>,
-    /// Horizontal accuracy (1σ), m.
-    pub h_acc_m: f64,
-    /// Vertical accuracy (1σ), m.
-    pub v_acc_m: f64,
-    /// Satellites used.
-    pub satellites: u8,
-}
-
-/// The GNSS fix of the state `m`.
-pub fn gnss_fix(m: &Measurement) -> GnssFix {
-    let p = frames::ned_from_world(&m.base.position_in_world_m);
-    let (lat_deg, lon_deg) = lat_lon_deg(&HOME, p.x, p.y);
-    GnssFix {
-        lat_deg,
-        lon_deg,
-        alt_m: HOME.alt_m - p.z,
-        velocity_ned_mps: frames::ned_from_world(&m.base.velocity_in_world_mps),
-        h_acc_m: 0.3,
-        v_acc_m: 0.5,
-        satellites: 12,
-    }
-}
-
-/// GPS_RAW_INT of a fix.
-pub fn gps_raw_int(m: &Measurement, fix: &GnssFix) -> MavMessage {
-    let v = fix.velocity_ned_mps;
+/// GPS_RAW_INT of a fix of the twin's simulated GNSS receiver (`sim_twin::sensors`: WGS-84
+/// tangent plane about the world origin, noise, rate, eph/epv), stamped with the twin's time
+/// `m`.
+pub fn gps_raw_int(m: &Measurement, fix: &estimator::GnssFix) -> MavMessage {
+    let v = frames::ned_from_world(&fix.velocity_in_world_mps);
     let ground = v.x.hypot(v.y);
     let cog = if ground > 0.1 {
         (v.y.atan2(v.x).to_degrees().rem_euclid(360.0) * 100.0).round()
@@ -474,20 +440,28 @@ pub fn gps_raw_int(m: &Measurement, fix: &GnssFix) -> MavMessage {
         f64::from(u16::MAX)
     };
     let mm_u32 = |x: f64| (x * 1e3).round().clamp(0.0, f64::from(u32::MAX)) as u32;
+    // DOP-like eph/epv (unitless · 100) from the accuracies, a 1 m-accurate fix at 100.
+    let dop = |x: f64| (x * 100.0).round().clamp(0.0, 65_534.0) as u16;
+    let fix_type = match fix.fix_type {
+        0 => GpsFixType::GPS_FIX_TYPE_NO_GPS,
+        1 => GpsFixType::GPS_FIX_TYPE_NO_FIX,
+        2 => GpsFixType::GPS_FIX_TYPE_2D_FIX,
+        _ => GpsFixType::GPS_FIX_TYPE_3D_FIX,
+    };
     MavMessage::GPS_RAW_INT(GPS_RAW_INT_DATA {
         time_usec: time_us(m),
-        lat: e7(fix.lat_deg),
-        lon: e7(fix.lon_deg),
-        alt: mm(fix.alt_m),
-        eph: 80,
-        epv: 120,
+        lat: e7(fix.position.latitude_deg),
+        lon: e7(fix.position.longitude_deg),
+        alt: mm(fix.position.altitude_amsl_m),
+        eph: dop(fix.eph_m),
+        epv: dop(fix.epv_m),
         vel: (ground * 100.0).round().clamp(0.0, 65_534.0) as u16,
         cog: cog.clamp(0.0, f64::from(u16::MAX)) as u16,
-        fix_type: GpsFixType::GPS_FIX_TYPE_3D_FIX,
+        fix_type,
         satellites_visible: fix.satellites,
-        alt_ellipsoid: mm(fix.alt_m),
-        h_acc: mm_u32(fix.h_acc_m),
-        v_acc: mm_u32(fix.v_acc_m),
+        alt_ellipsoid: mm(fix.position.altitude_amsl_m),
+        h_acc: mm_u32(fix.eph_m),
+        v_acc: mm_u32(fix.epv_m),
         vel_acc: mm_u32(0.1),
         hdg_acc: 0,
         yaw: 0,
@@ -589,10 +563,26 @@ mod tests {
         // The inverse map.
         let (x, y) = world_xy_of(&HOME, f64::from(g.lat) / 1e7, f64::from(g.lon) / 1e7);
         assert!((x - 1.0).abs() < 0.02 && (y - 2.0).abs() < 0.02, "{x} {y}");
-        let MavMessage::GPS_RAW_INT(r) = gps_raw_int(&m, &gnss_fix(&m)) else {
+        let fix = estimator::GnssFix {
+            time_s: m.time_s,
+            position: estimator::GeodeticOrigin::default().geodetic(&m.base.position_in_world_m),
+            velocity_in_world_mps: m.base.velocity_in_world_mps,
+            fix_type: 3,
+            eph_m: 0.5,
+            epv_m: 0.8,
+            satellites: 10,
+        };
+        let MavMessage::GPS_RAW_INT(r) = gps_raw_int(&m, &fix) else {
             panic!()
         };
-        assert_eq!((r.lat, r.lon, r.alt), (g.lat, g.lon, g.alt));
+        // A noiseless fix lands on GLOBAL_POSITION_INT's point (within the ellipsoid's
+        // difference from the sphere over 2 m: well under a centimetre).
+        assert!(
+            (r.lat - g.lat).abs() <= 1 && (r.lon - g.lon).abs() <= 1,
+            "{r:?} {g:?}"
+        );
+        assert_eq!(r.alt, g.alt);
         assert_eq!(r.fix_type, GpsFixType::GPS_FIX_TYPE_3D_FIX);
+        assert_eq!((r.eph, r.h_acc, r.satellites_visible), (50, 500, 10));
     }
 }
