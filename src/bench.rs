@@ -426,6 +426,27 @@ pub fn run(args: &Args) -> Result<()> {
     })?;
     bar.finish_and_clear();
     println!("{}", table(&report));
+    let estimates: Vec<_> = report
+        .tasks
+        .iter()
+        .flat_map(|t| &t.rollouts)
+        .filter_map(|r| r.estimator)
+        .collect();
+    if !estimates.is_empty() {
+        let n = estimates.len() as f64;
+        eprintln!(
+            "estimator vs truth: position RMSE {:.2} mm (mean over {} rollouts), largest error {:.2} mm; {} fixes fused, {} refused",
+            estimates.iter().map(|e| e.position_rmse_m).sum::<f64>() / n * 1e3,
+            estimates.len(),
+            estimates
+                .iter()
+                .map(|e| e.position_max_error_m)
+                .fold(0.0, f64::max)
+                * 1e3,
+            estimates.iter().map(|e| e.fused).sum::<u64>(),
+            estimates.iter().map(|e| e.rejected).sum::<u64>(),
+        );
+    }
     eprintln!(
         "{} env steps in {:.1} s ({:.0} steps/s, {} thread(s))",
         report.env_steps,

@@ -204,10 +204,16 @@ fn a_vehicle_file_without_its_control_presets_is_refused() {
     let (_dir, path) = fa_hexa_copy(|toml, urdf| {
         // The section is the file's last: cut it and what follows.
         let cut = toml.find("[control]").unwrap_or(toml.len());
-        (toml[..cut].replace("id = \"fa-hexa\"", "id = \"my-hexa\""), urdf)
+        (
+            toml[..cut].replace("id = \"fa-hexa\"", "id = \"my-hexa\""),
+            urdf,
+        )
     });
     let out = amstack(&["platforms", "--vehicle", &path.to_string_lossy()]);
-    assert_bad_input(&out, &["my-hexa.toml", "control", "missing section [control]"]);
+    assert_bad_input(
+        &out,
+        &["my-hexa.toml", "control", "missing section [control]"],
+    );
 
     let (_dir, path) = fa_hexa_copy(|toml, urdf| {
         (

@@ -26,8 +26,8 @@ mod link;
 mod mass;
 mod model;
 mod parts;
-pub mod random;
 mod px4_hil;
+pub mod random;
 mod rotor;
 mod state;
 mod vehicle;
@@ -47,8 +47,8 @@ pub use model::{
     Shape, UNIT_AXIS_TOLERANCE,
 };
 pub use parts::{CameraMount, Gripper, JointDrive};
-pub use random::RandomStream;
 pub use px4_hil::{PX4_HIL_CONTROLS, Px4HilFile, Px4HilMap};
+pub use random::RandomStream;
 pub use rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 pub use state::RigidBodyState;
 pub use vehicle::{ControlPresets, GRAVITY_MPS2, Vehicle};

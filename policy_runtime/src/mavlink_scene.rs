@@ -103,8 +103,8 @@ pub(crate) fn check_scene(model: &TaskSnapshot, wire: &TaskArray) -> Result<(), 
 mod tests {
     use mavlink::dialects::common::MavMessage;
     use platform::Vehicle;
-    use twin_autopilot::telemetry::task_array;
     use sim_twin::{Twin, TwinConfig};
+    use twin_autopilot::telemetry::task_array;
 
     use super::*;
 

@@ -7,10 +7,11 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, identity, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 pub(crate) fn policy(ctx: &PolicyContext, _rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
-    let d = ctx.task.vec3("pulling_door_pos", 0)?;
-    let c = ctx.task.vec3("can_pos", 0)?;
+    let d = ctx.task.vec3(keys::PULLING_DOOR_POS, 0)?;
+    let c = ctx.task.vec3(keys::CAN_POS, 0)?;
     let door_approach = Vector3::new(d.x - 0.58, d.y + 0.5, d.z + 0.2);
     let pull_right = door_approach - Vector3::new(0.0, 0.62, 0.0);
     let retract = pull_right - Vector3::new(0.1, 0.0, 0.0);

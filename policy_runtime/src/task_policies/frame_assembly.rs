@@ -7,13 +7,14 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, identity, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 /// Half the frame's height, m.
 const HALF_HEIGHT_M: f64 = 0.25;
 
 pub(crate) fn policy(ctx: &PolicyContext, _rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
-    let f = ctx.task.vec3("frame_pos", 0)?;
-    let p = ctx.task.vec3("peg_center_pos", 0)?;
+    let f = ctx.task.vec3(keys::FRAME_POS, 0)?;
+    let p = ctx.task.vec3(keys::PEG_CENTER_POS, 0)?;
     let hover = f + Vector3::new(-0.60, 0.0, 0.22);
     let grasp_approach = f + Vector3::new(-0.25, 0.0, 0.22);
     let grasp = f + Vector3::new(-0.16, 0.0, 0.22);

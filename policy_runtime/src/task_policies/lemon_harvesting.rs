@@ -7,13 +7,14 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, identity, uniform, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 /// Pitch of the carrying orientation, rad.
 const TILT_RAD: f64 = 0.30;
 
 pub(crate) fn policy(ctx: &PolicyContext, rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
-    let l = ctx.task.vec3("lemon_pos", 0)?;
-    let k = ctx.task.vec3("container_pos", 0)?;
+    let l = ctx.task.vec3(keys::LEMON_POS, 0)?;
+    let k = ctx.task.vec3(keys::CONTAINER_POS, 0)?;
     let fly = l + Vector3::new(
         -uniform(rng, 0.25, 0.35),
         uniform(rng, -0.05, 0.05),

@@ -7,9 +7,10 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, identity, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 pub(crate) fn policy(ctx: &PolicyContext, _rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
-    let door = ctx.task.vec3("door_pos", 0)?;
+    let door = ctx.task.vec3(keys::DOOR_POS, 0)?;
     let reference = door + Vector3::new(0.0, -0.25, 1.2);
     let contact = reference - Vector3::new(0.15, 0.0, 0.0);
     let push = reference + Vector3::new(0.4, 0.4, 0.0);

@@ -11,6 +11,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, WallFrame, identity, uniform, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 /// Half the peg length, m (AMBENCH_SPEC §4.1: 0.15 m).
 const PEG_HALF_LENGTH_M: f64 = 0.075;
@@ -19,8 +20,8 @@ const TIMES: (u64, u64, u64) = (200, 800, 1100);
 
 pub(crate) fn policy(ctx: &PolicyContext, rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
     let wall = WallFrame::of(ctx)?;
-    let goal = ctx.task.vec3("goal_pos", 0)?;
-    let peg = ctx.task.vec3("peg_pos", 0)?;
+    let goal = ctx.task.vec3(keys::GOAL_POS, 0)?;
+    let peg = ctx.task.vec3(keys::PEG_POS, 0)?;
     let approach = goal - wall.n * uniform(rng, 0.40, 0.60);
     let wp1 = ctx.init + uniform(rng, 0.2, 0.4) * (approach - ctx.init);
     let tip_offset = (peg - ctx.init).dot(&wall.n).max(0.0) + PEG_HALF_LENGTH_M;

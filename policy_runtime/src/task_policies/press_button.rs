@@ -5,13 +5,14 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, WallFrame, identity, uniform, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 /// Waypoint times of the default script (env steps).
 const TIMES: (u64, u64, u64) = (200, 800, 1200);
 
 pub(crate) fn policy(ctx: &PolicyContext, rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
     let wall = WallFrame::of(ctx)?;
-    let goal = ctx.task.vec3("goal_pos", 0)?;
+    let goal = ctx.task.vec3(keys::GOAL_POS, 0)?;
     let approach = goal - wall.n * uniform(rng, 0.3, 0.5);
     let press = goal + nalgebra::Vector3::new(0.0, 0.0, -0.01);
     let wp1 = ctx.init + uniform(rng, 0.2, 0.5) * (approach - ctx.init);

@@ -7,9 +7,10 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, quat_wxyz, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 pub(crate) fn policy(ctx: &PolicyContext, _rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
-    let lever = ctx.task.vec3("lever_pos", 0)?;
+    let lever = ctx.task.vec3(keys::LEVER_POS, 0)?;
     let handle = lever + Vector3::new(-0.25, 0.04, 0.0);
     let approach = handle - Vector3::new(0.50, 0.0, 0.0);
     let grasp = handle - Vector3::new(0.08, 0.0, 0.0);

@@ -5,6 +5,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, WallFrame, identity, uniform, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 /// Stand-off of the start pose from the knob along the normal, m.
 const OFFSET_M: f64 = 0.23;
@@ -13,7 +14,7 @@ const TIMES: [u64; 6] = [300, 600, 800, 820, 840, 1440];
 
 pub(crate) fn policy(ctx: &PolicyContext, rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
     let wall = WallFrame::of(ctx)?;
-    let slider = ctx.task.vec3("slider_body_pos", 0)?;
+    let slider = ctx.task.vec3(keys::SLIDER_BODY_POS, 0)?;
     let start = slider - wall.n * OFFSET_M;
     let approach = start - wall.n * uniform(rng, 0.3, 0.5);
     let wp1 = ctx.init + uniform(rng, 0.2, 0.5) * (approach - ctx.init);

@@ -12,6 +12,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, TaskPolicy, WallFrame, identity, uniform, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 /// Waypoint times of the default script (env steps): navigate, approach, grasp, arc start,
 /// arc end, release.
@@ -82,7 +83,7 @@ pub(crate) fn policy(
     rng: &mut ChaCha8Rng,
 ) -> Result<Box<dyn TaskPolicy>, String> {
     let wall = WallFrame::of(ctx)?;
-    let goal = ctx.task.vec3("goal_pos", 0)?;
+    let goal = ctx.task.vec3(keys::GOAL_POS, 0)?;
     let approach_offset = uniform(rng, 0.3, 0.5);
     let approach = goal - wall.n * approach_offset;
     let grasp = goal - wall.n * GRASP_OFFSET_M;

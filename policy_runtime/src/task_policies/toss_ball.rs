@@ -28,6 +28,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, identity, uniform, wp};
 use crate::scripted::WaypointPolicy;
+use sim_twin::tasks::keys;
 
 /// Follow-through time (env steps).
 const T_FOLLOW: u64 = 800;
@@ -54,7 +55,7 @@ fn pitch(angle: f64) -> UnitQuaternion<f64> {
 }
 
 pub(crate) fn policy(ctx: &PolicyContext, rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
-    let target = ctx.task.vec3("target_pos", 0)?;
+    let target = ctx.task.vec3(keys::TARGET_POS, 0)?;
     let init = ctx.init;
     let release_delta = uniform(rng, -0.04, 0.04);
     let load_delta = uniform(rng, -0.05, 0.05);

@@ -11,6 +11,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, identity, wp};
 use crate::scripted::{Waypoint, WaypointPolicy};
+use sim_twin::tasks::keys;
 
 /// The first stand-off pose (world).
 const START: Vector3<f64> = Vector3::new(0.0, 0.0, 0.7);
@@ -27,13 +28,13 @@ const RETREAT: u64 = 100;
 const HOVER_M: f64 = 0.40;
 
 pub(crate) fn policy(ctx: &PolicyContext, _rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
-    let positions = ctx.task.get("stain_pos")?;
-    let visible = ctx.task.get("stain_visible")?;
+    let positions = ctx.task.get(keys::STAIN_POS)?;
+    let visible = ctx.task.get(keys::STAIN_VISIBLE)?;
     let mut stains: Vec<Vector3<f64>> = visible
         .iter()
         .enumerate()
         .filter(|(_, v)| **v > 0.5)
-        .map(|(i, _)| ctx.task.vec3("stain_pos", i))
+        .map(|(i, _)| ctx.task.vec3(keys::STAIN_POS, i))
         .collect::<Result<_, _>>()?;
     if positions.len() < 3 * visible.len() {
         return Err("stain_pos has fewer positions than stain_visible".to_owned());

@@ -42,6 +42,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{
     Dof, JointSpec, ReducedJoint, attach, fixed_body, position_of, symmetric, velocity_of,
     world_groups,
@@ -217,11 +218,11 @@ impl Scene for CabinetPickPlace {
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
         o.push_vec3(
-            "pulling_door_pos",
+            keys::PULLING_DOOR_POS,
             &self.root.map_or(CABINET_ROOT, |r| position_of(world, r)),
         );
         o.push_vec3(
-            "can_pos",
+            keys::CAN_POS,
             &self.can.map_or(CAN_DEFAULT, |c| position_of(world, c)),
         );
         o

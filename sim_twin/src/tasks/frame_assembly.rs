@@ -32,6 +32,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{Wall, attach, fixed_body, position_of, symmetric, world_groups};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::convert::pose_to_rapier;
@@ -133,8 +134,8 @@ impl Scene for FrameAssembly {
 
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
-        o.push_vec3("frame_pos", &self.frame_position(world));
-        o.push_vec3("peg_center_pos", &self.peg_center());
+        o.push_vec3(keys::FRAME_POS, &self.frame_position(world));
+        o.push_vec3(keys::PEG_CENTER_POS, &self.peg_center());
         o
     }
 

@@ -35,6 +35,7 @@
 use nalgebra::{Isometry3, Translation3, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{Wall, attach, fixed_body, fixed_box, position_of, uniform, world_groups};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::convert::pose_to_rapier;
@@ -211,8 +212,8 @@ impl Scene for LemonHarvesting {
 
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
-        o.push_vec3("lemon_pos", &self.lemon_position(world));
-        o.push_vec3("container_pos", &self.container);
+        o.push_vec3(keys::LEMON_POS, &self.lemon_position(world));
+        o.push_vec3(keys::CONTAINER_POS, &self.container);
         o
     }
 

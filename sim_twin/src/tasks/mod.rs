@@ -21,6 +21,57 @@
 //! - Where the reference keeps geometry or masses only in USD assets ([U] in the spec), each
 //!   scene module writes the value it chose beside the constant.
 
+/// The observation keys of the task scenes (AMBENCH_SPEC §5.1), one constant each: the scenes
+/// push them, the scripted policies read them, and nothing spells one twice.
+pub mod keys {
+    /// `ball_lin_vel`.
+    pub const BALL_LIN_VEL: &str = "ball_lin_vel";
+    /// `ball_pos`.
+    pub const BALL_POS: &str = "ball_pos";
+    /// `button_pressed`.
+    pub const BUTTON_PRESSED: &str = "button_pressed";
+    /// `can_pos`.
+    pub const CAN_POS: &str = "can_pos";
+    /// `container_pos`.
+    pub const CONTAINER_POS: &str = "container_pos";
+    /// `door_joint_pos`.
+    pub const DOOR_JOINT_POS: &str = "door_joint_pos";
+    /// `door_pos`.
+    pub const DOOR_POS: &str = "door_pos";
+    /// `frame_pos`.
+    pub const FRAME_POS: &str = "frame_pos";
+    /// `goal_pos`.
+    pub const GOAL_POS: &str = "goal_pos";
+    /// `lemon_pos`.
+    pub const LEMON_POS: &str = "lemon_pos";
+    /// `lever_joint_pos`.
+    pub const LEVER_JOINT_POS: &str = "lever_joint_pos";
+    /// `lever_pos`.
+    pub const LEVER_POS: &str = "lever_pos";
+    /// `peg_center_pos`.
+    pub const PEG_CENTER_POS: &str = "peg_center_pos";
+    /// `peg_pos`.
+    pub const PEG_POS: &str = "peg_pos";
+    /// `plunger_pos`.
+    pub const PLUNGER_POS: &str = "plunger_pos";
+    /// `pulling_door_pos`.
+    pub const PULLING_DOOR_POS: &str = "pulling_door_pos";
+    /// `slider_body_pos`.
+    pub const SLIDER_BODY_POS: &str = "slider_body_pos";
+    /// `slider_pos`.
+    pub const SLIDER_POS: &str = "slider_pos";
+    /// `slider_pushed`.
+    pub const SLIDER_PUSHED: &str = "slider_pushed";
+    /// `stain_pos`.
+    pub const STAIN_POS: &str = "stain_pos";
+    /// `stain_visible`.
+    pub const STAIN_VISIBLE: &str = "stain_visible";
+    /// `target_pos`.
+    pub const TARGET_POS: &str = "target_pos";
+    /// `valve_angle`.
+    pub const VALVE_ANGLE: &str = "valve_angle";
+}
+
 pub mod objects;
 
 mod cabinet_pick_place;

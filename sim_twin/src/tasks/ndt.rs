@@ -11,6 +11,7 @@
 use nalgebra::{Isometry3, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::Wall;
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
@@ -66,7 +67,7 @@ impl Scene for Ndt {
 
     fn observation(&self, _world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
-        o.push_vec3("goal_pos", &GOAL);
+        o.push_vec3(keys::GOAL_POS, &GOAL);
         o
     }
 

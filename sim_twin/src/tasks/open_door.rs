@@ -29,6 +29,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{
     Dof, JointSpec, ReducedJoint, attach, euler_xyz, fixed_body, symmetric, uniform,
 };
@@ -158,9 +159,9 @@ impl Scene for OpenDoor {
 
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
-        o.push("door_joint_pos", [self.angle(world)]);
+        o.push(keys::DOOR_JOINT_POS, [self.angle(world)]);
         if let Some(root) = self.root {
-            o.push_vec3("door_pos", &super::objects::position_of(world, root));
+            o.push_vec3(keys::DOOR_POS, &super::objects::position_of(world, root));
         }
         o
     }

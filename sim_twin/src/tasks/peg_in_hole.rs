@@ -47,6 +47,7 @@
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{
     Wall, attach, dynamic_body, exact_contacts, fixed_body, pose_of, symmetric, uniform,
 };
@@ -150,10 +151,10 @@ impl Scene for PegInHole {
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
         if let Some(hole) = self.hole {
-            o.push_vec3("goal_pos", &pose_of(world, hole).translation.vector);
+            o.push_vec3(keys::GOAL_POS, &pose_of(world, hole).translation.vector);
         }
         if let Some(peg) = self.peg {
-            o.push_vec3("peg_pos", &pose_of(world, peg).translation.vector);
+            o.push_vec3(keys::PEG_POS, &pose_of(world, peg).translation.vector);
         }
         o
     }

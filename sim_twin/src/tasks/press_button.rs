@@ -10,6 +10,7 @@
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{Dof, JointSpec, ReducedJoint, Wall, fixed_body, symmetric, uniform};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
@@ -90,10 +91,13 @@ impl Scene for PressButton {
 
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
-        o.push("button_pressed", [f64::from(u8::from(self.pressed(world)))]);
+        o.push(
+            keys::BUTTON_PRESSED,
+            [f64::from(u8::from(self.pressed(world)))],
+        );
         if let Some(p) = &self.plunger {
-            o.push_vec3("goal_pos", &p.link_pose(world).translation.vector);
-            o.push("plunger_pos", [p.position(world)]);
+            o.push_vec3(keys::GOAL_POS, &p.link_pose(world).translation.vector);
+            o.push(keys::PLUNGER_POS, [p.position(world)]);
         }
         o
     }

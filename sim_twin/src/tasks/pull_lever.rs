@@ -42,6 +42,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use platform::{Actuation, Vehicle};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{Dof, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric, uniform};
 use super::{Build, InitialOverrides, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
@@ -190,9 +191,9 @@ impl Scene for PullLever {
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
         if let Some(root) = self.root {
-            o.push_vec3("lever_pos", &super::objects::position_of(world, root));
+            o.push_vec3(keys::LEVER_POS, &super::objects::position_of(world, root));
         }
-        o.push("lever_joint_pos", [self.angle(world)]);
+        o.push(keys::LEVER_JOINT_POS, [self.angle(world)]);
         o
     }
 

@@ -11,6 +11,7 @@
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{Dof, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
@@ -48,7 +49,7 @@ impl Scene for PushSlider {
     }
 
     fn criteria_names(&self) -> &'static [&'static str] {
-        &["slider_engaged", "slider_pushed"]
+        &["slider_engaged", keys::SLIDER_PUSHED]
     }
 
     fn build(&mut self, b: &mut Build<'_>) -> Result<(), TwinError> {
@@ -113,10 +114,13 @@ impl Scene for PushSlider {
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
         let q = self.position(world);
-        o.push("slider_pos", [q]);
-        o.push("slider_pushed", [f64::from(u8::from(q >= PUSHED_M))]);
+        o.push(keys::SLIDER_POS, [q]);
+        o.push(keys::SLIDER_PUSHED, [f64::from(u8::from(q >= PUSHED_M))]);
         if let Some(s) = &self.slider {
-            o.push_vec3("slider_body_pos", &s.link_pose(world).translation.vector);
+            o.push_vec3(
+                keys::SLIDER_BODY_POS,
+                &s.link_pose(world).translation.vector,
+            );
         }
         o
     }

@@ -38,6 +38,7 @@
 use nalgebra::{Isometry3, Quaternion, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{Dof, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
@@ -191,9 +192,9 @@ impl Scene for RotateValve {
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
         if let Some(p) = self.handle_position(world) {
-            o.push_vec3("goal_pos", &p);
+            o.push_vec3(keys::GOAL_POS, &p);
         }
-        o.push("valve_angle", [self.angle(world)]);
+        o.push(keys::VALVE_ANGLE, [self.angle(world)]);
         o
     }
 

@@ -37,6 +37,7 @@
 use nalgebra::{Isometry3, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{
     attach, dynamic_body, exact_contacts, fixed_body, held_groups, position_of, set_groups,
     symmetric, velocity_of,
@@ -140,10 +141,10 @@ impl Scene for TossBall {
     fn observation(&self, world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
         if let Some(ball) = self.ball {
-            o.push_vec3("ball_pos", &position_of(world, ball));
-            o.push_vec3("ball_lin_vel", &velocity_of(world, ball));
+            o.push_vec3(keys::BALL_POS, &position_of(world, ball));
+            o.push_vec3(keys::BALL_LIN_VEL, &velocity_of(world, ball));
         }
-        o.push_vec3("target_pos", &self.container_position);
+        o.push_vec3(keys::TARGET_POS, &self.container_position);
         o
     }
 }

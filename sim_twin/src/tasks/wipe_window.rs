@@ -48,6 +48,7 @@
 use nalgebra::{Isometry3, Vector3};
 use rapier3d_f64::prelude::*;
 
+use super::keys;
 use super::objects::{
     attach, contact_force_n, dynamic_body, exact_contacts, fixed_body, position_of, symmetric,
     uniform,
@@ -187,11 +188,11 @@ impl Scene for WipeWindow {
     fn observation(&self, _world: &PhysicsWorld) -> TaskObservation {
         let mut o = TaskObservation::default();
         o.push(
-            "stain_pos",
+            keys::STAIN_POS,
             self.stains.iter().flat_map(|s| s.iter().copied()),
         );
         o.push(
-            "stain_visible",
+            keys::STAIN_VISIBLE,
             self.visible.iter().map(|v| f64::from(u8::from(*v))),
         );
         o
