@@ -18,13 +18,14 @@ use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use estimator::ImuSample;
 use mavlink::dialects::common::{
     COMMAND_ACK_DATA, MavCmd, MavMessage, MavResult, MavSeverity, MavType, MissionState,
     STATUSTEXT_DATA,
 };
 use mavlink::{MavHeader, MavlinkVersion, Message};
 use nalgebra::Vector3;
-use platform::{Actuation, ActuatorCommand, GRAVITY_MPS2, Measurement, Vehicle};
+use platform::{Actuation, ActuatorCommand, GRAVITY_MPS2, Measurement, RigidBodyState, Vehicle};
 
 use crate::control::Control;
 use crate::mission::Missions;
@@ -333,8 +334,10 @@ pub struct Autopilot {
     gnss_fix: Option<estimator::GnssFix>,
     /// Set when `--realtime-policy fail` stops the autopilot.
     realtime_failure: Option<String>,
-    previous_velocity: Vector3<f64>,
-    specific_force: Vector3<f64>,
+    /// The base before the last step (the IMU's period start).
+    previous_base: RigidBodyState,
+    /// The IMU sample of the last step (HIGHRES_IMU).
+    imu: ImuSample,
     /// Wall clock of the next step while the twin runs on the clock.
     next_step: Option<Instant>,
     /// Realtime: the clock has started (first arming).
@@ -433,10 +436,10 @@ impl Autopilot {
         let mut navigation = NavigationSensors::new(NavigationModels::default(), seed)
             .map_err(|e| AutopilotError::Vehicle(format!("navigation sensors: {e}")))?;
         let gnss_fix = navigation.sample(twin.truth()).gnss;
-        let previous_velocity = twin.truth().base.velocity_in_world_mps;
+        let previous_base = twin.truth().base;
         Ok(Self {
-            specific_force: telemetry::specific_force(twin.truth(), &previous_velocity, dt_s),
-            previous_velocity,
+            imu: telemetry::imu(&previous_base, twin.truth(), dt_s),
+            previous_base,
             twin,
             seed,
             mav_type,
@@ -834,14 +837,13 @@ impl Autopilot {
 
     /// One twin step, then its telemetry. A failed step disarms and resets the twin.
     fn step(&mut self, command: &ActuatorCommand, on_event: &mut impl FnMut(&AutopilotEvent)) {
-        self.previous_velocity = self.truth().base.velocity_in_world_mps;
+        self.previous_base = self.truth().base;
         match self.twin.step(command) {
             Ok(_) => {
                 self.steps += 1;
                 // Idle telemetry resumes a period after the last step.
                 self.next_idle_telemetry = Instant::now() + IDLE_TELEMETRY_PERIOD;
-                self.specific_force =
-                    telemetry::specific_force(self.truth(), &self.previous_velocity, self.dt_s);
+                self.imu = telemetry::imu(&self.previous_base, self.truth(), self.dt_s);
                 let readings = self.navigation.sample(self.twin.truth());
                 if readings.gnss.is_some() {
                     self.gnss_fix = readings.gnss;
@@ -914,7 +916,7 @@ impl Autopilot {
             return;
         }
         let [joints, actuators, imu, attitude, position, odometry] =
-            telemetry::per_step(self.twin.truth(), &self.specific_force);
+            telemetry::per_step(self.twin.truth(), &self.imu);
         // The task's state (SITL) before the ODOMETRY that closes the tick.
         let task = self
             .twin
@@ -961,7 +963,7 @@ impl Autopilot {
             HOME_POSITION_ID => telemetry::home_position(m, &self.home_m),
             AUTOPILOT_VERSION_ID => telemetry::autopilot_version(),
             id => {
-                let per_step = telemetry::per_step(m, &self.specific_force);
+                let per_step = telemetry::per_step(m, &self.imu);
                 return per_step.into_iter().find(|msg| msg.message_id() == id);
             }
         })

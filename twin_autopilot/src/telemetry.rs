@@ -4,6 +4,7 @@
 //! Timestamps (`time_usec`, `time_boot_ms`) are the twin's simulated time. Positions are in the
 //! local NED frame whose origin is the twin's world origin, which is [`HOME`] on the globe.
 
+use estimator::ImuSample;
 use firmware_bridge::frames;
 use firmware_bridge::task_array::TaskArray;
 use mavlink::dialects::common::{
@@ -16,7 +17,7 @@ use mavlink::dialects::common::{
     MavVtolState, MissionState, ODOMETRY_DATA, SYS_STATUS_DATA,
 };
 use nalgebra::Vector3;
-use platform::{GRAVITY_MPS2, Measurement};
+use platform::{GRAVITY_MPS2, Measurement, RigidBodyState};
 
 use crate::modes::{Commander, Failsafe};
 use crate::wire::LinkCounters;
@@ -104,8 +105,8 @@ fn time_ms(m: &Measurement) -> u32 {
 }
 
 /// The messages sent at every twin step, in the contract's order (ODOMETRY last: it closes
-/// the tick). `specific_force_in_body_mps2` is the IMU's accelerometer (FLU).
-pub fn per_step(m: &Measurement, specific_force_in_body_mps2: &Vector3<f64>) -> [MavMessage; 6] {
+/// the tick). `imu` is the step's IMU sample ([`imu`]): HIGHRES_IMU's accelerometer and gyro.
+pub fn per_step(m: &Measurement, imu: &ImuSample) -> [MavMessage; 6] {
     let t_us = time_us(m);
     let t_ms = time_ms(m);
     let base = &m.base;
@@ -113,7 +114,8 @@ pub fn per_step(m: &Measurement, specific_force_in_body_mps2: &Vector3<f64>) -> 
     let p = frames::ned_from_world(&base.position_in_world_m);
     let v = frames::ned_from_world(&base.velocity_in_world_mps);
     let w = frames::frd_from_flu(&base.angular_velocity_in_body_radps);
-    let acc = frames::frd_from_flu(specific_force_in_body_mps2);
+    let acc = frames::frd_from_flu(&imu.specific_force_in_body_mps2);
+    let gyro = frames::frd_from_flu(&imu.angular_velocity_in_body_radps);
 
     let mut data = [0.0f32; 58];
     for (d, x) in data
@@ -145,9 +147,9 @@ pub fn per_step(m: &Measurement, specific_force_in_body_mps2: &Vector3<f64>) -> 
             xacc: f(acc.x),
             yacc: f(acc.y),
             zacc: f(acc.z),
-            xgyro: f(w.x),
-            ygyro: f(w.y),
-            zgyro: f(w.z),
+            xgyro: f(gyro.x),
+            ygyro: f(gyro.y),
+            zgyro: f(gyro.z),
             fields_updated: HighresImuUpdatedFlags::HIGHRES_IMU_UPDATED_XACC
                 | HighresImuUpdatedFlags::HIGHRES_IMU_UPDATED_YACC
                 | HighresImuUpdatedFlags::HIGHRES_IMU_UPDATED_ZACC
@@ -199,21 +201,22 @@ pub fn per_step(m: &Measurement, specific_force_in_body_mps2: &Vector3<f64>) -> 
     ]
 }
 
-/// The IMU's specific force over the last period (FLU, m/s²): the base origin's acceleration
-/// from its velocity change, minus gravity, in the body frame. Zero acceleration before the
-/// first step (at rest: the specific force is +g up).
-pub fn specific_force(
-    m: &Measurement,
-    previous_velocity: &Vector3<f64>,
-    dt_s: f64,
-) -> Vector3<f64> {
-    let base = &m.base;
-    let acceleration = if m.time_s > 0.0 && dt_s > 0.0 {
-        (base.velocity_in_world_mps - previous_velocity) / dt_s
+/// The IMU the autopilot reports over the step from `previous` to `m` (`dt_s` apart): the
+/// twin's one IMU model ([`sim_twin::sensors::ideal_imu`]: mean acceleration as specific force
+/// at mid-period, mean body rate), the same the iceoryx2 server and the estimator's simulated
+/// sensors read.
+pub fn imu(previous: &RigidBodyState, m: &Measurement, dt_s: f64) -> ImuSample {
+    if m.time_s > 0.0 && dt_s > 0.0 {
+        sim_twin::sensors::ideal_imu(previous, &m.base, m.time_s, dt_s)
     } else {
-        Vector3::zeros()
-    };
-    base.world_from_body.inverse() * (acceleration + Vector3::new(0.0, 0.0, GRAVITY_MPS2))
+        // Before the first step: at rest, the specific force of gravity at the current attitude.
+        ImuSample {
+            time_s: m.time_s,
+            specific_force_in_body_mps2: m.base.world_from_body.inverse()
+                * Vector3::new(0.0, 0.0, GRAVITY_MPS2),
+            angular_velocity_in_body_radps: m.base.angular_velocity_in_body_radps,
+        }
+    }
 }
 
 /// HEARTBEAT of the autopilot.
@@ -523,7 +526,14 @@ mod tests {
     #[test]
     fn odometry_is_ned_frd_and_closes_the_tick() {
         let m = measurement();
-        let msgs = per_step(&m, &Vector3::new(0.0, 0.0, GRAVITY_MPS2));
+        let msgs = per_step(
+            &m,
+            &ImuSample {
+                time_s: m.time_s,
+                specific_force_in_body_mps2: Vector3::new(0.0, 0.0, GRAVITY_MPS2),
+                angular_velocity_in_body_radps: m.base.angular_velocity_in_body_radps,
+            },
+        );
         let MavMessage::ODOMETRY(o) = &msgs[5] else {
             panic!("ODOMETRY last");
         };

@@ -55,8 +55,8 @@ struct Autopilot {
     steps: u64,
     /// Disarm after this many steps (a failsafe, say), announcing it in a HEARTBEAT.
     disarm_after: Option<u64>,
-    /// The base velocity at the last telemetry (the IMU's specific force).
-    previous_velocity: Vector3<f64>,
+    /// The base at the last telemetry (the IMU's period start).
+    previous_base: platform::RigidBodyState,
 }
 
 impl Autopilot {
@@ -76,8 +76,8 @@ impl Autopilot {
     /// The contract's per-step telemetry of `m`, as the twin's autopilot sends it.
     fn telemetry(&mut self, m: &Measurement) {
         let dt_s = 1.0 / self.twin.config().control_rate_hz;
-        let imu = telemetry::specific_force(m, &self.previous_velocity, dt_s);
-        self.previous_velocity = m.base.velocity_in_world_mps;
+        let imu = telemetry::imu(&self.previous_base, m, dt_s);
+        self.previous_base = m.base;
         for message in telemetry::per_step(m, &imu) {
             self.send(&message);
         }
@@ -171,7 +171,7 @@ fn fixture(vehicle: &Vehicle, config: &TwinConfig, disarm_after: Option<u64>) ->
         armed: false,
         steps: 0,
         disarm_after,
-        previous_velocity: Vector3::zeros(),
+        previous_base: platform::RigidBodyState::default(),
     };
     let flag = stop.clone();
     let thread = std::thread::spawn(move || {
