@@ -72,6 +72,12 @@ flights() {
         --mcap track-mpc.mcap --json track-mpc.json >/dev/null 2>&1
     "$bin" replay track-omni.mcap --out replay-omni.mcap --json replay-omni.json >/dev/null 2>&1
     local twin=(--platform fa-hexa --disturbances saturation --seed 3)
+    # The actuator level is a SITL extension of the twin's autopilot (off by default since
+    # issue 20); a build that has the flag gets it, an older one serves actuators anyway.
+    local extension=()
+    if "$bin" twin serve --help 2>/dev/null | grep -q -- --allow-actuator-setpoints; then
+        extension=(--allow-actuator-setpoints)
+    fi
     local svc="same-results-$$-$RANDOM"
     "$bin" twin serve --ipc "$svc" --sessions 1 "${twin[@]}" 2>/dev/null &
     local pid=$!
@@ -82,7 +88,8 @@ flights() {
     for level in actuator attitude; do
         local port
         port=$(free_port)
-        "$bin" twin serve --mavlink "udp:127.0.0.1:$port" --lockstep "${twin[@]}" 2>/dev/null &
+        "$bin" twin serve --mavlink "udp:127.0.0.1:$port" --lockstep "${twin[@]}" \
+            "${extension[@]}" 2>/dev/null &
         pid=$!
         sleep 0.5
         "$bin" fly --link "mavlink:udp:127.0.0.1:$port" --level $level "${twin[@]}" \
@@ -93,7 +100,7 @@ flights() {
     done
     port=$(free_port)
     "$bin" twin serve --mavlink "udp:127.0.0.1:$port" --lockstep "${twin[@]}" --task push-slider \
-        2>/dev/null &
+        "${extension[@]}" 2>/dev/null &
     pid=$!
     sleep 0.5
     "$bin" fly --link "mavlink:udp:127.0.0.1:$port" --level actuator "${twin[@]}" \
