@@ -3,7 +3,7 @@
 
 use allocation::{Allocation, AllocationMethod, Allocator, any_rotor_saturated};
 use controllers::ik::{BaseLimits, IkConfig, IkStatus, WholeBodyIk};
-use controllers::mpc::{MpcStatus, WholeBodyMpc};
+use controllers::mpc::{FallbackEvent, MpcMode, MpcStatus, SolveFailure, WholeBodyMpc};
 use controllers::{
     BaseController, BodyParams, ControllerConfig, ControllerStatus, InputHealth, Pid6Gains, build,
 };
@@ -542,6 +542,11 @@ impl FlightStack {
             dt,
             self.clock.is_some().then_some(&now as &dyn Fn() -> f64),
         );
+        let flies_fallback = command.status.mode == MpcMode::IkPid
+            && command.status.failure != Some(SolveFailure::NonFiniteInput);
+        if flies_fallback {
+            return self.mpc_fallback_tick(measurement, ee, &command.status);
+        }
         let target = BaseJointTarget {
             world_from_base: command.base_target,
             arm_joints: command.arm_targets_rad.to_vec(),
@@ -576,6 +581,44 @@ impl FlightStack {
             Requester::Mpc,
         );
         record.mpc = Some(command.status);
+        record
+    }
+
+    /// A tick the MPC hands to its fallback: the stack's own end-effector path — whole-body IK
+    /// and the base controller (PID6 with the reference gains for the `mpc` controller), both
+    /// reset from the measured state on the tick it takes over — then what it flew goes back
+    /// to the MPC, whose filter continues from it.
+    fn mpc_fallback_tick(
+        &mut self,
+        measurement: &Measurement,
+        ee: &EeTarget,
+        status: &MpcStatus,
+    ) -> TickRecord {
+        if status.event == Some(FallbackEvent::IkPidTookOver) {
+            self.controller.reset(&measurement.base);
+            if let Some(interface) = &mut self.ee {
+                let _ = interface
+                    .ik
+                    .reset(&measurement.base.pose(), &measurement.joint_positions);
+            }
+        }
+        let (target, ik) = self.ee_to_base_joint(ee);
+        // The posture was followed at the start of the MPC's tick.
+        let wrench = self
+            .controller
+            .update(&measurement.base, &target.world_from_base, self.dt_s);
+        let controller = self.controller.status();
+        let mut record = self.command(measurement, wrench, &target, controller, Requester::Base);
+        if let Some(mpc) = &mut self.mpc {
+            mpc.controller.fallback_flown(
+                &measurement.base,
+                &wrench,
+                &target.arm_joints,
+                &target.world_from_base,
+            );
+        }
+        record.ik = ik;
+        record.mpc = Some(*status);
         record
     }
 

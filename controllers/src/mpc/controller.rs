@@ -21,9 +21,13 @@
 //! - for up to `fallback_hold_ticks` consecutive failed ticks the shifted previous solution
 //!   is held (RTI keeps it when a QP fails: its first input, at the current time, is applied
 //!   through the same filter and gravity compensation) — mode [`MpcMode::Hold`];
-//! - after that, the IK-PID path flies (whole-body IK of the EE target with the vehicle's IK
-//!   preset, PID6 with the reference gains on the IK's base target) — mode [`MpcMode::IkPid`];
-//!   both are reset from the measured state when it takes over;
+//! - after that, the IK-PID path flies — mode [`MpcMode::IkPid`]. The MPC does not fly it: it
+//!   reports the mode (and [`FallbackEvent::IkPidTookOver`] on the tick it starts), and the
+//!   caller flies its own end-effector path (the flight stack's whole-body IK with the
+//!   vehicle's preset and PID6 with the reference gains, both reset from the measured state
+//!   when it takes over), then hands the MPC what it flew ([`WholeBodyMpc::fallback_flown`])
+//!   so the filter continues from the applied command. The command returned on such a tick
+//!   is the held solution, for reference only;
 //! - a solution whose wrench the rotors cannot deliver (allocated linearly around hover, a
 //!   rotor beyond its limits by more than [`ROTOR_LIMIT_TOLERANCE_N`]) is not flown: the
 //!   IK-PID path takes over at once ([`SolveFailure::RotorSaturation`]) — holding the previous
@@ -38,16 +42,14 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use platform::{GRAVITY_MPS2, RigidBodyState, Vehicle, Wrench};
 use serde::Serialize;
 
-use crate::controller::{BaseController, BodyParams, guard_dt};
-use crate::gains::Pid6Gains;
-use crate::ik::{BaseLimits, IkConfig, WholeBodyIk};
+use crate::controller::{BodyParams, guard_dt};
+use crate::ik::BaseLimits;
 use crate::mpc::config::MpcConfig;
 use crate::mpc::model::{
     IU_F, IU_QREF, IU_TAU, IX_ETA, IX_OMEGA, IX_P, IX_Q, IX_V, NQ, RotorEnvelope,
 };
 use crate::mpc::qp::{InputVector, QpStatus, StateVector};
 use crate::mpc::rti::{MpcError, MpcReference, RtiReport, SqpRti};
-use crate::pid6::Pid6;
 
 /// How far past a rotor limit the linearised allocation of an MPC wrench may go before the
 /// solution counts as one the rotors cannot deliver, N (the hover linearisation ignores the
@@ -136,8 +138,6 @@ pub struct WholeBodyMpc {
     config: MpcConfig,
     arm_dofs: Vec<usize>,
     body: BodyParams,
-    ik: WholeBodyIk,
-    pid: Pid6,
     u_last: Option<InputVector>,
     envelope: Option<RotorEnvelope>,
     /// Ticks flown by the IK-PID path since it took over.
@@ -153,24 +153,12 @@ impl WholeBodyMpc {
     /// The controller of `vehicle` (FA-Hexa) with `config`.
     pub fn new(vehicle: &Vehicle, config: MpcConfig) -> Result<Self, MpcError> {
         let rti = SqpRti::new(vehicle, config)?;
-        let ik_config = IkConfig::for_vehicle(vehicle).map_err(|e| {
-            MpcError::Model(crate::mpc::model::ModelError::Unsupported(format!(
-                "fallback IK: {e}"
-            )))
-        })?;
-        let ik = WholeBodyIk::new(vehicle, ik_config).map_err(|e| {
-            MpcError::Model(crate::mpc::model::ModelError::Unsupported(format!(
-                "fallback IK: {e}"
-            )))
-        })?;
         let body = BodyParams::from_vehicle(vehicle);
         Ok(Self {
             rti,
             config,
             arm_dofs: vehicle.arm_dofs(),
             body,
-            ik,
-            pid: Pid6::new(Pid6Gains::am_bench(), body),
             u_last: None,
             envelope: RotorEnvelope::of(vehicle),
             ik_pid_ticks: 0,
@@ -211,10 +199,9 @@ impl WholeBodyMpc {
         &self.status
     }
 
-    /// Replaces the mass properties used for gravity compensation and by the fallback PID.
+    /// Replaces the mass properties used for gravity compensation.
     pub fn set_body(&mut self, body: BodyParams) {
         self.body = body;
-        self.pid.set_body(body);
     }
 
     /// Clears the solver memory, the filter and the fallback for a new flight from `state`
@@ -229,8 +216,7 @@ impl WholeBodyMpc {
         self.ik_pid_ticks = 0;
         self.mode = MpcMode::Mpc;
         self.last_command = None;
-        self.pid.reset(state);
-        let _ = self.ik.reset(&state.pose(), configuration);
+        let _ = (state, configuration);
         self.status.event = None;
         self.status.failure = None;
         self.status.failed_ticks = 0;
@@ -355,16 +341,9 @@ impl WholeBodyMpc {
             command.status = self.status;
             return command;
         }
-        let mut command = match self.mode {
-            MpcMode::Mpc | MpcMode::Hold => self.mpc_command(state),
-            MpcMode::IkPid => {
-                if previous_mode != MpcMode::IkPid {
-                    self.pid.reset(state);
-                    let _ = self.ik.reset(&state.pose(), configuration);
-                }
-                self.ik_pid_command(state, target_world_from_ee, limits, dt)
-            }
-        };
+        // In IkPid mode the caller flies its own IK-PID path and reports it
+        // ([`Self::fallback_flown`]); the held solution is returned for reference.
+        let mut command = self.mpc_command(state);
         let ee_error_m = if x_hat.iter().all(|v| v.is_finite()) {
             (self.rti.ee_kinematics(&x_hat).position - target_world_from_ee.translation.vector)
                 .norm()
@@ -473,22 +452,22 @@ impl WholeBodyMpc {
         }
     }
 
-    /// The IK-PID path; keeps the filter's memory on the command it flies.
-    fn ik_pid_command(
+    /// What the caller's IK-PID path flew on an [`MpcMode::IkPid`] tick: its body wrench, arm
+    /// targets and base target. The filter's memory continues from it, and it is the command
+    /// held if the next state is not finite.
+    pub fn fallback_flown(
         &mut self,
         state: &RigidBodyState,
-        target: &Isometry3<f64>,
-        limits: &BaseLimits,
-        dt: f64,
-    ) -> MpcCommand {
-        let solution = self.ik.solve(target, limits);
-        let wrench = self.pid.update(state, &solution.world_from_base, dt);
+        wrench_in_body: &Wrench,
+        arm_targets_rad: &[f64],
+        base_target: &Isometry3<f64>,
+    ) {
         let mut arm = [0.0; NQ];
-        for (a, q) in arm.iter_mut().zip(&solution.arm_joints) {
+        for (a, q) in arm.iter_mut().zip(arm_targets_rad) {
             *a = *q;
         }
-        let force_w = state.world_from_body * wrench.force;
-        let torque_w = state.world_from_body * wrench.torque;
+        let force_w = state.world_from_body * wrench_in_body.force;
+        let torque_w = state.world_from_body * wrench_in_body.torque;
         let weight = self.body.mass_kg * GRAVITY_MPS2;
         let mut u = InputVector::zeros();
         for i in 0..3 {
@@ -500,19 +479,18 @@ impl WholeBodyMpc {
             u[IU_QREF + j] = arm[j];
         }
         self.u_last = Some(u);
-        MpcCommand {
-            wrench_in_body: wrench,
+        self.last_command = Some(MpcCommand {
+            wrench_in_body: *wrench_in_body,
             arm_targets_rad: arm,
-            base_target: solution.world_from_base,
+            base_target: *base_target,
             status: self.status,
-        }
+        });
     }
 
-    /// Forwards the allocator's unallocated wrench to the fallback PID (its anti-windup).
+    /// The allocator's unallocated wrench of a tick the MPC flew. Its solution has no
+    /// integrator to guard (the caller's fallback PID gets the feedback of the ticks it flies).
     pub fn saturation_feedback(&mut self, unallocated_in_body: &Wrench) {
-        if self.mode == MpcMode::IkPid {
-            self.pid.saturation_feedback(unallocated_in_body);
-        }
+        let _ = unallocated_in_body;
     }
 }
 
