@@ -18,6 +18,9 @@
 //! - [`autopilot`]: the twin as a PX4-style autopilot over MAVLink 2
 //!   (`amstack twin serve --mavlink`): heartbeat, telemetry, arming, offboard setpoints at
 //!   actuator or attitude level, lockstep or realtime, an offboard-loss failsafe.
+//! - [`visuals`]: the scene as a renderer sees it (shapes, poses, roles of every scene
+//!   collider), read-only; the renderer itself is the `render` crate, so the physics core and
+//!   its tests do not link wgpu.
 //!
 //! Frames: world Z-up, gravity (0, 0, −9.81) m/s²; body FLU. rapier's glam types stay
 //! inside this crate ([`convert`] is the one boundary).
@@ -32,6 +35,7 @@ pub mod sensors;
 pub mod tasks;
 mod twin;
 mod vehicle_body;
+pub mod visuals;
 
 #[cfg(test)]
 mod tests;
@@ -41,3 +45,4 @@ pub use error::TwinError;
 pub use tasks::{GraspMode, TaskId, TaskObservation, TaskSnapshot, TaskStatus};
 pub use twin::Twin;
 pub use vehicle_body::{ROBOT_GROUP, WORLD_GROUP};
+pub use visuals::{SceneVisual, VisualRole, VisualShape};
