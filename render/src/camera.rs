@@ -242,8 +242,8 @@ mod tests {
         // fx = 384 · 19.6 / 20.955 = 359.17 px.
         assert!((k.fx - 359.169_649_248_389_4).abs() < 1e-9, "{}", k.fx);
         assert_eq!((k.cx, k.cy), (192.0, 192.0));
-        // HFOV = 2 atan(20.955 / 39.2) = 56.28°.
-        assert!((k.horizontal_fov_rad().to_degrees() - 56.2825).abs() < 1e-3);
+        // HFOV = 2 atan(20.955 / 39.2) = 56.255°.
+        assert!((k.horizontal_fov_rad().to_degrees() - 56.2549).abs() < 1e-3);
     }
 
     #[test]
