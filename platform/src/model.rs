@@ -266,7 +266,10 @@ impl Checker<'_> {
             return Ok(None);
         };
         let rgba = c.rgba.0;
-        if rgba.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v)) {
+        if rgba
+            .iter()
+            .all(|v| v.is_finite() && (0.0..=1.0).contains(v))
+        {
             Ok(Some(rgba))
         } else {
             Err(self.invalid(

@@ -832,7 +832,10 @@ fn urdf_visual_colours_come_from_inline_or_named_materials() {
         .err()
         .map(|e| e.to_string())
         .unwrap_or_default();
-    assert!(err.contains("material 'red'") && err.contains("[0, 1]"), "{err}");
+    assert!(
+        err.contains("material 'red'") && err.contains("[0, 1]"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -845,7 +848,10 @@ fn vehicle_file_colours_are_checked_and_indexed_by_link() {
     assert_eq!(v.link_colors.iter().flatten().count(), 1);
     let unpainted = load(toml, urdf).unwrap_or_else(|e| panic!("{e}"));
     assert!(unpainted.link_colors.iter().all(Option::is_none));
-    let e = refusal(&format!("{toml}\n[colors]\nbase_link = [0.1, 2.0, 0.3]\n"), urdf);
+    let e = refusal(
+        &format!("{toml}\n[colors]\nbase_link = [0.1, 2.0, 0.3]\n"),
+        urdf,
+    );
     assert_eq!(
         e.to_string(),
         "my.toml: colors.base_link: [0.1, 2.0, 0.3] must lie in [0, 1]"

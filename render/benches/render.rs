@@ -24,20 +24,23 @@ fn cameras(c: &mut Criterion) {
         Ok(t) => t,
         Err(e) => panic!("{e}"),
     };
-    let mut renderer = match Renderer::new(&vehicle, &render::vehicle_cameras(&vehicle), VisualDr::On)
-    {
-        Ok(r) => r,
-        Err(RenderError::NoAdapter(reason)) => {
-            eprintln!("SKIPPED: no graphics adapter ({reason})");
-            return;
-        }
-        Err(e) => panic!("{e}"),
-    };
+    let mut renderer =
+        match Renderer::new(&vehicle, &render::vehicle_cameras(&vehicle), VisualDr::On) {
+            Ok(r) => r,
+            Err(RenderError::NoAdapter(reason)) => {
+                eprintln!("SKIPPED: no graphics adapter ({reason})");
+                return;
+            }
+            Err(e) => panic!("{e}"),
+        };
     if let Err(e) = renderer.reset_scene(&twin.scene_visuals(), 0) {
         panic!("{e}");
     }
     let adapter = renderer.adapter().clone();
-    eprintln!("adapter: {} ({:?}, {:?})", adapter.name, adapter.backend, adapter.device_type);
+    eprintln!(
+        "adapter: {} ({:?}, {:?})",
+        adapter.name, adapter.backend, adapter.device_type
+    );
     let (Some(ee), Some(base)) = (
         renderer.camera_index("ee_camera"),
         renderer.camera_index("base_camera"),

@@ -193,7 +193,7 @@ impl Default for Lighting {
 
 /// HSV (all in [0, 1]) to linear RGB.
 fn hsv(h: f64, s: f64, v: f64) -> [f32; 3] {
-    let h6 = (h.rem_euclid(1.0)) * 6.0;
+    let h6 = h.rem_euclid(1.0) * 6.0;
     let c = v * s;
     let x = c * (1.0 - ((h6 % 2.0) - 1.0).abs());
     let (r, g, b) = match h6 {
@@ -248,7 +248,10 @@ impl Appearance {
                     intensity,
                     ambient,
                 };
-                let materials = roles.iter().map(|_| Self::random_material(&mut rng)).collect();
+                let materials = roles
+                    .iter()
+                    .map(|_| Self::random_material(&mut rng))
+                    .collect();
                 Self {
                     lighting,
                     materials,

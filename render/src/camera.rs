@@ -180,8 +180,7 @@ impl CameraSpec {
         if k.width == 0 || k.height == 0 {
             return Err(fail(format!("image {}×{} px is empty", k.width, k.height)));
         }
-        if ![k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite()) || k.fx <= 0.0 || k.fy <= 0.0
-        {
+        if ![k.fx, k.fy, k.cx, k.cy].iter().all(|v| v.is_finite()) || k.fx <= 0.0 || k.fy <= 0.0 {
             return Err(fail(format!(
                 "intrinsics fx {} fy {} cx {} cy {} must be finite with positive focal lengths",
                 k.fx, k.fy, k.cx, k.cy
@@ -189,7 +188,9 @@ impl CameraSpec {
         }
         let [near, far] = self.clip_m;
         if !(near.is_finite() && far.is_finite() && 0.0 < near && near < far) {
-            return Err(fail(format!("clip [{near}, {far}] m must satisfy 0 < near < far")));
+            return Err(fail(format!(
+                "clip [{near}, {far}] m must satisfy 0 < near < far"
+            )));
         }
         let p = &self.parent_from_camera;
         if !(p.translation.vector.iter().all(|v| v.is_finite())
@@ -210,10 +211,22 @@ impl CameraSpec {
         let (w, h) = (f64::from(k.width), f64::from(k.height));
         let [n, f] = self.clip_m;
         Matrix4::new(
-            2.0 * k.fx / w, 0.0, 2.0 * k.cx / w - 1.0, 0.0, //
-            0.0, -2.0 * k.fy / h, 1.0 - 2.0 * k.cy / h, 0.0, //
-            0.0, 0.0, -n / (f - n), n * f / (f - n), //
-            0.0, 0.0, 1.0, 0.0,
+            2.0 * k.fx / w,
+            0.0,
+            2.0 * k.cx / w - 1.0,
+            0.0, //
+            0.0,
+            -2.0 * k.fy / h,
+            1.0 - 2.0 * k.cy / h,
+            0.0, //
+            0.0,
+            0.0,
+            -n / (f - n),
+            n * f / (f - n), //
+            0.0,
+            0.0,
+            1.0,
+            0.0,
         )
     }
 }
@@ -222,10 +235,11 @@ impl CameraSpec {
 /// up) leans toward `up`: x = forward × up (right), y = z × x (down).
 pub fn optical_look_rotation(forward: &Vector3<f64>, up: &Vector3<f64>) -> UnitQuaternion<f64> {
     let z = forward.try_normalize(1e-12).unwrap_or_else(Vector3::x);
-    let x = z
-        .cross(up)
-        .try_normalize(1e-12)
-        .unwrap_or_else(|| z.cross(&Vector3::y()).try_normalize(1e-12).unwrap_or_else(Vector3::y));
+    let x = z.cross(up).try_normalize(1e-12).unwrap_or_else(|| {
+        z.cross(&Vector3::y())
+            .try_normalize(1e-12)
+            .unwrap_or_else(Vector3::y)
+    });
     let y = z.cross(&x);
     UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(Matrix3::from_columns(
         &[x, y, z],

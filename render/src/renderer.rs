@@ -457,7 +457,9 @@ impl Renderer {
             || !state.joint_positions.iter().all(|q| q.is_finite())
             || !state.scene_poses.iter().all(finite)
         {
-            return Err(RenderError::State("a pose or joint is not finite".to_owned()));
+            return Err(RenderError::State(
+                "a pose or joint is not finite".to_owned(),
+            ));
         }
         Ok(())
     }
@@ -521,11 +523,13 @@ impl Renderer {
                 *m = None;
             }
             let flag = Arc::clone(&target.mapped);
-            target.readback.map_async(wgpu::MapMode::Read, .., move |r| {
-                if let Ok(mut m) = flag.lock() {
-                    *m = Some(r);
-                }
-            });
+            target
+                .readback
+                .map_async(wgpu::MapMode::Read, .., move |r| {
+                    if let Ok(mut m) = flag.lock() {
+                        *m = Some(r);
+                    }
+                });
         }
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
@@ -669,11 +673,18 @@ impl Renderer {
 }
 
 /// World pose of a camera at `state` given the links' root_from_link poses.
-fn camera_pose(spec: &CameraSpec, state: &Snapshot, link_poses: &[Isometry3<f64>]) -> Isometry3<f64> {
+fn camera_pose(
+    spec: &CameraSpec,
+    state: &Snapshot,
+    link_poses: &[Isometry3<f64>],
+) -> Isometry3<f64> {
     match spec.parent {
         CameraParent::World => spec.parent_from_camera,
         CameraParent::Link(l) => {
-            let root_from_link = link_poses.get(l).copied().unwrap_or_else(Isometry3::identity);
+            let root_from_link = link_poses
+                .get(l)
+                .copied()
+                .unwrap_or_else(Isometry3::identity);
             state.world_from_base * root_from_link * spec.parent_from_camera
         }
     }
@@ -694,7 +705,9 @@ fn copy_out(target: &CameraTarget, image: &mut Image) -> Result<(), RenderError>
     let stride = target.padded_bytes_per_row as usize;
     for row in 0..h {
         let Some(line) = view.get(row * stride..row * stride + 4 * w) else {
-            return Err(RenderError::Readback(format!("row {row} is out of the buffer")));
+            return Err(RenderError::Readback(format!(
+                "row {row} is out of the buffer"
+            )));
         };
         for px in line.chunks_exact(4) {
             image.rgb.extend_from_slice(&px[..3]);

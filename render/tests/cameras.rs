@@ -106,7 +106,10 @@ fn markers_land_on_their_pinhole_projection() {
     // (0.3, −0.2, 1.5) of the camera frame projects to (192 + 359.1696·0.2,
     // 192 − 359.1696·0.1333) = (263.834, 144.111).
     let [u, v0] = k.project(&Vector3::new(0.3, -0.2, 1.5)).unwrap();
-    assert!((u - 263.834).abs() < 1e-3 && (v0 - 144.111).abs() < 1e-3, "{u} {v0}");
+    assert!(
+        (u - 263.834).abs() < 1e-3 && (v0 - 144.111).abs() < 1e-3,
+        "{u} {v0}"
+    );
     let state = vehicle_out_of_view(&v);
     let points_in_camera = [
         Vector3::new(0.0, 0.0, 1.0),
@@ -148,7 +151,10 @@ fn nearer_objects_hide_farther_ones() {
     // The near one is drawn last and first: depth decides, not order. Palette: orange has
     // g/r ≈ 0.49, red g/r ≈ 0.17.
     let ratio = f64::from(cg) / f64::from(cr.max(1));
-    assert!(ratio < 0.3, "centre pixel {cr}, {cg}: the far orange sphere shows");
+    assert!(
+        ratio < 0.3,
+        "centre pixel {cr}, {cg}: the far orange sphere shows"
+    );
     // Swap the order: the near sphere still wins.
     let far = marker(Vector3::new(2.0, 0.0, 1.0), 0.2);
     let near = marker(Vector3::new(1.0, 0.0, 1.0), 0.05);
@@ -158,7 +164,10 @@ fn nearer_objects_hide_farther_ones() {
     let [cr, cg, _] = img.pixel(192, 192).unwrap();
     // Now the near one is palette 0 (orange), the far one red.
     let ratio = f64::from(cg) / f64::from(cr.max(1));
-    assert!(ratio > 0.35, "centre pixel {cr}, {cg}: the far red sphere shows");
+    assert!(
+        ratio > 0.35,
+        "centre pixel {cr}, {cg}: the far red sphere shows"
+    );
 }
 
 /// The FA-Hexa at its reset pose and joints, 1 m up, no scene.
@@ -255,7 +264,11 @@ fn differing_pixels(a: &Image, b: &Image) -> usize {
 #[test]
 fn same_seed_same_pixels_and_visual_dr_follows_the_seed() {
     let (v, twin) = press_button_twin(3);
-    let cameras = [render::vehicle_cameras(&v), vec![CameraSpec::scene_scaled(320, 180)]].concat();
+    let cameras = [
+        render::vehicle_cameras(&v),
+        vec![CameraSpec::scene_scaled(320, 180)],
+    ]
+    .concat();
     let scene = twin.scene_visuals();
     let state = Snapshot::of_twin(&twin);
     let scene_cam = cameras.len() - 1;
@@ -267,12 +280,19 @@ fn same_seed_same_pixels_and_visual_dr_follows_the_seed() {
     let b = on.render(&state, scene_cam).unwrap();
     assert_eq!(a, b, "same state, same seed");
     on.reset_scene(&scene, 3).unwrap();
-    assert_eq!(on.render(&state, scene_cam).unwrap(), a, "same seed after a reset");
+    assert_eq!(
+        on.render(&state, scene_cam).unwrap(),
+        a,
+        "same seed after a reset"
+    );
     on.reset_scene(&scene, 4).unwrap();
     let c = on.render(&state, scene_cam).unwrap();
     let changed = differing_pixels(&a, &c);
     // The floor and the wall fill most of the view: a new draw recolours most pixels.
-    assert!(changed > 320 * 180 / 4, "only {changed} pixels changed with the seed");
+    assert!(
+        changed > 320 * 180 / 4,
+        "only {changed} pixels changed with the seed"
+    );
 
     let Some(mut off) = renderer(&v, &cameras, VisualDr::Off) else {
         return;
@@ -280,8 +300,15 @@ fn same_seed_same_pixels_and_visual_dr_follows_the_seed() {
     off.reset_scene(&scene, 3).unwrap();
     let d = off.render(&state, scene_cam).unwrap();
     off.reset_scene(&scene, 4).unwrap();
-    assert_eq!(off.render(&state, scene_cam).unwrap(), d, "DR off ignores the seed");
-    assert!(differing_pixels(&a, &d) > 320 * 180 / 4, "DR on changes the nominal look");
+    assert_eq!(
+        off.render(&state, scene_cam).unwrap(),
+        d,
+        "DR off ignores the seed"
+    );
+    assert!(
+        differing_pixels(&a, &d) > 320 * 180 / 4,
+        "DR on changes the nominal look"
+    );
     // Rendering several cameras in one submission gives each its own image.
     let mut images = vec![Image::default(), Image::default()];
     off.render_set_into(&state, &[0, 1], &mut images).unwrap();
@@ -313,5 +340,18 @@ fn a_state_that_does_not_match_is_refused() {
 #[test]
 fn no_adapter_error_says_how_to_install_one() {
     let msg = RenderError::NoAdapter("no suitable adapter found".to_owned()).to_string();
-    assert!(msg.contains("mesa-vulkan-drivers") && msg.contains("bash scripts/setup.sh"), "{msg}");
+    assert!(
+        msg.contains("mesa-vulkan-drivers") && msg.contains("bash scripts/setup.sh"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn a_renderer_can_move_to_a_render_thread() {
+    // Compile-time: the flight loop may own the renderer on a worker thread and send it
+    // snapshots (wgpu's Device and Queue are Send + Sync).
+    fn send<T: Send + 'static>() {}
+    send::<Renderer>();
+    send::<Snapshot>();
+    send::<Image>();
 }

@@ -113,8 +113,12 @@ fn collider_from_shape(shape: &dyn Shape) -> Option<Isometry3<f64>> {
     if let Some(c) = shape.as_capsule() {
         let a = vector_from_rapier(c.segment.a);
         let b = vector_from_rapier(c.segment.b);
-        let turn = UnitQuaternion::rotation_between(&Vector3::z(), &(b - a)).unwrap_or_else(flipped);
-        return Some(Isometry3::from_parts(Translation3::from(0.5 * (a + b)), turn));
+        let turn =
+            UnitQuaternion::rotation_between(&Vector3::z(), &(b - a)).unwrap_or_else(flipped);
+        return Some(Isometry3::from_parts(
+            Translation3::from(0.5 * (a + b)),
+            turn,
+        ));
     }
     if let Some(h) = shape.as_halfspace() {
         let normal = vector_from_rapier(h.normal);
@@ -143,7 +147,8 @@ fn visual_shape(collider: &Collider) -> Option<(VisualShape, Isometry3<f64>)> {
     } else if let Some(c) = shape.as_capsule() {
         VisualShape::Capsule {
             radius_m: c.radius,
-            half_length_m: 0.5 * (vector_from_rapier(c.segment.b) - vector_from_rapier(c.segment.a)).norm(),
+            half_length_m: 0.5
+                * (vector_from_rapier(c.segment.b) - vector_from_rapier(c.segment.a)).norm(),
         }
     } else if let Some(p) = shape.as_convex_polyhedron() {
         let (points, triangles) = p.to_trimesh();
@@ -229,7 +234,9 @@ mod tests {
         assert_eq!(count(VisualRole::Moving), 1, "the plunger");
         // The wall is the 0.1 × 2 × 2 m slab centred near (2, 0, 1).
         let wall = v.iter().find(|s| s.role == VisualRole::Wall).unwrap();
-        assert!((wall.world_from_shape.translation.vector - Vector3::new(2.0, 0.0, 1.0)).norm() < 0.3);
+        assert!(
+            (wall.world_from_shape.translation.vector - Vector3::new(2.0, 0.0, 1.0)).norm() < 0.3
+        );
         // The plunger is a cylinder turned onto the world x axis (it points at the robot).
         let plunger = v.iter().find(|s| s.role == VisualRole::Moving).unwrap();
         assert!(matches!(plunger.shape, VisualShape::Cylinder { .. }));
