@@ -168,6 +168,8 @@ pub struct Renderer {
     slots: ObjectSlots,
     /// Forward kinematics scratch: root_from_link per link.
     link_poses: Vec<Isometry3<f64>>,
+    /// Cameras of the frame begun and not yet finished.
+    in_flight: Vec<usize>,
 }
 
 /// The nominal colour of a vehicle link, by role (appearance.rs).
@@ -360,6 +362,7 @@ impl Renderer {
             cameras: targets,
             slots,
             link_poses: Vec::with_capacity(vehicle.model.links.len()),
+            in_flight: Vec::with_capacity(cameras.len()),
         })
     }
 
@@ -489,7 +492,6 @@ impl Renderer {
         cameras: &[usize],
         images: &mut [Image],
     ) -> Result<(), RenderError> {
-        self.check(state)?;
         if images.len() != cameras.len() {
             return Err(RenderError::State(format!(
                 "{} images for {} cameras",
@@ -497,6 +499,21 @@ impl Renderer {
                 cameras.len()
             )));
         }
+        self.begin_frame(state, cameras)?;
+        self.finish_frame(images)
+    }
+
+    /// Starts drawing `cameras` at `state` (one submission) and returns without waiting: the
+    /// adapter renders while the caller goes on (e.g. steps the next tick's physics);
+    /// [`Self::finish_frame`] waits and reads the images back. One frame at a time: beginning
+    /// a second before finishing the first is an error.
+    pub fn begin_frame(&mut self, state: &Snapshot, cameras: &[usize]) -> Result<(), RenderError> {
+        if !self.in_flight.is_empty() {
+            return Err(RenderError::State(
+                "a frame is already in flight: finish it first".to_owned(),
+            ));
+        }
+        self.check(state)?;
         for &c in cameras {
             self.target(c)?;
         }
@@ -531,22 +548,43 @@ impl Renderer {
                     }
                 });
         }
-        self.device
+        self.in_flight.extend_from_slice(cameras);
+        Ok(())
+    }
+
+    /// Waits for the frame of [`Self::begin_frame`] and copies its images: `images[k]`
+    /// receives the k-th camera begun. With the wrong number of images the frame stays in
+    /// flight (call again with the right number).
+    pub fn finish_frame(&mut self, images: &mut [Image]) -> Result<(), RenderError> {
+        if images.len() != self.in_flight.len() {
+            return Err(RenderError::State(format!(
+                "{} images for a frame of {} cameras",
+                images.len(),
+                self.in_flight.len()
+            )));
+        }
+        let waited = self
+            .device
             .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| RenderError::Readback(e.to_string()))?;
-        for (&c, image) in cameras.iter().zip(images.iter_mut()) {
+            .map(|_| ())
+            .map_err(|e| RenderError::Readback(e.to_string()));
+        let mut result = waited;
+        for (&c, image) in self.in_flight.iter().zip(images.iter_mut()) {
             let target = &self.cameras[c];
             let status = target.mapped.lock().ok().and_then(|mut m| m.take());
-            match status {
-                Some(Ok(())) => {}
-                Some(Err(e)) => return Err(RenderError::Readback(e.to_string())),
-                None => return Err(RenderError::Readback("the map never completed".to_owned())),
-            }
-            let result = copy_out(target, image);
-            target.readback.unmap();
-            result?;
+            let copied = match status {
+                Some(Ok(())) => {
+                    let copied = copy_out(target, image);
+                    target.readback.unmap();
+                    copied
+                }
+                Some(Err(e)) => Err(RenderError::Readback(e.to_string())),
+                None => Err(RenderError::Readback("the map never completed".to_owned())),
+            };
+            result = result.and(copied);
         }
-        Ok(())
+        self.in_flight.clear();
+        result
     }
 
     fn camera_uniform(&self, spec: &CameraSpec, state: &Snapshot) -> CameraUniform {

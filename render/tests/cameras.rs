@@ -355,3 +355,38 @@ fn a_renderer_can_move_to_a_render_thread() {
     send::<Snapshot>();
     send::<Image>();
 }
+
+#[test]
+fn a_frame_begun_and_finished_later_is_the_frame_rendered_at_once() {
+    let (v, mut twin) = press_button_twin(1);
+    let Some(mut r) = renderer(&v, &render::vehicle_cameras(&v), VisualDr::On) else {
+        return;
+    };
+    r.reset_scene(&twin.scene_visuals(), 1).unwrap();
+    let state = Snapshot::of_twin(&twin);
+    let mut at_once = vec![Image::default(), Image::default()];
+    r.render_set_into(&state, &[1, 0], &mut at_once).unwrap();
+    r.begin_frame(&state, &[1, 0]).unwrap();
+    // One frame at a time.
+    assert!(matches!(
+        r.begin_frame(&state, &[0]),
+        Err(RenderError::State(_))
+    ));
+    // The physics steps while the frame is drawn: the images are those of the state begun.
+    let hover = platform::ActuatorCommand {
+        rotor_thrusts_n: vec![12.5; v.rotors.len()],
+        joint_targets: v.initial_configuration(),
+        direct_wrench_in_body: None,
+    };
+    twin.step(&hover).unwrap();
+    let mut later = vec![Image::default()];
+    assert!(matches!(
+        r.finish_frame(&mut later),
+        Err(RenderError::State(_))
+    ));
+    later.push(Image::default());
+    r.finish_frame(&mut later).unwrap();
+    assert_eq!(later, at_once);
+    // Camera 1 is the base camera, camera 0 the EE camera: different views.
+    assert_ne!(later[0], later[1]);
+}
