@@ -71,6 +71,55 @@ fn cameras(c: &mut Criterion) {
         });
     });
     group.finish();
+
+    // One control tick of the twin (hover thrust; back to reset every simulated second) with
+    // and without the EE + base cameras, and with the frame drawn while the next tick steps.
+    let hover = platform::ActuatorCommand {
+        rotor_thrusts_n: vec![
+            vehicle.hover_thrust_per_rotor_n().unwrap_or(0.0);
+            vehicle.rotors.len()
+        ],
+        joint_targets: vehicle.initial_configuration(),
+        direct_wrench_in_body: None,
+    };
+    let mut twin = twin;
+    let step = move |twin: &mut Twin| {
+        if twin.time_s() >= 1.0
+            && let Err(e) = twin.reset(0)
+        {
+            panic!("{e}");
+        }
+        if let Err(e) = twin.step(&hover) {
+            panic!("{e}");
+        }
+    };
+    let mut group = c.benchmark_group("tick_fa_hexa_press_button");
+    group.sample_size(30);
+    group.measurement_time(Duration::from_secs(8));
+    group.throughput(Throughput::Elements(1));
+    group.bench_function("twin_step_only", |b| b.iter(|| step(&mut twin)));
+    group.bench_function("twin_step_then_ee_and_base", |b| {
+        b.iter(|| {
+            step(&mut twin);
+            snapshot.update_from_twin(&twin);
+            if let Err(e) = renderer.render_set_into(&snapshot, &[ee, base], &mut two) {
+                panic!("{e}");
+            }
+        });
+    });
+    group.bench_function("ee_and_base_drawn_while_the_next_tick_steps", |b| {
+        b.iter(|| {
+            snapshot.update_from_twin(&twin);
+            if let Err(e) = renderer.begin_frame(&snapshot, &[ee, base]) {
+                panic!("{e}");
+            }
+            step(&mut twin);
+            if let Err(e) = renderer.finish_frame(&mut two) {
+                panic!("{e}");
+            }
+        });
+    });
+    group.finish();
 }
 
 criterion_group!(benches, cameras);
