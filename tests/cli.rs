@@ -707,3 +707,26 @@ fn render_writes_the_cameras_png_and_intrinsics() {
         "{p}"
     );
 }
+
+/// A machine without an adapter: on Linux wgpu has no Metal backend, so asking for Metal alone
+/// is a machine where rendering is impossible.
+#[cfg(target_os = "linux")]
+#[test]
+fn render_without_an_adapter_is_bad_input_saying_how_to_install_one() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+    let png = dir.path().join("frame.png");
+    let out = Command::new(env!("CARGO_BIN_EXE_amstack"))
+        .args(["render", "--out", &png.to_string_lossy()])
+        .env("WGPU_BACKEND", "metal")
+        .output()
+        .unwrap_or_else(|e| panic!("cannot start amstack: {e}"));
+    assert_bad_input(
+        &out,
+        &[
+            "no graphics adapter",
+            "mesa-vulkan-drivers",
+            "bash scripts/setup.sh",
+        ],
+    );
+    assert!(!png.exists());
+}
