@@ -16,7 +16,7 @@ use policy_runtime::bench::{
     run_bench,
 };
 use policy_runtime::metrics::{Spread, format_or_na};
-use policy_runtime::{IpcLinkConfig, IpcLinkError};
+use policy_runtime::{IpcLinkConfig, LinkError};
 use serde_json::{Value, json};
 use sim_twin::TaskId;
 
@@ -91,6 +91,8 @@ pub struct Args {
     connect_timeout_ms: u64,
     #[command(flatten)]
     twin: TwinFlags,
+    #[command(flatten)]
+    state: crate::track::StateFlags,
     /// Output directory: results.json, config.json and one MCAP log per rollout.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -222,6 +224,7 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         twin,
         jobs,
         mcap_dir: args.out.as_ref().map(|d| d.join("rollouts")),
+        state_source: args.state.state_source()?,
     })
 }
 
@@ -250,7 +253,7 @@ fn spread_json(s: &Spread) -> Value {
 
 fn rollout_json(r: &RolloutResult) -> Value {
     let s = &r.summary;
-    json!({
+    let mut value = json!({
         "index": r.index,
         "seed": r.seed,
         "success": r.success,
@@ -265,7 +268,11 @@ fn rollout_json(r: &RolloutResult) -> Value {
         "tilt_use_rad": s.tilt_use_rad,
         "saturation_rate": s.saturation_rate,
         "mcap": r.mcap,
-    })
+    });
+    if let (Some(e), Some(object)) = (&r.estimator, value.as_object_mut()) {
+        object.insert("estimator".to_owned(), json!(e));
+    }
+    value
 }
 
 fn task_json(t: &TaskResult) -> Value {
@@ -414,9 +421,7 @@ pub fn run(args: &Args) -> Result<()> {
         bar.inc(1);
     };
     let report = run_bench(&config, &on_done, &stop).map_err(|e| match e {
-        BenchError::Link(IpcLinkError::Refused { .. } | IpcLinkError::TooLarge(_)) => {
-            bad_input(e.to_string())
-        }
+        BenchError::Link(LinkError::Refused(_)) => bad_input(e.to_string()),
         e => anyhow::Error::new(e),
     })?;
     bar.finish_and_clear();

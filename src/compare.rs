@@ -59,22 +59,9 @@ pub struct Args {
     allow_truncated: bool,
 }
 
-/// A figure for people: six decimals in the usual range, four significant digits in
-/// scientific notation for very small or large magnitudes, `0` for an exact zero.
-pub fn significant(v: f64) -> String {
-    let a = v.abs();
-    if a == 0.0 {
-        "0".to_owned()
-    } else if (1e-3..1e6).contains(&a) {
-        format!("{v:.6}")
-    } else {
-        format!("{v:.3e}")
-    }
-}
-
 fn cell(x: Option<f64>) -> String {
     x.filter(|v| v.is_finite())
-        .map_or_else(|| "N/A".to_owned(), significant)
+        .map_or_else(|| "N/A".to_owned(), crate::output::significant)
 }
 
 fn row(table: &mut Table, signal: &str, unit: &str, interval: &str, s: &ErrorStats) {

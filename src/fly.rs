@@ -10,8 +10,8 @@ use firmware_bridge::{Address, BridgeConfig, Signing, SigningKey};
 use policy_runtime::bench::BenchLink;
 use policy_runtime::ipc_link::TickTiming;
 use policy_runtime::{
-    IpcLink, IpcLinkConfig, IpcLinkError, Level, LinkError, MavlinkLink, MavlinkLinkConfig,
-    MavlinkLinkError, TrackError, TrackResult, run_track_with_link,
+    IpcLink, IpcLinkConfig, Level, LinkError, MavlinkLink, MavlinkLinkConfig, TrackError,
+    TrackResult, run_track_with_link,
 };
 use serde::Serialize;
 
@@ -184,6 +184,13 @@ pub(crate) fn link_choice(link: &str) -> Result<LinkChoice> {
 
 pub fn run(args: &FlyArgs) -> Result<()> {
     let choice = link_choice(&args.link)?;
+    if args.level == "attitude" && args.track.controller_name() == "mpc" {
+        return Err(bad_input(
+            "--controller mpc --level attitude: the whole-body MPC commands a body wrench and \
+             arm joints, not an attitude (it has no attitude loop to hand the autopilot); fly \
+             it with --level actuator",
+        ));
+    }
     if let Some(p) = &args.timing_json {
         check_writable("--timing-json", p)?;
     }
@@ -205,11 +212,8 @@ pub fn run(args: &FlyArgs) -> Result<()> {
     let config = track::prepare(&args.track)?;
     let link_config = ipc_link_config(args, service);
     // Connect before anything is printed: a refusal is bad input, one line.
-    let mut link =
-        IpcLink::connect(&config.vehicle, &config.twin, link_config).map_err(|e| match e {
-            IpcLinkError::Refused { .. } | IpcLinkError::TooLarge(_) => bad_input(e.to_string()),
-            e => anyhow::Error::new(e),
-        })?;
+    let mut link = IpcLink::connect(&config.vehicle, &config.twin, link_config)
+        .map_err(|e| link_error(e.into()))?;
     eprintln!(
         "connected to the twin (process {}) on '{}': {} session {:x}",
         link.twin_pid(),
@@ -222,7 +226,7 @@ pub fn run(args: &FlyArgs) -> Result<()> {
         let result = match run_track_with_link(config, &mut link, progress) {
             Ok(r) => r,
             Err(e) => {
-                if let (TrackError::Link(LinkError::Ipc(_)), Some(path)) = (&e, &config.mcap) {
+                if let (TrackError::Link(_), Some(path)) = (&e, &config.mcap) {
                     eprintln!("closed the flight log {}", path.display());
                 }
                 return Err(e.into());
@@ -299,19 +303,21 @@ fn mavlink_link_config(args: &FlyArgs, address: &Address) -> Result<MavlinkLinkC
     })
 }
 
+/// A link's error for the user: a refusal (a configuration, scene or layout the other side
+/// does not take; an address that cannot be opened) is bad input, the rest a failure.
+pub(crate) fn link_error(e: LinkError) -> anyhow::Error {
+    match e {
+        LinkError::Refused(_) => bad_input(e.to_string()),
+        e => anyhow::Error::new(e),
+    }
+}
+
 /// `amstack fly --link mavlink:...`.
 fn run_mavlink(args: &FlyArgs, address: &Address) -> Result<()> {
     let config = track::prepare(&args.track)?;
     let link_config = mavlink_link_config(args, address)?;
     let (level, record_timing) = (link_config.level, link_config.record_timing);
-    let mut link = MavlinkLink::connect(&config.vehicle, link_config).map_err(|e| match e {
-        // A vehicle whose commands do not fit MAVLink is bad input; the rest is the link.
-        LinkError::Mavlink(MavlinkLinkError::Bridge(
-            b @ (firmware_bridge::BridgeError::Setpoint(_)
-            | firmware_bridge::BridgeError::Open { .. }),
-        )) => bad_input(b.to_string()),
-        e => anyhow::Error::new(e),
-    })?;
+    let mut link = MavlinkLink::connect(&config.vehicle, link_config).map_err(link_error)?;
     let autopilot = link.bridge().autopilot();
     eprintln!(
         "connected to the autopilot on {address}: {}, {}, {} level",

@@ -11,6 +11,7 @@ mod mpc_bench;
 mod output;
 mod platforms;
 mod plot;
+mod px4_hil;
 mod render_frame;
 mod replay;
 mod track;
@@ -68,6 +69,9 @@ enum Command {
     /// Compare two flight logs signal by signal: RMSE, max error and bias over the whole
     /// overlap and over intervals; table, JSON, PNG plot.
     Compare(Box<compare::Args>),
+    /// PX4's control-allocation parameters of a vehicle (CA_ROTOR*, THR_MDL_FAC,
+    /// MPC_THR_HOVER, output functions of its HIL channels) as an airframe-file snippet.
+    Px4Airframe(px4_hil::AirframeArgs),
 }
 
 fn main() -> ExitCode {
@@ -102,6 +106,7 @@ fn main() -> ExitCode {
         Command::MpcBench(args) => mpc_bench::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Compare(args) => compare::run(&args),
+        Command::Px4Airframe(args) => px4_hil::run_airframe(&args),
         Command::Render(args) => render_frame::run(&args),
     };
     match result {

@@ -71,3 +71,16 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     }
     result
 }
+
+/// A figure for people: six decimals in the usual range, four significant digits in
+/// scientific notation for very small or large magnitudes, `0` for an exact zero.
+pub fn significant(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 {
+        "0".to_owned()
+    } else if (1e-3..1e6).contains(&a) {
+        format!("{v:.6}")
+    } else {
+        format!("{v:.3e}")
+    }
+}

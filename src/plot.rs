@@ -241,7 +241,7 @@ where
 
 fn fmt(x: Option<f64>) -> String {
     x.filter(|v| v.is_finite())
-        .map_or_else(|| "N/A".to_owned(), crate::compare::significant)
+        .map_or_else(|| "N/A".to_owned(), crate::output::significant)
 }
 
 /// Draws `report` into the PNG `path` (the first [`MAX_PANELS`] signals).

@@ -8,14 +8,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Result;
 use comfy_table::{Table, presets};
 use controllers::{ControllerConfig, ControllerKind, profile};
-use firmware_bridge::BridgeError;
+use policy_runtime::LinkError;
 use policy_runtime::bench::{
     BenchConfig, BenchError, BenchLink, EpisodeLength, Termination, run_rollout_logged,
 };
 use policy_runtime::{
     EstimatorSettings, Interface, StateSource, TrackConfig, TrackResult, Trajectory, run_track,
 };
-use policy_runtime::{IpcLinkError, LinkError, MavlinkLinkError};
 
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_json};
@@ -193,6 +192,13 @@ impl StateFlags {
     }
 }
 
+impl Args {
+    /// The `--controller` flag.
+    pub(crate) fn controller_name(&self) -> &str {
+        &self.controller
+    }
+}
+
 /// The controller of `--controller`, with `--max-force`/`--max-torque`.
 fn controller_config(args: &Args, vehicle: &platform::Vehicle) -> Result<ControllerConfig> {
     let kind = match args.controller.as_str() {
@@ -266,6 +272,8 @@ fn config(args: &Args) -> Result<TrackConfig> {
         twin,
         mcap: args.mcap.clone(),
         state_source,
+        // In the twin the MPC's solves are not timed: results never depend on the wall clock.
+        clock: None,
     })
 }
 
@@ -424,12 +432,7 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
              `amstack bench --help`)",
         ));
     };
-    if args.state.state_source()? != StateSource::Truth {
-        return Err(bad_input(
-            "--trajectory scripted: task flights fly on --state-source truth (the benchmark's \
-             observation)",
-        ));
-    }
+    let state_source = args.state.state_source()?;
     let interface = if args.interface == "ee" {
         Interface::Ee
     } else {
@@ -473,6 +476,7 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
         episode,
         mcap_dir: None,
         link,
+        state_source,
     };
     eprintln!(
         "flying {}'s scripted policy (seed {}) on {} ({}, {} interface) over {link_name}, \
@@ -490,11 +494,7 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
     let r = run_rollout_logged(&config, task, 0, &stop, args.mcap.as_deref()).map_err(|e| {
         // A link that refuses this flight's configuration is bad input, one line (exit 2).
         match e {
-            BenchError::Scene(_)
-            | BenchError::Link(IpcLinkError::Refused { .. } | IpcLinkError::TooLarge(_))
-            | BenchError::OtherLink(LinkError::Mavlink(MavlinkLinkError::Bridge(
-                BridgeError::Setpoint(_) | BridgeError::Open { .. },
-            ))) => bad_input(e.to_string()),
+            BenchError::Link(LinkError::Refused(_)) => bad_input(e.to_string()),
             e => anyhow::Error::new(e),
         }
     })?;

@@ -7,8 +7,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::Result;
-use sim_twin::autopilot::{Autopilot, AutopilotConfig, AutopilotError, Endpoint, Signing};
 use sim_twin::ipc::{Mode, ServeConfig, ServeError, TwinServer};
+use twin_autopilot::{
+    Autopilot, AutopilotConfig, AutopilotError, Endpoint, RealtimePolicy, Signing,
+};
 
 use crate::cli_error::bad_input;
 use crate::twin_flags::{SceneFlag, TwinFlags};
@@ -25,7 +27,7 @@ enum TwinCommand {
     /// Run the twin in this process and serve it over iceoryx2 shared memory to one flight
     /// process at a time (`--ipc`, for `amstack fly --link ipc:<service>`), or as a PX4-style
     /// autopilot over MAVLink 2 (`--mavlink`, for `amstack fly --link mavlink:…`, a ground
-    /// station, or any offboard program).
+    /// station, or any offboard program), or as PX4's simulator (`--px4-hil`, for PX4 SITL).
     Serve(Box<ServeArgs>),
 }
 
@@ -47,13 +49,20 @@ Example:
   amstack twin serve --ipc sitl --platform fa-hexa &
   amstack fly --link ipc:sitl --platform fa-hexa --trajectory step --json r.json
 
-MAVLINK (--mavlink): the twin is a PX4 vehicle, MAVLink 2 system 1 component 1: HEARTBEAT
-(PX4 custom modes), SYS_STATUS, EXTENDED_SYS_STATE, ATTITUDE, GLOBAL_POSITION_INT, and at
-every twin step DEBUG_FLOAT_ARRAY 'joints', ACTUATOR_OUTPUT_STATUS (newtons), HIGHRES_IMU,
-ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ODOMETRY. It arms, switches to OFFBOARD (only
-while setpoints stream, >= 2 Hz) and flies SET_ACTUATOR_CONTROL_TARGET (groups 0 motors,
-1 tilts, 2 arm + gripper) or SET_ATTITUDE_TARGET (its own attitude loop). Every COMMAND_LONG
-gets a COMMAND_ACK, refusals a STATUSTEXT with the reason. It starts disarmed in POSCTL,
+MAVLINK (--mavlink): the twin is a PX4 vehicle, MAVLink 2 system 1 component 1 (MAVLink 1 to
+a peer until it speaks MAVLink 2): HEARTBEAT (PX4 custom modes), SYS_STATUS (health),
+EXTENDED_SYS_STATE, ATTITUDE, GLOBAL_POSITION_INT, GPS_RAW_INT, ALTITUDE, HOME_POSITION,
+MISSION_CURRENT, and at every twin step DEBUG_FLOAT_ARRAY 'joints', ACTUATOR_OUTPUT_STATUS
+(newtons), HIGHRES_IMU, ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ODOMETRY. Parameters
+(PARAM_*: COM_OF_LOSS_T, COM_OBL_RC_ACT, MPC_*, MIS_TAKEOFF_ALT, NAV_ACC_RAD, RTL_RETURN_ALT,
+MC_*RATE_MAX), missions (MISSION_INT; AUTO.MISSION flies takeoff, waypoints, land, RTL),
+COMMAND_LONG and COMMAND_INT (arm, modes, NAV_TAKEOFF, DO_REPOSITION, NAV_RETURN_TO_LAUNCH,
+NAV_LAND, MISSION_START...). OFFBOARD (only while setpoints stream) flies what PX4 accepts:
+SET_POSITION_TARGET_LOCAL_NED (position, velocity, acceleration; its own PID) and
+SET_ATTITUDE_TARGET (attitude or body rates, thrust or thrust_body; its own attitude loop).
+SET_ACTUATOR_CONTROL_TARGET (groups 0 motors, 1 tilts, 2 arm + gripper), which current PX4
+does not have, only with --allow-actuator-setpoints. Every command gets a COMMAND_ACK,
+refusals a STATUSTEXT with the reason. It starts disarmed in POSCTL,
 level, 1 m up (the benchmark's reset); POSCTL and AUTO modes hold/land with its own PID.
 With --lockstep (what SITL tests use) the twin steps once per setpoint tick while armed in
 OFFBOARD; with --realtime it runs on the wall clock from the first arming.
@@ -68,8 +77,15 @@ Example with pymavlink as the ground station (QGroundControl: add a UDP link to 
   amstack twin serve --mavlink udp:127.0.0.1:14540 --platform fa-hexa --realtime &
   PY=$(bash scripts/setup-python.sh)    # a venv with pymavlink
   $PY scripts/mavlink_gcs.py rates --connect udpout:127.0.0.1:14540 --seconds 3
-  (it measures the message rates, requests AUTOPILOT_VERSION, arms and disarms: JSON)")]
-#[command(group(clap::ArgGroup::new("link").required(true).args(["ipc", "mavlink"])))]
+  (it measures the message rates, requests AUTOPILOT_VERSION, arms and disarms: JSON)
+
+PX4 HIL (--px4-hil): the twin is PX4's simulator. PX4 SITL's simulator_mavlink connects over
+TCP; the twin sends HIL_SENSOR, HIL_GPS, HIL_STATE_QUATERNION and applies HIL_ACTUATOR_CONTROLS
+through the vehicle file's [px4_hil] channel map, in lockstep (one reply per HIL_SENSOR) or
+--realtime. The vehicle is held at its start until PX4 arms. `amstack px4-airframe` prints
+the vehicle's PX4 parameters. The contract: docs/px4-hil.md.
+  amstack twin serve --px4-hil tcp:0.0.0.0:4560 --platform fa-hexa --task wipe-window --mcap hil.mcap")]
+#[command(group(clap::ArgGroup::new("link").required(true).args(["ipc", "mavlink", "px4_hil"])))]
 pub struct ServeArgs {
     /// iceoryx2 service name the flight process connects to (`--link ipc:<NAME>`).
     #[arg(long, value_name = "NAME")]
@@ -78,6 +94,17 @@ pub struct ServeArgs {
     /// every peer heard from) or open a serial device.
     #[arg(long, value_name = "udp:HOST:PORT|serial:DEVICE:BAUD")]
     mavlink: Option<String>,
+    /// Serve as PX4's simulator (PX4 SITL's simulator_mavlink connects here over TCP; HIL
+    /// messages, lockstep): docs/px4-hil.md.
+    #[arg(long, value_name = "tcp:HOST:PORT")]
+    px4_hil: Option<String>,
+    /// --px4-hil lockstep: before PX4's first reply, how long each HIL_SENSOR waits for one
+    /// (default one control period: PX4 boots in real time), ms.
+    #[arg(long, value_name = "MS", requires = "px4_hil")]
+    first_reply_ms: Option<u64>,
+    /// --px4-hil: the MCAP log of the sessions (FILE, then FILE-2.mcap, ...).
+    #[arg(long, value_name = "FILE", requires = "px4_hil")]
+    mcap: Option<PathBuf>,
     /// Vehicle id (ua-quad, ua-hexa, fa-hexa, omni-hexa, ee-only, or one added with --vehicle).
     #[arg(long, default_value = "fa-hexa")]
     platform: String,
@@ -90,7 +117,7 @@ pub struct ServeArgs {
     /// --ipc: how long a lost flight process's last command is held before the failsafe, ms.
     #[arg(long, value_name = "MS", default_value_t = 500)]
     hold_ms: u64,
-    /// --ipc lockstep: a flight process alive but silent this long counts as lost, ms.
+    /// --ipc, --px4-hil lockstep: a peer alive but silent this long counts as lost, ms.
     #[arg(long, value_name = "MS", default_value_t = 5000)]
     stall_ms: u64,
     /// --ipc: let each flight process choose its session's episode, the task scene and the
@@ -98,7 +125,7 @@ pub struct ServeArgs {
     /// else must still match. Without it, sessions run --task and --seed.
     #[arg(long)]
     flight_chooses_episode: bool,
-    /// --ipc: exit after serving this many sessions (default: until Ctrl-C).
+    /// --ipc, --px4-hil: exit after serving this many sessions (default: until Ctrl-C).
     #[arg(long, value_name = "N")]
     sessions: Option<u64>,
     /// --mavlink: armed in OFFBOARD, no setpoint for this long starts the failsafe (and
@@ -118,6 +145,15 @@ pub struct ServeArgs {
     /// --mavlink: link id written into outgoing signatures.
     #[arg(long, value_name = "ID", default_value_t = 0)]
     signing_link_id: u8,
+    /// --mavlink: accept SET_ACTUATOR_CONTROL_TARGET (motors, tilts, arm), a SITL extension:
+    /// current PX4 has no actuator offboard over MAVLink. Off: refused with a STATUSTEXT.
+    #[arg(long)]
+    allow_actuator_setpoints: bool,
+    /// --mavlink --realtime: when the twin cannot keep up with the wall clock (its real-time
+    /// factor, printed once per second, below 0.98): warn (keep running at the slower pace)
+    /// or fail (exit 1).
+    #[arg(long, value_name = "warn|fail", default_value = "warn")]
+    realtime_policy: String,
     /// The twin's settings, as in `amstack track`; every session starts from the seed.
     #[command(flatten)]
     twin: TwinFlags,
@@ -137,6 +173,24 @@ pub fn run(args: &TwinArgs) -> Result<()> {
 fn run_serve(args: &ServeArgs) -> Result<()> {
     if let Some(link) = &args.mavlink {
         return run_mavlink(args, link);
+    }
+    if let Some(endpoint) = &args.px4_hil {
+        let mut twin = args.twin.twin_config()?;
+        args.scene.apply(&mut twin)?;
+        return crate::px4_hil::run_serve(&crate::px4_hil::Serve {
+            endpoint: endpoint.clone(),
+            vehicle: find_vehicle(&args.vehicles, &args.platform)?,
+            twin,
+            mode: if args.realtime {
+                Mode::Realtime
+            } else {
+                Mode::Lockstep
+            },
+            stall_ms: args.stall_ms,
+            first_reply_ms: args.first_reply_ms,
+            sessions: args.sessions,
+            mcap: args.mcap.clone(),
+        });
     }
     let ipc = args.ipc.clone().unwrap_or_default();
     if ipc.is_empty() || ipc.contains(char::is_whitespace) {
@@ -187,6 +241,8 @@ fn run_mavlink(args: &ServeArgs, link: &str) -> Result<()> {
             "--offboard-timeout-ms 0: must be positive".to_owned(),
         ));
     }
+    let realtime_policy = RealtimePolicy::parse(&args.realtime_policy)
+        .map_err(|e| bad_input(format!("--realtime-policy {e}")))?;
     let signing = match &args.signing_key {
         None => None,
         Some(path) => {
@@ -217,6 +273,8 @@ fn run_mavlink(args: &ServeArgs, link: &str) -> Result<()> {
         offboard_timeout: Duration::from_millis(args.offboard_timeout_ms),
         failsafe_hold_s: args.failsafe_hold_s,
         signing,
+        allow_actuator_setpoints: args.allow_actuator_setpoints,
+        realtime_policy,
         ..AutopilotConfig::new(endpoint, mode)
     };
     let mut autopilot = Autopilot::new(vehicle, twin, config).map_err(|e| match e {

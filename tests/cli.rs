@@ -197,6 +197,43 @@ fn a_malformed_rotor_layout_is_bad_input_naming_file_field_and_value() {
     assert_bad_input(&out, &["my-hexa.toml", "line "]);
 }
 
+/// A vehicle file without `[control]` used to fly the FA-Hexa's gains silently; it is refused,
+/// one line naming the file and the section. An unknown preset is refused when flown.
+#[test]
+fn a_vehicle_file_without_its_control_presets_is_refused() {
+    let (_dir, path) = fa_hexa_copy(|toml, urdf| {
+        // The section is the file's last: cut it and what follows.
+        let cut = toml.find("[control]").unwrap_or(toml.len());
+        (
+            toml[..cut].replace("id = \"fa-hexa\"", "id = \"my-hexa\""),
+            urdf,
+        )
+    });
+    let out = amstack(&["platforms", "--vehicle", &path.to_string_lossy()]);
+    assert_bad_input(
+        &out,
+        &["my-hexa.toml", "control", "missing section [control]"],
+    );
+
+    let (_dir, path) = fa_hexa_copy(|toml, urdf| {
+        (
+            toml.replace("id = \"fa-hexa\"", "id = \"my-hexa\"")
+                .replace("pid = \"pid6-am-bench\"", "pid = \"pid9\""),
+            urdf,
+        )
+    });
+    let out = amstack(&[
+        "track",
+        "--vehicle",
+        &path.to_string_lossy(),
+        "--platform",
+        "my-hexa",
+        "--duration",
+        "0.1",
+    ]);
+    assert_bad_input(&out, &["pid9", "is not a preset"]);
+}
+
 #[test]
 fn missing_files_and_unknown_flags_are_bad_input() {
     assert_bad_input(
@@ -379,23 +416,11 @@ fn bench_refuses_unknown_names_and_impossible_combinations_listing_the_choices()
         &amstack(&["bench", "--json", "/nonexistent-dir/results.json"]),
         &["--json", "/nonexistent-dir"],
     );
-    // A scripted task flight needs its task, the truth, and an arm for the base-joint
-    // interface; the benchmark does not run over MAVLink and says what does.
+    // A scripted task flight needs its task and an arm for the base-joint interface; the
+    // benchmark does not run over MAVLink and says what does.
     assert_bad_input(
         &amstack(&["fly", "--trajectory", "scripted"]),
         &["--trajectory scripted", "--task"],
-    );
-    assert_bad_input(
-        &amstack(&[
-            "fly",
-            "--trajectory",
-            "scripted",
-            "--task",
-            "push-slider",
-            "--state-source",
-            "estimator",
-        ]),
-        &["--trajectory scripted", "--state-source truth"],
     );
     assert_bad_input(
         &amstack(&[

@@ -37,7 +37,7 @@ impl XorShift {
 
 fn setup(id: &str) -> (Vehicle, WholeBodyIk) {
     let vehicle = Vehicle::builtin(id).unwrap_or_else(|e| panic!("{id}: {e}"));
-    let config = IkConfig::for_vehicle(id).unwrap_or_else(|| panic!("{id}: no IK preset"));
+    let config = IkConfig::preset(id).unwrap_or_else(|| panic!("{id}: no IK preset"));
     let ik = WholeBodyIk::new(&vehicle, config).unwrap_or_else(|e| panic!("{id}: {e}"));
     (vehicle, ik)
 }

@@ -2,7 +2,7 @@
 //! time-step guard, anti-windup from the allocator's feedback, and the status.
 
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
-use platform::{GRAVITY_MPS2, RigidBodyState, Vehicle, Wrench};
+use platform::{AttitudeSetpoint, GRAVITY_MPS2, RigidBodyState, Vehicle, Wrench};
 use serde::Serialize;
 
 use crate::desired::{DesiredStateGenerator, is_finite_pose};
@@ -146,9 +146,33 @@ pub struct ControllerStatus {
     pub dt_clamped: bool,
     /// The wrench returned by the last update.
     pub output: Wrench,
+    /// The attitude the last update steered to (the attitude level of its cascade); None
+    /// before an update that could use its inputs.
+    pub attitude_target: Option<AttitudeTarget>,
+}
+
+/// The attitude level of a base controller's cascade: the desired attitude R_d it steered to
+/// (PID6 and L1: the reference pose's; PID4: the one its thrust direction needs) and the
+/// desired body rate RᵀR_dΩ_d, in the current body frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct AttitudeTarget {
+    /// R_d as `world_from_body`.
+    pub world_from_body: UnitQuaternion<f64>,
+    /// RᵀR_dΩ_d, body (FLU), rad/s.
+    pub body_rates_radps: Vector3<f64>,
 }
 
 impl ControllerStatus {
+    /// The attitude setpoint of the cascade with body force `force_in_body_n` (the force the
+    /// allocation will produce); None when the controller has no attitude target.
+    pub fn attitude_setpoint(&self, force_in_body_n: Vector3<f64>) -> Option<AttitudeSetpoint> {
+        self.attitude_target.map(|t| AttitudeSetpoint {
+            world_from_body: t.world_from_body,
+            force_in_body_n,
+            body_rates_radps: Some(t.body_rates_radps),
+        })
+    }
+
     pub(crate) fn new(controller: &'static str) -> Self {
         Self {
             controller,
@@ -164,6 +188,7 @@ impl ControllerStatus {
             input: InputHealth::Ok,
             dt_clamped: false,
             output: Wrench::ZERO,
+            attitude_target: None,
         }
     }
 }
@@ -269,6 +294,8 @@ pub(crate) struct AttitudeErrors {
     pub omega_d_in_body: Vector3<f64>,
     /// RᵀR_d Ω̇_d.
     pub omega_dot_d_in_body: Vector3<f64>,
+    /// R_d.
+    pub r_d: Matrix3<f64>,
 }
 
 pub(crate) fn attitude_errors(
@@ -285,6 +312,7 @@ pub(crate) fn attitude_errors(
         e_omega: state.angular_velocity_in_body_radps - omega_d_in_body,
         omega_d_in_body,
         omega_dot_d_in_body: rt_rd * omega_dot_d,
+        r_d: *r_d,
     }
 }
 
@@ -418,6 +446,12 @@ impl ControllerStatus {
         self.velocity_error_mps = e_v;
         self.attitude_error = attitude.e_r;
         self.angular_velocity_error_radps = attitude.e_omega;
+        self.attitude_target = Some(AttitudeTarget {
+            world_from_body: UnitQuaternion::from_rotation_matrix(
+                &nalgebra::Rotation3::from_matrix_unchecked(attitude.r_d),
+            ),
+            body_rates_radps: attitude.omega_d_in_body,
+        });
         self
     }
 }

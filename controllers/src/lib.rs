@@ -6,6 +6,8 @@
 //!   Ω×JΩ − J(Ω^RᵀR_dΩ_d − RᵀR_dΩ̇_d), with e_R = ½(R_dᵀR − RᵀR_d)^∨.
 //! - [`Pid4`]: the nested 4-DoF law of the under-actuated vehicles: thrust direction and
 //!   heading from the position loop (decimated), the attitude law every tick, F_b = [0, 0, f].
+//! - [`AttitudeLaw`]: the attitude law alone (attitude or body-rate setpoints, e.g. an
+//!   autopilot's attitude loop); PID6 and PID4 run the same law inside their cascades.
 //! - [`L1Adaptive`]: L1 adaptive control on the integrator-free PID baseline.
 //! - [`DesiredStateGenerator`]: velocities, accelerations and rates from pose targets.
 //! - [`ik`]: whole-body inverse kinematics over base pose and arm joints.
@@ -16,6 +18,7 @@
 //! loadable from TOML ([`ControllerConfig::from_toml_str`]); [`profile`] picks the
 //! reference's controller for a vehicle.
 
+mod attitude;
 mod controller;
 mod desired;
 mod gains;
@@ -27,8 +30,9 @@ mod pid6;
 mod profile;
 mod so3;
 
+pub use attitude::{AttitudeGains, AttitudeLaw};
 pub use controller::{
-    BaseController, BodyParams, ControllerStatus, DT_MAX_S, DT_MIN_S, InputHealth,
+    AttitudeTarget, BaseController, BodyParams, ControllerStatus, DT_MAX_S, DT_MIN_S, InputHealth,
     SATURATION_TOLERANCE,
 };
 pub use desired::{DesiredState, DesiredStateGenerator, is_finite_pose};

@@ -24,8 +24,9 @@
 use nalgebra::{Isometry3, Matrix3, Rotation3, Vector3};
 use platform::{GRAVITY_MPS2, RigidBodyState, Wrench};
 
+use crate::attitude::attitude_torque;
 use crate::controller::{
-    BaseController, BodyParams, ControllerCore, ControllerStatus, attitude_errors, geometric_torque,
+    BaseController, BodyParams, ControllerCore, ControllerStatus, attitude_errors,
 };
 use crate::gains::{Pid4Gains, limit_norm};
 use crate::so3::clamp_elementwise;
@@ -166,21 +167,16 @@ impl BaseController for Pid4 {
         let omega_d = clamp_elementwise(&outer.omega_d, limit);
         let omega_dot_d = clamp_elementwise(&outer.omega_dot_d, limit);
         let errors = attitude_errors(state, &outer.r_d, &omega_d, &omega_dot_d);
-        let mut increment = errors.e_r * dt;
-        let torque_change = -(self.core.body.inertia_kgm2 * increment) * g.ki_rot;
-        self.core
-            .guard
-            .gate_torque(&mut increment, &torque_change, &mut status.windup_blocked);
-        self.attitude_integral = limit_norm(self.attitude_integral + increment, g.integral_limit);
-        let torque = geometric_torque(
+        let torque = attitude_torque(
             &self.core.body,
             state,
             &errors,
-            &Vector3::repeat(g.kp_rot),
-            &Vector3::repeat(g.kd_rot),
-            &(self.attitude_integral * g.ki_rot),
+            &(&g).into(),
+            &mut self.attitude_integral,
+            dt,
+            &self.core.guard,
+            &mut status.windup_blocked,
         );
-        let torque = limit_norm(torque, g.max_torque_nm);
 
         let mut status = status.with_errors(e_p, e_v, &errors);
         status.position_integral = self.position_integral;

@@ -15,8 +15,9 @@
 use nalgebra::{Isometry3, Vector3};
 use platform::{GRAVITY_MPS2, RigidBodyState, Wrench};
 
+use crate::attitude::attitude_torque;
 use crate::controller::{
-    BaseController, BodyParams, ControllerCore, ControllerStatus, attitude_errors, geometric_torque,
+    BaseController, BodyParams, ControllerCore, ControllerStatus, attitude_errors,
 };
 use crate::gains::{Pid6Gains, limit_norm};
 
@@ -90,20 +91,16 @@ impl BaseController for Pid6 {
             &d.angular_velocity_radps,
             &d.angular_acceleration_radps2,
         );
-        let mut increment = errors.e_r * dt;
-        let torque_change = -(core.body.inertia_kgm2 * increment) * g.ki_rot;
-        core.guard
-            .gate_torque(&mut increment, &torque_change, &mut status.windup_blocked);
-        self.attitude_integral = limit_norm(self.attitude_integral + increment, g.integral_limit);
-        let torque = geometric_torque(
+        let torque = attitude_torque(
             &core.body,
             state,
             &errors,
-            &Vector3::repeat(g.kp_rot),
-            &Vector3::repeat(g.kd_rot),
-            &(self.attitude_integral * g.ki_rot),
+            &g.into(),
+            &mut self.attitude_integral,
+            dt,
+            &core.guard,
+            &mut status.windup_blocked,
         );
-        let torque = limit_norm(torque, g.max_torque_nm);
 
         let mut status = status.with_errors(e_p, e_v, &errors);
         status.position_integral = self.position_integral;

@@ -18,21 +18,32 @@
 //! world velocity, body rate = gyro − bias) with its covariance, standard deviations and
 //! [`Diagnostics`] (the latest innovation and its NIS, counters).
 //!
-//! [`sensors`] holds the sensor models the twin simulates its IMU and pose sensor with.
+//! [`sensors`] holds the sensor models the twin simulates its IMU and pose sensor with;
+//! [`magnetometer`], [`barometer`] and [`gnss`] those of the navigation sensors an autopilot
+//! reads (the Earth's field, the ISA pressure, a GNSS fix about a geodetic home origin).
 
+pub mod barometer;
 mod config;
 pub mod ekf;
 mod estimator;
+pub mod gnss;
+pub mod magnetometer;
 mod sample;
+mod schedule;
 pub mod sensors;
 
 #[cfg(test)]
+mod navigation_tests;
+#[cfg(test)]
 mod tests;
 
+pub use barometer::{BarometerModel, BarometerSample, BarometerSensor};
 pub use config::{ConfigError, EstimatorConfig};
 pub use ekf::Covariance;
 pub use estimator::{
     Accepted, Diagnostics, Estimator, Innovation, MAX_HISTORY_SAMPLES, Rejection, StateStd,
 };
+pub use gnss::{Geodetic, GeodeticOrigin, GnssFix, GnssModel, GnssSensor};
+pub use magnetometer::{MagnetometerModel, MagnetometerSample, MagnetometerSensor};
 pub use sample::{ImuSample, Measurement, OdometryMeasurement, PoseMeasurement};
 pub use sensors::{ImuModel, ImuSensor, PoseModel, PoseSensor};

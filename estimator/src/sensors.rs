@@ -22,14 +22,14 @@ use crate::config::ConfigError;
 use crate::sample::{ImuSample, PoseMeasurement};
 
 /// Times closer than this are the same instant, s (schedules on a float clock).
-const TIME_EPSILON_S: f64 = 1e-9;
+pub(crate) const TIME_EPSILON_S: f64 = 1e-9;
 
-fn normal3(rng: &mut impl Rng, std: f64) -> Vector3<f64> {
+pub(crate) fn normal3(rng: &mut impl Rng, std: f64) -> Vector3<f64> {
     let mut draw = || rng.sample::<f64, _>(StandardNormal) * std;
     Vector3::new(draw(), draw(), draw())
 }
 
-fn check(
+pub(crate) fn check(
     section: &'static str,
     fields: &[(&'static str, f64)],
     positive: bool,

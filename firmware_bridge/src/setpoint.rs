@@ -28,7 +28,7 @@
 use mavlink::dialects::common::{
     AttitudeTargetTypemask, MavMessage, SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA,
 };
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 use platform::{ActuatorCommand, ThrustCurve, Vehicle};
 
 use crate::frames;
@@ -108,16 +108,9 @@ struct Fingers {
     fingers: Vec<(usize, f64, f64)>,
 }
 
-/// A desired attitude and body force: the attitude level's setpoint, in amstack's frames.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AttitudeSetpoint {
-    /// Desired attitude `world_from_body` (FLU body in the ENU-like world).
-    pub world_from_body: UnitQuaternion<f64>,
-    /// Desired body force, body frame (FLU), N.
-    pub force_in_body_n: Vector3<f64>,
-    /// Body-rate feed-forward (FLU), rad/s; `None` sets the type mask's rate-ignore bits.
-    pub body_rates_radps: Option<Vector3<f64>>,
-}
+/// The attitude level's setpoint, in amstack's frames (`platform`'s; a `None` body rate sets
+/// the type mask's rate-ignore bits).
+pub use platform::AttitudeSetpoint;
 
 /// The vehicle's command layout on the wire, built once from its description.
 #[derive(Debug, Clone, PartialEq)]
@@ -366,7 +359,7 @@ impl SetpointCodec {
         // MAVLink carries f32; the narrowing is the protocol's.
         #[allow(clippy::cast_possible_truncation)]
         let thrust_body = force_frd.map(|f| f.clamp(-1.0, 1.0) as f32);
-        let (rates, type_mask) = match &setpoint.body_rates_radps {
+        let (rates, rate_mask) = match &setpoint.body_rates_radps {
             Some(r) => (frames::frd_from_flu(r), AttitudeTargetTypemask::empty()),
             None => (
                 Vector3::zeros(),
@@ -375,6 +368,9 @@ impl SetpointCodec {
                     | AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE,
             ),
         };
+        // PX4 reads thrust_body only with THRUST_BODY_SET (else the collective `thrust`).
+        let type_mask =
+            rate_mask | AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET;
         let q = frames::quaternion_to_mavlink(&frames::ned_from_frd_attitude(
             &setpoint.world_from_body,
         ));

@@ -40,8 +40,14 @@ pub mod px4_mode {
     pub const OFFBOARD: u8 = 6;
     /// STABILIZED.
     pub const STABILIZED: u8 = 7;
+    /// AUTO sub mode TAKEOFF.
+    pub const AUTO_TAKEOFF: u8 = 2;
     /// AUTO sub mode LOITER.
     pub const AUTO_LOITER: u8 = 3;
+    /// AUTO sub mode MISSION.
+    pub const AUTO_MISSION: u8 = 4;
+    /// AUTO sub mode RTL.
+    pub const AUTO_RTL: u8 = 5;
     /// AUTO sub mode LAND.
     pub const AUTO_LAND: u8 = 6;
 
@@ -64,7 +70,10 @@ pub mod px4_mode {
             (MANUAL, _) => "MANUAL".to_owned(),
             (ALTCTL, _) => "ALTCTL".to_owned(),
             (POSCTL, _) => "POSCTL".to_owned(),
+            (AUTO, AUTO_TAKEOFF) => "AUTO.TAKEOFF".to_owned(),
             (AUTO, AUTO_LOITER) => "AUTO.LOITER".to_owned(),
+            (AUTO, AUTO_MISSION) => "AUTO.MISSION".to_owned(),
+            (AUTO, AUTO_RTL) => "AUTO.RTL".to_owned(),
             (AUTO, AUTO_LAND) => "AUTO.LAND".to_owned(),
             (AUTO, s) => format!("AUTO.{s}"),
             (ACRO, _) => "ACRO".to_owned(),

@@ -258,7 +258,11 @@ fn attitude_setpoint_is_ned_frd_with_thrust_over_total_max() {
         (a.body_roll_rate, a.body_pitch_rate, a.body_yaw_rate),
         (0.1, -0.2, -0.3)
     );
-    assert!(a.type_mask.is_empty());
+    // Rates used, thrust_body flagged (PX4 reads it only with THRUST_BODY_SET).
+    assert_eq!(
+        a.type_mask,
+        AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET
+    );
     assert_eq!(a.time_boot_ms, 5_000);
     // A force beyond every rotor's maximum is clamped to −1.
     let sp = AttitudeSetpoint {
@@ -656,6 +660,49 @@ fn a_stream_waits_for_the_rest_of_a_frame() {
     rx.push_stream(b, &counters, &mut out);
     assert_eq!(out.len(), 1);
     assert_eq!(counters.snapshot().truncated, 0);
+}
+
+#[test]
+fn a_decoder_accepting_v1_checks_mavlink_1_frames_and_the_encoder_answers_in_kind() {
+    let mut tx = Encoder::new(255, 190, None);
+    let counters = Counters::default();
+    let mut out = Vec::new();
+    // A MAVLink 1 heartbeat (ours and the crate's agree), a corrupted copy, a MAVLink 2 one.
+    let mut v1 = Vec::new();
+    assert!(tx.encode_v1_into(&gcs_heartbeat(), &mut v1));
+    assert_eq!(v1[0], 0xFE);
+    let mut bad = v1.clone();
+    bad[7] ^= 0x10;
+    let mut bytes = v1.clone();
+    bytes.extend(&bad);
+    bytes.extend(tx.encode(&gcs_heartbeat()));
+    let mut rx = Decoder::new(None).accepting_v1(true);
+    rx.push_datagram(&bytes, &counters, &mut out);
+    let c = counters.snapshot();
+    assert_eq!(out.len(), 2, "{c}");
+    assert_eq!(out[0].version, MavlinkVersion::V1);
+    assert_eq!(out[1].version, MavlinkVersion::V2);
+    assert_eq!(
+        (out[0].header.system_id, out[0].header.component_id),
+        (255, 190)
+    );
+    assert_eq!(c.bad_crc, 1, "{c}");
+    // Cut short: truncated, never a panic.
+    rx.push_datagram(&v1[..5], &counters, &mut out);
+    assert_eq!(counters.snapshot().truncated, 1);
+    // MAVLink 1 cannot carry ids above 255 nor be signed.
+    let odometry = MavMessage::ODOMETRY(ODOMETRY_DATA::default());
+    let mut none = Vec::new();
+    assert!(!tx.encode_v1_into(&odometry, &mut none));
+    assert!(none.is_empty());
+    let signing = Signing {
+        key: key(7),
+        require: true,
+    };
+    let mut strict = Decoder::new(Some(&signing)).accepting_v1(true);
+    let strict_counters = Counters::default();
+    strict.push_datagram(&v1, &strict_counters, &mut out);
+    assert_eq!(strict_counters.snapshot().refused_unsigned, 1);
 }
 
 #[test]

@@ -1,5 +1,5 @@
 //! MAVLink 2 on the wire, for both ends of the link (this crate's bridge and the twin's
-//! PX4-style autopilot, `sim_twin::autopilot`): a decoder that never panics and counts
+//! PX4-style autopilot, `twin_autopilot`): a decoder that never panics and counts
 //! everything it throws away by kind, and an encoder that signs when a key is set.
 //!
 //! The decoder takes bytes as they arrive and yields the frames it can check. A byte stream
@@ -22,17 +22,25 @@
 //!
 //! Frames refused in steps 4–5 passed their CRC: they are skipped whole. Every refused frame
 //! is counted once, by kind; [`CounterSnapshot::bad_frames`] is their sum.
+//!
+//! MAVLink 1 is not spoken by default (the bridge). A decoder built with
+//! [`Decoder::accepting_v1`] (the twin's autopilot, which answers a MAVLink 1 peer as PX4
+//! does) checks MAVLink 1 frames as well — start byte 0xFE, 5-byte header, CRC with the
+//! message's CRC_EXTRA; unsigned by nature, so refused when signing is required — and marks
+//! them [`Frame::version`] V1; [`Encoder::encode_v1_into`] answers in kind.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use mavlink::dialects::common::MavMessage;
-use mavlink::{MAVLinkV2MessageRaw, MavHeader, MavlinkVersion, Message};
+use mavlink::{MAVLinkV1MessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkVersion, Message};
 use mavlink::{SigningConfig, SigningData};
 
 /// MAVLink 2 start-of-frame marker.
 const STX_V2: u8 = 0xFD;
-/// MAVLink 1 start-of-frame marker (not spoken: counted as unsupported).
+/// MAVLink 1 start-of-frame marker (counted as unsupported unless the decoder accepts v1).
 const STX_V1: u8 = 0xFE;
+/// MAVLink 1 header bytes after the start byte: len, seq, sysid, compid, msgid.
+const HEADER_LEN_V1: usize = 5;
 /// Header bytes after the start byte: len, incompat, compat, seq, sysid, compid, msgid×3.
 const HEADER_LEN: usize = 9;
 /// CRC bytes.
@@ -238,6 +246,8 @@ pub struct Frame {
     pub header: MavHeader,
     /// The message.
     pub message: MavMessage,
+    /// MAVLink 2, or MAVLink 1 (only from a decoder [`Decoder::accepting_v1`]).
+    pub version: MavlinkVersion,
     /// The frame as it was on the wire (start byte to CRC, and the signature when signed)
     /// from a decoder that keeps them ([`Decoder::keeping_bytes`]); empty otherwise.
     pub bytes: Vec<u8>,
@@ -251,6 +261,8 @@ pub struct Decoder {
     require_signing: bool,
     /// Whether accepted frames keep their bytes ([`Frame::bytes`]).
     keep_bytes: bool,
+    /// Whether MAVLink 1 frames are checked and accepted (else counted unsupported).
+    accept_v1: bool,
 }
 
 impl std::fmt::Debug for Decoder {
@@ -285,7 +297,16 @@ impl Decoder {
             }),
             require_signing: signing.is_some_and(|s| s.require),
             keep_bytes: false,
+            accept_v1: false,
         }
+    }
+
+    /// With `accept`, MAVLink 1 frames are checked (CRC, known id) and accepted, marked
+    /// [`Frame::version`] V1; refused (unsigned) when signing is required. Without (the
+    /// default), they are counted unsupported.
+    pub fn accepting_v1(mut self, accept: bool) -> Self {
+        self.accept_v1 = accept;
+        self
     }
 
     /// With `keep`, every accepted frame carries its bytes as they were on the wire
@@ -329,6 +350,18 @@ impl Decoder {
                     // A false start (its length byte may be corrupt): the rest may hold a
                     // good frame.
                     None if datagram && rest[1..].contains(&STX_V2) => {
+                        bump(&counters.garbage_bytes);
+                        at += 1;
+                    }
+                    None if datagram => {
+                        bump(&counters.truncated);
+                        return buf.len();
+                    }
+                    None => return at,
+                },
+                STX_V1 if self.accept_v1 => match frame_len_v1(rest) {
+                    Some(n) => at += self.accept_v1_frame(&rest[..n], counters, out),
+                    None if datagram && rest[1..].iter().any(|&b| b == STX_V2 || b == STX_V1) => {
                         bump(&counters.garbage_bytes);
                         at += 1;
                     }
@@ -408,6 +441,7 @@ impl Decoder {
                         sequence: raw.sequence(),
                     },
                     message,
+                    version: MavlinkVersion::V2,
                     bytes: if self.keep_bytes {
                         b.to_vec()
                     } else {
@@ -419,6 +453,61 @@ impl Decoder {
         }
         b.len()
     }
+}
+
+impl Decoder {
+    /// Checks the whole MAVLink 1 frame `b` (as [`Self::accept`] for MAVLink 2).
+    fn accept_v1_frame(&self, b: &[u8], counters: &Counters, out: &mut Vec<Frame>) -> usize {
+        let msgid = u32::from(b[5]);
+        if MavMessage::default_message_from_id(msgid).is_none() {
+            bump(&counters.unknown_id);
+            return 1;
+        }
+        let mut raw = MAVLinkV1MessageRaw::new();
+        let Some(slot) = raw.as_mut_slice().get_mut(..b.len()) else {
+            bump(&counters.truncated);
+            return 1;
+        };
+        slot.copy_from_slice(b);
+        if !raw.has_valid_crc::<MavMessage>() {
+            bump(&counters.bad_crc);
+            return 1;
+        }
+        if self.require_signing {
+            // MAVLink 1 cannot be signed.
+            bump(&counters.refused_unsigned);
+            return b.len();
+        }
+        match MavMessage::parse(MavlinkVersion::V1, msgid, raw.payload()) {
+            Ok(message) => {
+                bump(&counters.frames_ok);
+                out.push(Frame {
+                    header: MavHeader {
+                        system_id: u32::from(raw.system_id()),
+                        component_id: raw.component_id(),
+                        sequence: raw.sequence(),
+                    },
+                    message,
+                    version: MavlinkVersion::V1,
+                    bytes: if self.keep_bytes {
+                        b.to_vec()
+                    } else {
+                        Vec::new()
+                    },
+                });
+            }
+            Err(_) => bump(&counters.undecodable),
+        }
+        b.len()
+    }
+}
+
+/// The length of the MAVLink 1 frame at the start of `b` (which starts with 0xFE), or None if
+/// `b` ends inside it.
+fn frame_len_v1(b: &[u8]) -> Option<usize> {
+    let len = usize::from(*b.get(1)?);
+    let n = 1 + HEADER_LEN_V1 + len + CRC_LEN;
+    (b.len() >= n).then_some(n)
 }
 
 /// The encoder: sequence numbers, own ids, optional signing.
@@ -477,5 +566,24 @@ impl Encoder {
             None => raw.serialize_message(header, message),
         }
         out.extend_from_slice(raw.raw_bytes());
+    }
+
+    /// One MAVLink 1 frame of `message` appended to `out` (unsigned: MAVLink 1 has no
+    /// signature; extension fields dropped). False, and nothing written, for a message id
+    /// above 255, which MAVLink 1 cannot carry.
+    pub fn encode_v1_into(&mut self, message: &MavMessage, out: &mut Vec<u8>) -> bool {
+        if message.message_id() > 255 {
+            return false;
+        }
+        let header = MavHeader {
+            system_id: u32::from(self.system_id),
+            component_id: self.component_id,
+            sequence: self.sequence,
+        };
+        self.sequence = self.sequence.wrapping_add(1);
+        let mut raw = MAVLinkV1MessageRaw::new();
+        raw.serialize_message(header, message);
+        out.extend_from_slice(raw.raw_bytes());
+        true
     }
 }

@@ -26,6 +26,8 @@ mod link;
 mod mass;
 mod model;
 mod parts;
+mod px4_hil;
+pub mod random;
 mod rotor;
 mod state;
 mod vehicle;
@@ -38,15 +40,17 @@ mod tests;
 pub use actuation::Actuation;
 pub use builtin::BUILTIN_IDS;
 pub use error::{DescriptionError, Problem};
-pub use link::{ActuatorCommand, DisturbanceReport, Measurement, RotorReport};
+pub use link::{ActuatorCommand, AttitudeSetpoint, DisturbanceReport, Measurement, RotorReport};
 pub use mass::MassProperties;
 pub use model::{
     Geometry, Inertial, Joint, JointId, JointKind, JointLimits, KinematicModel, Link, LinkId,
     Shape, UNIT_AXIS_TOLERANCE,
 };
 pub use parts::{CameraMount, Gripper, JointDrive};
+pub use px4_hil::{PX4_HIL_CONTROLS, Px4HilFile, Px4HilMap};
+pub use random::RandomStream;
 pub use rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 pub use state::RigidBodyState;
-pub use vehicle::{GRAVITY_MPS2, Vehicle};
+pub use vehicle::{ControlPresets, GRAVITY_MPS2, Vehicle};
 pub use vehicle_file::{VEHICLE_SCHEMA, VehicleFile};
 pub use wrench::Wrench;

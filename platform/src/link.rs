@@ -2,7 +2,7 @@
 //! The same types serve the in-process twin, the twin in another process and a real
 //! autopilot; fields a source cannot fill stay at their defaults.
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::Serialize;
 
 use crate::{RigidBodyState, Wrench};
@@ -18,6 +18,18 @@ pub struct ActuatorCommand {
     /// A wrench on the base body, about its origin, body frame: the EE-only oracle's
     /// actuation (no rotors, no allocation).
     pub direct_wrench_in_body: Option<Wrench>,
+}
+
+/// A desired attitude and body force: the attitude level of the control cascade (what a base
+/// controller steers to, and what a vehicle's own attitude loop and allocation can fly).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct AttitudeSetpoint {
+    /// Desired attitude `world_from_body` (FLU body in the ENU-like world).
+    pub world_from_body: UnitQuaternion<f64>,
+    /// Desired body force, body frame (FLU), N.
+    pub force_in_body_n: Vector3<f64>,
+    /// Body-rate feed-forward (FLU), rad/s; `None`: no rate feed-forward.
+    pub body_rates_radps: Option<Vector3<f64>>,
 }
 
 /// One rotor over the last control period.

@@ -12,6 +12,7 @@ use crate::actuation::Actuation;
 use crate::error::{DescriptionError, Problem};
 use crate::model::{JointId, JointKind, KinematicModel, LinkId, UNIT_AXIS_TOLERANCE};
 use crate::parts::{CameraMount, Gripper, JointDrive};
+use crate::px4_hil::{Fit, Px4HilMap};
 use crate::rotor::{Rotor, RotorLayout, Spin, ThrustCurve, Tilt};
 use crate::vehicle_file::{Initial, VehicleFile};
 
@@ -56,6 +57,24 @@ pub struct Vehicle {
     /// Colour of each link's visual shapes from the vehicle file's `[colors]`, linear RGB,
     /// indexed by link id (None where the file names none).
     pub link_colors: Vec<Option<[f64; 3]>>,
+    /// The controller and IK presets that fly it (`[control]`).
+    pub control: ControlPresets,
+    /// PX4 HIL channel map (None: the vehicle file has no `[px4_hil]`).
+    pub px4_hil: Option<Px4HilMap>,
+}
+
+/// The presets of the `controllers` crate a vehicle is flown with (its `[control]` section):
+/// names, resolved by `controllers::profile` and `controllers::ik::IkConfig::preset`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct ControlPresets {
+    /// Base controller of `--controller pid`.
+    pub pid: String,
+    /// L1 preset, if L1 is offered.
+    pub l1: Option<String>,
+    /// Whole-body MPC preset, if the MPC is offered.
+    pub mpc: Option<String>,
+    /// Whole-body IK preset (None: the end effector is the base).
+    pub ik: Option<String>,
 }
 
 impl Vehicle {
@@ -306,6 +325,41 @@ impl Assembler<'_> {
         let drives = self.drives(f)?;
         let cameras = self.cameras(f)?;
         let link_colors = self.colors(f)?;
+        let Some(c) = &f.control else {
+            return Err(self.invalid(
+                "control",
+                "missing section [control]: name the controller and IK presets that fly this \
+                 vehicle (pid = \"…\", and ik = \"…\" for an arm), as \
+                 platform/vehicles/fa-hexa.toml does"
+                    .to_owned(),
+            ));
+        };
+        if c.ik.is_none() && ee_link != base_link {
+            return Err(self.invalid(
+                "control.ik",
+                "missing: a vehicle with an arm needs the IK preset of its end-effector interface"
+                    .to_owned(),
+            ));
+        }
+        let control = ControlPresets {
+            pid: c.pid.clone(),
+            l1: c.l1.clone(),
+            mpc: c.mpc.clone(),
+            ik: c.ik.clone(),
+        };
+        let px4_hil = f
+            .px4_hil
+            .as_ref()
+            .map(|map| {
+                let fit = Fit {
+                    rotors: rotors.rotors.len(),
+                    tilts: rotors.rotors.iter().filter(|r| r.tilt.is_some()).count(),
+                    arm_joints: arm_joints.len(),
+                    gripper: gripper.is_some(),
+                };
+                Px4HilMap::check(self.file, map, &fit)
+            })
+            .transpose()?;
 
         Ok(Vehicle {
             id: f.id.clone(),
@@ -323,6 +377,8 @@ impl Assembler<'_> {
             cameras,
             max_arm_reach_m: f.max_arm_reach_m,
             link_colors,
+            control,
+            px4_hil,
         })
     }
 

@@ -58,6 +58,35 @@ pub struct VehicleFile {
     /// named nowhere get the renderer's default by role.
     #[serde(default)]
     pub colors: std::collections::BTreeMap<String, Vec<f64>>,
+    /// The controller and IK presets (required: read as `Option` so that its absence is
+    /// refused with one line naming the section, not a parser's message).
+    #[serde(default)]
+    pub control: Option<ControlFile>,
+    /// The PX4 HIL channel map (`amstack twin serve --px4-hil`; absent: the vehicle cannot
+    /// be served to PX4).
+    #[serde(default)]
+    pub px4_hil: Option<crate::px4_hil::Px4HilFile>,
+}
+
+/// `[control]`: which presets of the `controllers` crate fly this vehicle. Names, not numbers:
+/// the gains live with the controllers (`controllers::profile`), the vehicle says which.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlFile {
+    /// The base controller of `--controller pid` (`pid6-am-bench`, `pid6-omni`,
+    /// `pid4-ua-hexa`, `pid4-ua-quad`).
+    pub pid: String,
+    /// The L1 preset of `--controller l1` (`l1-am-bench`, `l1-omni`); absent: L1 is not
+    /// offered (an under-actuated vehicle).
+    #[serde(default)]
+    pub l1: Option<String>,
+    /// The whole-body MPC preset of `--controller mpc` (`mpc-fa-hexa`); absent: no MPC.
+    #[serde(default)]
+    pub mpc: Option<String>,
+    /// The whole-body IK preset of the end-effector interface (`fa-hexa`, `ua-hexa`,
+    /// `ua-quad`, `omni-hexa`); absent for a vehicle whose end effector is its base.
+    #[serde(default)]
+    pub ik: Option<String>,
 }
 
 /// `[gripper]`.

@@ -23,26 +23,20 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Instant;
 
 use controllers::ControllerConfig;
-use nalgebra::{Isometry3, Quaternion, UnitQuaternion};
-use platform::Vehicle;
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal};
+use platform::{RandomStream, Vehicle};
 use serde::Serialize;
 use sim_twin::{TaskId, TwinConfig, TwinError};
 
-pub use self::episode::{BenchLink, EpisodeError};
-use self::episode::{Episode, StepFailure};
-use crate::flight_log::{FlightLog, TaskState, rotors_saturated};
-use crate::ipc_link::IpcLinkError;
-use crate::link::LinkError;
-use crate::metrics::{
-    CriteriaLatch, RolloutSummary, RunSummary, TrackingRecord, summarize_rollout, summarize_run,
+pub use self::episode::BenchLink;
+use crate::flight::{
+    ActionNoise, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask, TaskCriteria,
 };
+use crate::flight_log::FlightLog;
+use crate::link::LinkError;
+use crate::metrics::{RolloutSummary, RunSummary, summarize_rollout, summarize_run};
 use crate::record::{McapRecorder, RecordError, RunMetadata};
-use crate::stack::{Action, EeTarget, FlightStack, StackError};
-use crate::task_policies::{PolicyContext, gripper_override, scripted};
-use crate::track::Interface;
+use crate::stack::{FlightStack, Interface, StackError};
+use crate::state_source::{EstimateError, EstimatorSummary, StateSource};
 
 mod episode;
 
@@ -74,36 +68,11 @@ pub struct BenchConfig {
     pub mcap_dir: Option<PathBuf>,
     /// Where the rollouts run (this process, or the twin's process over iceoryx2).
     pub link: BenchLink,
+    /// Where the controllers' base state comes from (the measurement, or the estimator).
+    pub state_source: StateSource,
 }
 
-/// How long a rollout may run before it times out.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum EpisodeLength {
-    /// The task's episode length (AMBENCH_SPEC §4): ⌈length·rate⌉ − 1 steps.
-    Spec,
-    /// The task's length, or longer where the scripted policy needs it: up to its last
-    /// waypoint plus one second. The reference records its scripted demonstrations with the
-    /// episode length given on the command line (`--env_length_s`), which longer scripts
-    /// need (Wipe Window's script visits its four stains over 3540 steps, the task's
-    /// episode has 2399); only Wipe Window is affected.
-    Script,
-    /// A fixed length, s.
-    Seconds(f64),
-}
-
-impl EpisodeLength {
-    /// The most env steps of a rollout of `task` whose script ends at `script_end`.
-    pub fn max_steps(self, task: TaskId, rate_hz: f64, script_end: u64) -> u64 {
-        let spec = task.max_steps(rate_hz);
-        match self {
-            Self::Spec => spec,
-            // The rate is a small positive number: the cast is exact.
-            Self::Script => spec.max(script_end + rate_hz.round() as u64),
-            Self::Seconds(s) => ((s * rate_hz).ceil() as u64).saturating_sub(1),
-        }
-    }
-}
+pub use crate::flight::EpisodeLength;
 
 /// Why a rollout ended (the reference's termination reasons).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -148,6 +117,9 @@ pub struct RolloutResult {
     pub wall_time_s: f64,
     /// The rollout's MCAP log.
     pub mcap: Option<PathBuf>,
+    /// The estimator's figures (with `--state-source estimator`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub estimator: Option<EstimatorSummary>,
 }
 
 /// A rollout that could not run at all.
@@ -170,24 +142,26 @@ pub enum BenchError {
     /// A log could not be written.
     #[error(transparent)]
     Record(#[from] RecordError),
-    /// The twin process refused, failed or stopped answering.
+    /// The link refused, failed or stopped answering (a refusal — another scene on the
+    /// autopilot, a configuration the twin process does not serve — is the user's input).
     #[error(transparent)]
-    Link(#[from] IpcLinkError),
-    /// Another link failed.
+    Link(#[from] LinkError),
+    /// The state estimator could not start or diverged.
     #[error(transparent)]
-    OtherLink(LinkError),
-    /// The autopilot serves another task scene than the rollout's.
-    #[error("{0}")]
-    Scene(String),
+    Estimate(#[from] EstimateError),
 }
 
-impl From<EpisodeError> for BenchError {
-    fn from(e: EpisodeError) -> Self {
+impl BenchError {
+    fn of_flight(e: FlightError, task: TaskId) -> Self {
         match e {
-            EpisodeError::Twin(e) => Self::Twin(e),
-            EpisodeError::Ipc(e) => Self::Link(e),
-            EpisodeError::Link(e) => Self::OtherLink(e),
-            EpisodeError::Scene(e) => Self::Scene(e),
+            FlightError::Link(e) => Self::Link(e),
+            FlightError::Record(e) => Self::Record(e),
+            FlightError::Estimate(e) => Self::Estimate(e),
+            FlightError::Stack(e) => Self::Stack(e),
+            FlightError::Source(e) => Self::Policy {
+                task,
+                message: e.to_string(),
+            },
         }
     }
 }
@@ -263,35 +237,20 @@ pub fn run_rollout_logged(
         ..config.twin.clone()
     };
     let rate_hz = twin_config.control_rate_hz;
-    let mut episode = Episode::open(&config.link, vehicle, &twin_config)?;
+    let mut link = config.link.open(vehicle, &twin_config)?;
     let mut stack = FlightStack::for_twin(vehicle.clone(), &config.controller, &twin_config)?;
-    let mut measurement = episode.measurement()?;
-    stack.reset_at(&measurement.base, &measurement.joint_positions);
-    let mut scene = episode.task();
-    let observed = episode.task_observed();
-    let context = PolicyContext {
-        init: measurement.world_from_ee.translation.vector,
-        task: scene
-            .as_ref()
-            .map(|s| s.observation.clone())
-            .unwrap_or_default(),
-        wall: scene.as_ref().and_then(|s| s.wall),
-    };
-    let mut policy_rng = ChaCha8Rng::seed_from_u64(seed);
-    policy_rng.set_stream(2);
-    let mut policy = scripted(task, &context, &mut policy_rng)
-        .map_err(|message| BenchError::Policy { task, message })?;
     // Action noise (AMBENCH_SPEC §3.1: N(0, σ²) on the whole action vector), its own stream.
-    let action_noise = config
-        .twin
-        .disturbances
-        .action_noise
-        .then(|| Normal::new(0.0, config.twin.noise.action_std).ok())
-        .flatten();
-    let mut noise_rng = ChaCha8Rng::seed_from_u64(seed);
-    noise_rng.set_stream(3);
+    let action_noise = if config.twin.disturbances.action_noise {
+        ActionNoise::new(
+            config.twin.noise.action_std,
+            RandomStream::ActionNoise,
+            seed,
+        )
+    } else {
+        None
+    };
     let criteria_names = task.criteria_names();
-    let mut latch = CriteriaLatch::new(criteria_names.len());
+    let mut criteria = TaskCriteria::new(criteria_names.len(), true);
     let mut log = match log_path {
         None => None,
         Some(path) => {
@@ -300,99 +259,60 @@ pub fn run_rollout_logged(
                 .with_trajectory(format!("task:{}", task.name()))
                 .with_config(&twin_config)?
                 .with_controller_config(&config.controller)?;
-            Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
+            Some(
+                FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
+                    .with_rotor_limits(twin_config.disturbances.saturation),
+            )
         }
     };
-    if let Some(log) = &mut log {
-        episode.log_tick(log, measurement.time_s)?;
-    }
-    let limits_n = (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n);
-    let has_rotors = !vehicle.rotors.is_empty();
-    let max_steps = config.episode.max_steps(task, rate_hz, policy.end_step());
-    let mut records = Vec::with_capacity(usize::try_from(max_steps).unwrap_or(0));
-    let mut termination = Termination::Timeout;
-    let mut steps = 0;
-    while steps < max_steps {
-        if stop.load(Ordering::Relaxed) {
-            termination = Termination::Interrupted;
-            break;
-        }
-        stack.keep_in_front_of(scene.as_ref().and_then(|s| s.obstacle_face_x));
-        let (mut command_pose, mut gripper) = policy.action(steps);
-        if let Some(g) = gripper_override(task) {
-            gripper = g;
-        }
-        if let Some(noise) = &action_noise {
-            add_action_noise(&mut command_pose, &mut gripper, &mut noise_rng, noise);
-        }
-        let ee = EeTarget {
-            world_from_ee_command: command_pose,
-            gripper,
-        };
-        let ee_desired = stack.link_target(&ee);
-        let action = match config.interface {
-            Interface::Ee => Action::Ee(ee),
-            Interface::BaseJoint => Action::BaseJoint(stack.ee_to_base_joint_target(&ee)),
-        };
-        let record = stack.act(&measurement, &action);
+    let limits_n = (!vehicle.rotors.is_empty())
+        .then_some((vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n));
+    let mut metrics = BenchMetrics::new(
+        limits_n,
+        usize::try_from(task.max_steps(rate_hz)).unwrap_or(0),
+    );
+    let mut source = ScriptedTask::new(task, seed, rate_hz, config.episode);
+    let flown = {
+        // The criteria latch fills the task state the log writes after it.
+        let mut observers: Vec<&mut dyn Observer> = vec![&mut criteria];
         if let Some(log) = &mut log {
-            log.action(measurement.time_s, &action)?;
-            log.tick(&measurement, &record, &ee_desired)?;
+            observers.push(log);
         }
-        let (ee_actual, base_actual) = (measurement.world_from_ee, measurement.base.pose());
-        measurement = match episode.step(&record) {
-            Ok(m) => m,
-            Err(StepFailure::NonFinite) => {
-                termination = Termination::NanAction;
-                break;
-            }
-            Err(StepFailure::Diverged) => {
-                termination = Termination::Diverged;
-                break;
-            }
-            Err(StepFailure::Link(e)) => {
-                // The log is closed with what the link has to say (best effort); the link's
-                // error is the one reported.
-                if let Some(mut log) = log {
-                    let _ = episode.log_tick(&mut log, measurement.time_s);
-                    log.finish()?;
-                }
-                return Err(e.into());
-            }
-        };
-        scene = episode.task();
-        steps += 1;
-        if let Some(log) = &mut log {
-            log.outcome(&measurement)?;
-            episode.log_tick(log, measurement.time_s)?;
-        }
-        records.push(TrackingRecord {
-            ee_desired,
-            ee_actual,
-            base_desired: record.base_target,
-            base_actual,
-            saturated: has_rotors
-                .then(|| record.allocation_saturated || rotors_saturated(&measurement, limits_n)),
-        });
-        if let Some(snapshot) = scene.as_ref().filter(|_| observed) {
-            let status = &snapshot.status;
-            latch.observe(&status.criteria);
-            if let Some(log) = &mut log {
-                let state = TaskState::from_snapshot(snapshot, latch.reached());
-                log.task_state(measurement.time_s, &state)?;
-            }
-            if status.success {
-                termination = Termination::Success;
-                break;
-            }
-        }
-    }
+        observers.push(&mut metrics);
+        crate::flight::run(
+            link.as_mut(),
+            &mut stack,
+            &mut source,
+            &mut observers,
+            FlightSpec {
+                max_ticks: task.max_steps(rate_hz),
+                dt_s: twin_config.control_dt_s(),
+                control_rate_hz: rate_hz,
+                seed,
+                state_source: config.state_source,
+                score_from_s: 0.0,
+                interface: Some(config.interface),
+                action_noise,
+                stop: Some(stop),
+            },
+        )
+    };
+    let observed = link.task_observed();
     let mcap = match log {
         Some(log) => Some(log.finish()?.path),
         None => None,
     };
+    let flown = flown.map_err(|e| BenchError::of_flight(e, task))?;
+    let termination = match flown.end {
+        End::Success => Termination::Success,
+        End::Completed => Termination::Timeout,
+        End::Interrupted => Termination::Interrupted,
+        End::NanAction => Termination::NanAction,
+        End::Diverged(_) => Termination::Diverged,
+    };
     let success = termination == Termination::Success;
     let reach = arm_reach_m(vehicle);
+    let latch = criteria.latch();
     Ok(RolloutResult {
         task,
         index,
@@ -400,36 +320,17 @@ pub fn run_rollout_logged(
         success,
         task_observed: observed,
         termination,
-        executed_steps: steps,
+        executed_steps: flown.ticks,
         criteria: criteria_names
             .iter()
             .zip(latch.reached())
             .map(|(n, r)| ((*n).to_owned(), *r))
             .collect(),
-        summary: summarize_rollout(&records, success, latch.completion(), reach),
+        summary: summarize_rollout(&metrics.records, success, latch.completion(), reach),
         wall_time_s: started.elapsed().as_secs_f64(),
         mcap,
+        estimator: flown.estimator,
     })
-}
-
-/// Adds N(0, σ²) to every element of the end-effector action: position, quaternion
-/// (renormalised) and gripper.
-fn add_action_noise(
-    pose: &mut Isometry3<f64>,
-    gripper: &mut f64,
-    rng: &mut ChaCha8Rng,
-    noise: &Normal<f64>,
-) {
-    for x in pose.translation.vector.iter_mut() {
-        *x += noise.sample(rng);
-    }
-    let q = pose
-        .rotation
-        .into_inner()
-        .coords
-        .map(|c| c + noise.sample(rng));
-    pose.rotation = UnitQuaternion::new_normalize(Quaternion::from(q));
-    *gripper += noise.sample(rng);
 }
 
 /// The arm reach the errors are normalised by: the vehicle's, or ‖p_ee − p_base‖ at the

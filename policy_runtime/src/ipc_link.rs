@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use platform::{ActuatorCommand, Measurement, Vehicle};
+use platform::{Measurement, Vehicle};
 use sim_twin::ipc::{
     COMMAND_END_OF_SESSION, CommandMsg, CommandService, Hello, ImuMsg, Ipc, IpcError,
     MEASUREMENT_SESSION_FAILED, MeasurementMsg, MeasurementService, Mode, Offer, TooLarge, Waiter,
@@ -23,7 +23,7 @@ use sim_twin::ipc::{
 };
 use sim_twin::{TaskSnapshot, TwinConfig};
 
-use crate::link::{Link, LinkError};
+use crate::link::{Link, LinkError, Setpoint};
 
 /// How the flight side connects and waits.
 #[derive(Debug, Clone, PartialEq)]
@@ -109,7 +109,16 @@ pub enum IpcLinkError {
 
 impl From<IpcLinkError> for LinkError {
     fn from(e: IpcLinkError) -> Self {
-        LinkError::Ipc(e)
+        let text = e.to_string();
+        match e {
+            IpcLinkError::Refused { .. } | IpcLinkError::TooLarge(_) => LinkError::Refused(text),
+            IpcLinkError::NoTwin { .. } | IpcLinkError::TwinSilent { .. } => {
+                LinkError::Silent(text)
+            }
+            // The twin could not step (its simulation diverged) and ended the session.
+            IpcLinkError::TwinFailed { .. } => LinkError::Diverged(text),
+            IpcLinkError::Ipc(_) => LinkError::Failed(text),
+        }
     }
 }
 
@@ -366,7 +375,12 @@ impl Link for IpcLink {
         Ok(self.latest.to_measurement())
     }
 
-    fn send(&mut self, command: &ActuatorCommand) -> Result<(), LinkError> {
+    fn send(&mut self, setpoint: &Setpoint) -> Result<(), LinkError> {
+        let Setpoint::Actuators(command) = setpoint else {
+            return Err(LinkError::Refused(
+                "the twin over iceoryx2 flies actuator setpoints, not attitude ones".to_owned(),
+            ));
+        };
         let msg = CommandMsg::from_command(command, self.session, self.latest.tick)
             .map_err(IpcLinkError::from)?;
         let sent = Instant::now();
@@ -379,6 +393,10 @@ impl Link for IpcLink {
 
     fn name(&self) -> String {
         format!("ipc:{}", self.config.service)
+    }
+
+    fn task(&self) -> Option<TaskSnapshot> {
+        IpcLink::task(self)
     }
 }
 

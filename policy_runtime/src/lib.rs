@@ -1,42 +1,36 @@
 //! The flight loop of amstack and everything around it.
 //!
-//! This crate will own, once its issue lands: the `Link` seam between the flight stack and
-//! the world (in-process twin, iceoryx2 twin, MAVLink autopilot); the loop policy → action
-//! interface (EE target through IK, or base + joint target) → base controller → allocation →
-//! link, which owns the clock and feeds saturation back to the controller; scripted task
-//! policies; the benchmark runner and its metrics; and MCAP recording and comparison.
+//! Every flight — a `track` reference, a benchmark rollout, a `replay`, a `fly` over any
+//! link — runs through one runner, [`flight::run`]; what differs between them is plugged in:
 //!
-//! # What exists
+//! - **the link** ([`link`], the crate's floor: it knows no stack and no log): the twin in
+//!   this process ([`TwinLink`]), the twin in another process over iceoryx2 ([`IpcLink`]), a
+//!   PX4-style autopilot over MAVLink ([`MavlinkLink`]). It takes a [`Setpoint`] (actuator
+//!   commands, or the controller's attitude setpoint), returns measurements and, as data, its
+//!   own sensor readings, the task scene's state and its log messages ([`link_channels`]).
+//!   Its errors are categorical ([`LinkError`]: refused, silent, failed, diverged).
+//! - **the state source** ([`state_source`]): the measurement, or the estimator fed by
+//!   simulated sensors or by the vehicle's own;
+//! - **the action source** ([`flight::ActionSource`]): a reference trajectory, a task's
+//!   scripted policy ([`task_policies`]), the logged actions of a flight (replay);
+//! - **the flight stack** ([`stack`]): interface (IK | MPC) → base controller → allocation,
+//!   with saturation fed back; its [`TickRecord`] holds the whole cascade;
+//! - **observers** ([`flight::Observer`]): the MCAP log ([`flight_log`], written by
+//!   [`record`]), the task criteria latch and stop rule, the tracking and benchmark metrics
+//!   ([`metrics`]), progress.
 //!
-//! - [`link`]: the [`Link`] seam and its first implementation, the in-process twin.
-//! - [`ipc_link`]: the twin in another process over iceoryx2 ([`IpcLink`]), lockstep or
-//!   realtime, with a handshake and a deadline on every answer.
-//! - [`mavlink_link`]: a PX4-style autopilot over MAVLink ([`MavlinkLink`], through
-//!   `firmware_bridge`), at the actuator or the attitude level.
-//! - [`stack`]: one tick of the flight stack — target → base controller → allocation →
-//!   actuator command, with the allocator's unallocated wrench fed back to the controller.
-//! - [`trajectory`] and [`track`]: the reference trajectories of `amstack track` and the
-//!   flight that scores them.
-//! - [`state_source`]: `--state-source truth|estimator`: the controllers fly on the link's
-//!   measurement, or on the estimator fed by the twin's simulated IMU and pose sensor.
-//! - [`flight_log`]: the channels of a flight's MCAP log.
-//! - [`metrics`]: the benchmark's metrics (AMBENCH_SPEC §6): per-tick records, rollout and
-//!   run summaries, latched subtask criteria, the reference's N/A rules.
-//! - [`scripted`]: waypoint scripts, the scripted demonstrations' interpolation.
-//! - [`record`]: the MCAP flight-log recorder. [`record::McapRecorder`] writes one file per
-//!   run: an `amstack.run` metadata record ([`record::RunMetadata`]), JSON-encoded channels
-//!   with JSON-Schema schemas derived from the Rust types, Foxglove's well-known pose and
-//!   transform types ([`record::foxglove`]), timestamps from the caller's (simulated) clock,
-//!   chunks flushed as they fill so a killed run leaves a readable file.
-//!   [`record::Recording`] reads a file back by streaming, complete or cut short.
-//! - [`validation`]: sim-to-real validation — replay a logged flight in the twin, compare two
-//!   logs signal by signal (RMSE, max error, bias, over intervals).
+//! Around the loop: [`trajectory`] and [`track`] (`amstack track`), [`bench`] (the benchmark
+//! runner: tasks × rollouts on worker threads), [`validation`] (replay a logged flight,
+//! compare two logs), [`scripted`] (the scripted demonstrations' interpolation).
 
 pub mod bench;
+pub mod flight;
 pub mod flight_log;
 pub mod ipc_link;
 pub mod link;
+pub mod link_channels;
 pub mod mavlink_link;
+mod mavlink_scene;
 pub mod metrics;
 pub mod record;
 pub mod scripted;
@@ -48,11 +42,20 @@ pub mod trajectory;
 pub mod validation;
 
 pub use ipc_link::{IpcLink, IpcLinkConfig, IpcLinkError};
-pub use link::{Link, LinkError, TwinLink};
+pub use link::{Link, LinkError, Setpoint, SetpointLevel, TwinLink, VehicleSensors};
 pub use mavlink_link::{Level, MavlinkLink, MavlinkLinkConfig, MavlinkLinkError};
 pub use stack::{
-    Action, BaseJointTarget, EeTarget, FlightStack, StackError, ThrustLimits, TickRecord,
+    Action, BaseJointTarget, Clock, EeTarget, FlightStack, Interface, StackError, ThrustLimits,
+    TickRecord, TimeSource, WallClock,
 };
 pub use state_source::{EstimatorSettings, EstimatorSummary, StateSource};
-pub use track::{Interface, TrackConfig, TrackError, TrackResult, run_track, run_track_with_link};
+pub use track::{TrackConfig, TrackError, TrackResult, run_track, run_track_with_link};
 pub use trajectory::Trajectory;
+
+#[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "tests: a failed set-up fails loudly"
+)]
+mod tests;

@@ -12,33 +12,33 @@
 //!
 //! Levels: [`Level::Actuator`] sends the rotor thrusts, tilts, arm and gripper
 //! (SET_ACTUATOR_CONTROL_TARGET groups 2, 1, 0). [`Level::Attitude`] sends the arm and gripper
-//! and a SET_ATTITUDE_TARGET derived from the controller's wrench and attitude error
-//! ([`attitude_setpoint`]).
+//! and a SET_ATTITUDE_TARGET of the base controller's cascade (its desired attitude and body
+//! rates, the body force the allocation produces: [`crate::TickRecord::setpoint`]).
+//!
+//! With a task scene ([`MavlinkLink::with_scene_model`]) the link reports the scene's state
+//! the twin's autopilot sends (`mavlink_scene`), checked at connection against the scene
+//! built here from the task and the seed.
 //!
 //! Dropping the link stops the setpoints and never disarms: the vehicle may be flying, and
 //! the autopilot's offboard-loss failsafe (hold, then land) is the safe end.
 //!
-//! Flight log ([`Link::log_tick`], once per measurement): `/autopilot/state`, the bridge's
-//! view of the autopilot and its counters at the measurement's time; and, when the bridge
-//! captures them ([`BridgeConfig::capture_raw`]), every frame captured since the last call on
-//! `/mavlink/raw`, each at the flight time it carries (`docs/mcap-format.md`).
+//! Log messages ([`Link::drain_messages`], once per measurement): `/autopilot/state`, the
+//! bridge's view of the autopilot and its counters at the measurement's time; and, when the
+//! bridge captures them ([`BridgeConfig::capture_raw`]), every frame captured since the last
+//! call on `/mavlink/raw`, each at the flight time it carries (`docs/mcap-format.md`).
 
 use std::time::{Duration, Instant};
 
 use estimator::ImuSample;
 use firmware_bridge::{
-    AttitudeSetpoint, Bridge, BridgeConfig, BridgeError, CounterSnapshot, RawFrame, SetpointCodec,
+    Bridge, BridgeConfig, BridgeError, CounterSnapshot, RawFrame, SetpointCodec,
 };
-use nalgebra::{UnitQuaternion, Vector3};
 use platform::{ActuatorCommand, Measurement, Vehicle};
+use sim_twin::TaskSnapshot;
 
-use crate::flight_log::{
-    AUTOPILOT_STATE_TOPIC, AutopilotStateMessage, FlightLog, MAVLINK_RAW_TOPIC, MavlinkRawFrame,
-};
-use crate::link::{Link, LinkError};
-use crate::record::RecordError;
-use crate::stack::TickRecord;
-use crate::state_source::VehicleSensors;
+use crate::link::{Link, LinkError, LinkMessage, Setpoint, SetpointLevel, VehicleSensors};
+use crate::link_channels::{AutopilotStateMessage, LinkPayload, MavlinkRawFrame};
+use crate::mavlink_scene::{check_scene, snapshot_from_wire};
 
 /// Which setpoints the flight stack sends.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -115,20 +115,44 @@ pub enum MavlinkLinkError {
         /// `armed` or `disarmed`.
         armed: String,
     },
-    /// The attitude level needs the tick's controller output ([`Link::send_tick`]).
-    #[error("the attitude level needs the controller's wrench: send through send_tick")]
-    NeedsTickRecord,
+    /// A setpoint of another level than the link's.
+    #[error("this link flies the {link} level; a setpoint of the {setpoint} level was sent")]
+    WrongLevel {
+        /// The link's level.
+        link: &'static str,
+        /// The setpoint's.
+        setpoint: &'static str,
+    },
+    /// The autopilot serves another task scene than the flight's.
+    #[error("{0}")]
+    Scene(String),
 }
 
 impl From<MavlinkLinkError> for LinkError {
     fn from(e: MavlinkLinkError) -> Self {
-        LinkError::Mavlink(e)
+        let text = e.to_string();
+        match e {
+            MavlinkLinkError::Bridge(b) => b.into(),
+            MavlinkLinkError::Dropped { .. } => LinkError::Failed(text),
+            MavlinkLinkError::WrongLevel { .. } | MavlinkLinkError::Scene(_) => {
+                LinkError::Refused(text)
+            }
+        }
     }
 }
 
 impl From<BridgeError> for LinkError {
     fn from(e: BridgeError) -> Self {
-        LinkError::Mavlink(MavlinkLinkError::Bridge(e))
+        let text = e.to_string();
+        match e {
+            // A vehicle whose commands do not fit MAVLink, an address that cannot be opened:
+            // the flight's configuration.
+            BridgeError::Setpoint(_) | BridgeError::Open { .. } => LinkError::Refused(text),
+            BridgeError::CommandTimeout { .. } | BridgeError::NoTelemetry { .. } => {
+                LinkError::Silent(text)
+            }
+            _ => LinkError::Failed(text),
+        }
     }
 }
 
@@ -153,6 +177,10 @@ pub struct MavlinkLink {
     opened_at: Instant,
     /// Frames drained from the bridge's capture, reused between ticks.
     raw: Vec<RawFrame>,
+    /// The task scene built on this side from the task and the seed, with a task.
+    scene_model: Option<TaskSnapshot>,
+    /// Whether the autopilot sends the task's state.
+    scene_observed: bool,
 }
 
 impl MavlinkLink {
@@ -185,7 +213,23 @@ impl MavlinkLink {
             thrust_range_n: (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n),
             opened_at,
             raw: Vec::new(),
+            scene_model: None,
+            scene_observed: false,
         })
+    }
+
+    /// The flight's task scene, built here from the task and the seed (`None`: no task).
+    /// When the autopilot sends the task's state (the twin's autopilot does), it must be this
+    /// scene's — the same task, keys and layout (seed) — or the flight is refused naming the
+    /// difference; a vehicle that sends none flies from the model, its success not observed.
+    pub fn with_scene_model(mut self, model: Option<TaskSnapshot>) -> Result<Self, LinkError> {
+        let wire = self.bridge.task();
+        if let (Some(model), Some(wire)) = (&model, &wire) {
+            check_scene(model, wire).map_err(MavlinkLinkError::Scene)?;
+        }
+        self.scene_observed = wire.is_some();
+        self.scene_model = model;
+        Ok(self)
     }
 
     /// The bridge (autopilot state, counters).
@@ -210,16 +254,25 @@ impl MavlinkLink {
 
     fn messages(
         &self,
-        command: &ActuatorCommand,
-        record: Option<&TickRecord>,
+        setpoint: &Setpoint,
     ) -> Result<Vec<mavlink::dialects::common::MavMessage>, LinkError> {
         let t = self.time_usec();
-        let messages = match self.config.level {
-            Level::Actuator => self.codec.actuator_messages(t, command),
-            Level::Attitude => {
-                let record = record.ok_or(MavlinkLinkError::NeedsTickRecord)?;
-                let setpoint = attitude_setpoint(&self.latest, record);
-                self.codec.attitude_messages(t, command, &setpoint)
+        let messages = match (self.config.level, setpoint) {
+            (Level::Actuator, Setpoint::Actuators(command)) => {
+                self.codec.actuator_messages(t, command)
+            }
+            (Level::Attitude, Setpoint::Attitude { command, attitude }) => {
+                self.codec.attitude_messages(t, command, attitude)
+            }
+            (level, _) => {
+                return Err(MavlinkLinkError::WrongLevel {
+                    link: level.name(),
+                    setpoint: match setpoint {
+                        Setpoint::Actuators(_) => "actuator",
+                        Setpoint::Attitude { .. } => "attitude",
+                    },
+                }
+                .into());
             }
         };
         Ok(messages.map_err(BridgeError::from)?)
@@ -285,39 +338,6 @@ impl MavlinkLink {
     }
 }
 
-/// The attitude level's setpoint from one tick of the flight stack.
-///
-/// The body force is the controller's requested force minus what the allocator could not
-/// achieve (the force our allocation would have produced, so the saturation feedback the
-/// controller receives stays true), in the current body frame.
-///
-/// The attitude is the controller's own desired attitude R_d, recovered from its geometric
-/// attitude error e_R = ½(R_dᵀR − RᵀR_d)^∨ = sin θ · ê (R = R_d·exp(θ ê)):
-/// R_d = R · exp(−asin(|e_R|) ê). This is the attitude every base controller steers to —
-/// PID6 and L1 the reference pose's, PID4 the one its thrust direction needs — without a
-/// controller-specific path. (Sending the measured attitude instead would drop the
-/// controller's torque intent entirely, and the base target's rotation is wrong for PID4.)
-/// |θ| ≤ 90° is assumed (asin's range); beyond it the controller has lost the vehicle anyway.
-/// The rate feed-forward is the desired body rate ω_d = ω − e_Ω.
-pub fn attitude_setpoint(measurement: &Measurement, record: &TickRecord) -> AttitudeSetpoint {
-    let e_r = record.controller.attitude_error;
-    let s = e_r.norm().min(1.0);
-    let correction = if s > 0.0 {
-        UnitQuaternion::from_scaled_axis(-e_r / e_r.norm() * s.asin())
-    } else {
-        UnitQuaternion::identity()
-    };
-    let world_from_body = measurement.base.world_from_body * correction;
-    let force: Vector3<f64> = record.wrench.force - record.unallocated.force;
-    let rates = measurement.base.angular_velocity_in_body_radps
-        - record.controller.angular_velocity_error_radps;
-    AttitudeSetpoint {
-        world_from_body,
-        force_in_body_n: force,
-        body_rates_radps: Some(rates),
-    }
-}
-
 impl Link for MavlinkLink {
     fn receive(&mut self) -> Result<Measurement, LinkError> {
         if self.sent_at.is_none() {
@@ -354,18 +374,32 @@ impl Link for MavlinkLink {
         Ok(m)
     }
 
-    fn send(&mut self, command: &ActuatorCommand) -> Result<(), LinkError> {
-        let messages = self.messages(command, None)?;
+    fn send(&mut self, setpoint: &Setpoint) -> Result<(), LinkError> {
+        let messages = self.messages(setpoint)?;
         self.send_messages(messages)?;
-        self.remember(command);
+        self.remember(setpoint.command());
         Ok(())
     }
 
-    fn send_tick(&mut self, record: &TickRecord) -> Result<(), LinkError> {
-        let messages = self.messages(&record.command, Some(record))?;
-        self.send_messages(messages)?;
-        self.remember(&record.command);
-        Ok(())
+    fn level(&self) -> SetpointLevel {
+        match self.config.level {
+            Level::Actuator => SetpointLevel::Actuators,
+            Level::Attitude => SetpointLevel::Attitude,
+        }
+    }
+
+    fn task(&self) -> Option<TaskSnapshot> {
+        let model = self.scene_model.as_ref()?;
+        if !self.scene_observed {
+            // The scene model: the script's context and the obstacle face. Its status is not
+            // an observation ([`Link::task_observed`]).
+            return Some(model.clone());
+        }
+        snapshot_from_wire(model, &self.bridge.task()?)
+    }
+
+    fn task_observed(&self) -> bool {
+        self.scene_model.is_none() || self.scene_observed
     }
 
     fn name(&self) -> String {
@@ -393,7 +427,7 @@ impl Link for MavlinkLink {
         })
     }
 
-    fn log_tick(&mut self, log: &mut FlightLog, time_s: f64) -> Result<(), RecordError> {
+    fn drain_messages(&mut self, time_s: f64, out: &mut Vec<LinkMessage>) {
         let b = &self.bridge;
         let state = AutopilotStateMessage::new(
             &b.autopilot(),
@@ -402,25 +436,20 @@ impl Link for MavlinkLink {
             &b.counters(),
             b.capture_stats(),
         );
-        log.link_message(AUTOPILOT_STATE_TOPIC, time_s, &state)?;
+        out.push(LinkMessage {
+            time_s,
+            payload: LinkPayload::AutopilotState(Box::new(state)),
+        });
         self.raw.clear();
         self.bridge.drain_raw(&mut self.raw);
         for frame in &self.raw {
-            log.link_message(
-                MAVLINK_RAW_TOPIC,
-                frame.flight_time_s,
-                &MavlinkRawFrame::new(frame, self.opened_at),
-            )?;
+            out.push(LinkMessage {
+                time_s: frame.flight_time_s,
+                payload: LinkPayload::MavlinkRaw(Box::new(MavlinkRawFrame::new(
+                    frame,
+                    self.opened_at,
+                ))),
+            });
         }
-        Ok(())
     }
 }
-
-#[cfg(test)]
-#[allow(
-    clippy::unwrap_used,
-    clippy::expect_used,
-    reason = "tests: a failed set-up fails loudly"
-)]
-#[path = "mavlink_link_tests.rs"]
-mod tests;

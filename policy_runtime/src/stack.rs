@@ -8,9 +8,45 @@ use controllers::{
     BaseController, BodyParams, ControllerConfig, ControllerStatus, InputHealth, Pid6Gains, build,
 };
 use nalgebra::Isometry3;
-use platform::{ActuatorCommand, Measurement, RigidBodyState, Vehicle, Wrench};
+use platform::{ActuatorCommand, AttitudeSetpoint, Measurement, RigidBodyState, Vehicle, Wrench};
 use serde::Serialize;
 use sim_twin::{TiltThrust, TwinConfig};
+
+use crate::link::{Setpoint, SetpointLevel};
+
+/// A clock for the MPC's solve budget, seconds from any epoch. Injected: a run in the twin
+/// has none (its results must not depend on the wall clock), a flight on hardware may pass
+/// [`WallClock`].
+pub trait TimeSource: Send + Sync + std::fmt::Debug {
+    /// Now, s.
+    fn now_s(&self) -> f64;
+}
+
+/// A shared [`TimeSource`].
+pub type Clock = std::sync::Arc<dyn TimeSource>;
+
+/// The wall clock, seconds since it was made.
+#[derive(Debug, Clone, Copy)]
+pub struct WallClock(std::time::Instant);
+
+impl WallClock {
+    /// A clock starting now.
+    pub fn new() -> Self {
+        Self(std::time::Instant::now())
+    }
+}
+
+impl Default for WallClock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl TimeSource for WallClock {
+    fn now_s(&self) -> f64 {
+        self.0.elapsed().as_secs_f64()
+    }
+}
 
 /// What the flight stack is asked to do at one tick: the base + arm-joint interface.
 /// (The end-effector interface maps onto this through whole-body IK.)
@@ -41,6 +77,26 @@ pub enum Action {
     Ee(EeTarget),
     /// Base pose and arm joints.
     BaseJoint(BaseJointTarget),
+}
+
+/// Which action interface carries an action to the controller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Interface {
+    /// Base pose and arm joints straight to the controller and the joint drives.
+    BaseJoint,
+    /// An end-effector target, through whole-body IK (or the MPC).
+    Ee,
+}
+
+impl Interface {
+    /// The command-line name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::BaseJoint => "base-joint",
+            Self::Ee => "ee",
+        }
+    }
 }
 
 /// Whole-body IK for the end-effector interface, and the base limits it keeps.
@@ -94,6 +150,42 @@ pub struct TickRecord {
     /// by the `mpc` controller.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mpc: Option<MpcStatus>,
+    /// The attitude level of the tick's cascade: the base controller's desired attitude and
+    /// body rates with the body force the allocation produces (the requested force minus
+    /// the unallocated part, so the saturation feedback the controller receives stays true).
+    /// None when the tick was not flown by an attitude loop (the whole-body MPC's solution,
+    /// an open-loop command).
+    #[serde(skip)]
+    pub attitude: Option<AttitudeSetpoint>,
+}
+
+impl TickRecord {
+    /// The tick's setpoint at `level`. The attitude level needs the cascade of a base
+    /// controller: a tick flown otherwise (the whole-body MPC) is refused with why.
+    pub fn setpoint(&self, level: SetpointLevel) -> Result<Setpoint, StackError> {
+        match level {
+            SetpointLevel::Actuators => Ok(Setpoint::Actuators(self.command.clone())),
+            SetpointLevel::Attitude => match self.attitude {
+                Some(attitude) => Ok(Setpoint::Attitude {
+                    command: self.command.clone(),
+                    attitude,
+                }),
+                None => Err(StackError(format!(
+                    "the {} controller has no attitude loop: its tick cannot be flown at the attitude level (fly it at the actuator level)",
+                    self.controller.controller
+                ))),
+            },
+        }
+    }
+}
+
+/// Who asked for the wrench of a tick: the allocator's feedback goes back to it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Requester {
+    /// The stack's base controller.
+    Base,
+    /// The whole-body MPC (its own solution, or its internal fallback).
+    Mpc,
 }
 
 /// Controller, allocator and the vehicle's command layout, built once.
@@ -118,6 +210,8 @@ pub struct FlightStack {
     /// The vehicle IK profile's safety margin from obstacle faces, m.
     safety_margin_m: f64,
     dt_s: f64,
+    /// The MPC's solve-budget clock (none by default: deterministic).
+    clock: Option<Clock>,
 }
 
 /// Time constant of the posture the controller's mass properties follow, s.
@@ -183,7 +277,7 @@ impl FlightStack {
         let vehicle_initial = vehicle.initial_configuration();
         // The vehicle's IK profile: the EE interface's solver, and the margin the base keeps
         // from obstacle faces (also for the MPC, which has no IK).
-        let ik_config = IkConfig::for_vehicle(&vehicle.id).unwrap_or_default();
+        let ik_config = IkConfig::for_vehicle(&vehicle).map_err(|e| StackError(e.to_string()))?;
         let safety_margin_m = ik_config.safety_margin_m;
         // The EE interface needs IK unless the end effector is the controlled body.
         let ee = if vehicle.ee_link == vehicle.base_link {
@@ -213,7 +307,15 @@ impl FlightStack {
             mpc,
             safety_margin_m,
             dt_s,
+            clock: None,
         })
+    }
+
+    /// Times the MPC's solves with `clock` against its solve budget (none by default: a run
+    /// in the twin must not depend on the wall clock; a flight on hardware may pass it).
+    pub fn with_clock(mut self, clock: Option<Clock>) -> Self {
+        self.clock = clock;
+        self
     }
 
     /// The base limits the IK keeps (e.g. a wall's face minus the safety margin); by
@@ -239,6 +341,42 @@ impl FlightStack {
         self.set_base_limits(face_x_m.map_or_else(BaseLimits::above_ground, |x| {
             BaseLimits::in_front_of_face_x(x, margin)
         }));
+    }
+
+    /// Where `action` asks the end-effector link to be: the forward kinematics of a base +
+    /// joint target (joints no action commands at their initial configuration), or an EE
+    /// target's link pose.
+    pub fn ee_reference(&self, action: &Action) -> Isometry3<f64> {
+        match action {
+            Action::Ee(ee) => self.link_target(ee),
+            Action::BaseJoint(target) => ee_link_target(&self.vehicle, target),
+        }
+    }
+
+    /// `action` in `interface`: an EE target through the whole-body IK as a base + joint
+    /// target (as the reference converts its scripted policies), or a base + joint target as
+    /// the EE target at `ee_reference` (its [`Self::ee_reference`]).
+    pub fn convert(
+        &mut self,
+        action: Action,
+        interface: Interface,
+        ee_reference: &Isometry3<f64>,
+    ) -> Action {
+        match (action, interface) {
+            (Action::Ee(ee), Interface::BaseJoint) => {
+                Action::BaseJoint(self.ee_to_base_joint_target(&ee))
+            }
+            (Action::BaseJoint(target), Interface::Ee) => {
+                let mut world_from_ee_command = *ee_reference;
+                world_from_ee_command.rotation =
+                    self.vehicle.command_to_link.inverse() * ee_reference.rotation;
+                Action::Ee(EeTarget {
+                    world_from_ee_command,
+                    gripper: target.gripper,
+                })
+            }
+            (action, _) => action,
+        }
     }
 
     /// An end-effector action as the base + joint target the IK makes of it (the base +
@@ -394,15 +532,15 @@ impl FlightStack {
             };
             return self.tick(measurement, &target);
         };
-        let started = std::time::Instant::now();
-        let clock = move || started.elapsed().as_secs_f64();
+        let clock = self.clock.clone();
+        let now = move || clock.as_ref().map_or(0.0, |c| c.now_s());
         let command = mpc.controller.update(
             &measurement.base,
             &measurement.joint_positions,
             &link,
             &mpc.limits,
             dt,
-            Some(&clock),
+            self.clock.is_some().then_some(&now as &dyn Fn() -> f64),
         );
         let target = BaseJointTarget {
             world_from_base: command.base_target,
@@ -428,8 +566,15 @@ impl FlightStack {
             },
             dt_clamped: false,
             output: command.wrench_in_body,
+            attitude_target: None,
         };
-        let mut record = self.command(measurement, command.wrench_in_body, &target, status);
+        let mut record = self.command(
+            measurement,
+            command.wrench_in_body,
+            &target,
+            status,
+            Requester::Mpc,
+        );
         record.mpc = Some(command.status);
         record
     }
@@ -441,7 +586,7 @@ impl FlightStack {
             .controller
             .update(&measurement.base, &target.world_from_base, self.dt_s);
         let status = self.controller.status();
-        self.command(measurement, wrench, target, status)
+        self.command(measurement, wrench, target, status, Requester::Base)
     }
 
     /// Joint targets and allocation of a requested body wrench; the unallocated part is fed
@@ -452,6 +597,7 @@ impl FlightStack {
         wrench: Wrench,
         target: &BaseJointTarget,
         status: ControllerStatus,
+        requester: Requester,
     ) -> TickRecord {
         let mut joint_targets = self.initial.clone();
         for (&dof, &q) in self.arm_dofs.iter().zip(&target.arm_joints) {
@@ -511,8 +657,8 @@ impl FlightStack {
                     }
                     if self.limits == ThrustLimits::Enforced {
                         unallocated = a.unallocated;
-                        match (&mut self.mpc, status.controller) {
-                            (Some(mpc), "mpc") => {
+                        match (&mut self.mpc, requester) {
+                            (Some(mpc), Requester::Mpc) => {
                                 mpc.controller.saturation_feedback(&unallocated);
                             }
                             _ => self.controller.saturation_feedback(&unallocated),
@@ -530,6 +676,17 @@ impl FlightStack {
                 allocation_saturated = any_rotor_saturated(&command.rotor_thrusts_n, t_min, t_max);
             }
         }
+        // The attitude level: the base controller's target, or (a safe output before any
+        // usable update) the measured attitude without rate feed-forward.
+        let force = wrench.force - unallocated.force;
+        let attitude = match requester {
+            Requester::Mpc => None,
+            Requester::Base => Some(status.attitude_setpoint(force).unwrap_or(AttitudeSetpoint {
+                world_from_body: measurement.base.world_from_body,
+                force_in_body_n: force,
+                body_rates_radps: None,
+            })),
+        };
         TickRecord {
             time_s: measurement.time_s,
             base_target: target.world_from_base,
@@ -540,10 +697,17 @@ impl FlightStack {
             command,
             ik: None,
             mpc: None,
+            attitude,
         }
     }
 }
 
-#[cfg(test)]
-#[path = "stack_mpc_tests.rs"]
-mod mpc_tests;
+/// Where a base + joint target puts the end-effector link (forward kinematics of the vehicle
+/// description, joints no action commands at their initial configuration).
+pub fn ee_link_target(vehicle: &Vehicle, target: &BaseJointTarget) -> Isometry3<f64> {
+    let mut q = vehicle.initial_configuration();
+    for (&dof, &value) in vehicle.arm_dofs().iter().zip(&target.arm_joints) {
+        q[dof] = value;
+    }
+    target.world_from_base * vehicle.model.root_from_link(&q, vehicle.ee_link)
+}

@@ -12,13 +12,15 @@
 //! log's truth channels keep the measurement.
 
 use estimator::{
-    Accepted, ConfigError, Estimator, EstimatorConfig, ImuModel, ImuSample, Innovation,
-    Measurement as Fix, OdometryMeasurement, PoseModel, Rejection,
+    Accepted, ConfigError, Estimator, EstimatorConfig, ImuModel, Innovation, Measurement as Fix,
+    OdometryMeasurement, PoseModel, Rejection,
 };
 use nalgebra::Vector3;
 use platform::{Measurement, RigidBodyState};
 use serde::{Deserialize, Serialize};
 use sim_twin::sensors::SimulatedSensors;
+
+pub use crate::link::VehicleSensors;
 
 /// The sensors and the filter of `--state-source estimator`. Every section has defaults
 /// (see each type); a TOML file may set any subset:
@@ -133,34 +135,6 @@ pub struct EstimatorSummary {
     pub rejected: u64,
     /// Mean normalised innovation squared of the fused poses (6 when consistent).
     pub mean_nis: f64,
-}
-
-/// One tick's readings of the vehicle's own sensors, as a link reports them.
-#[derive(Debug, Clone, PartialEq)]
-pub struct VehicleSensors {
-    /// The IMU sample of the period that just ended (specific force and rates, body FLU).
-    pub imu: Option<ImuSample>,
-    /// The tick's odometry: pose and world velocity at its capture time. Its standard
-    /// deviations are the link's when it reports them, NaN otherwise (the settings' are used).
-    pub odometry: Option<OdometryMeasurement>,
-}
-
-impl VehicleSensors {
-    /// The odometry a link reports with measurement `m` (the base's pose and world velocity
-    /// at its time), without noise figures (the settings' are used).
-    pub fn odometry_of(m: &Measurement) -> OdometryMeasurement {
-        OdometryMeasurement {
-            pose: estimator::PoseMeasurement {
-                time_s: m.time_s,
-                position_in_world_m: m.base.position_in_world_m,
-                world_from_body: m.base.world_from_body,
-                position_std_m: f64::NAN,
-                attitude_std_rad: f64::NAN,
-            },
-            velocity_in_world_mps: m.base.velocity_in_world_mps,
-            velocity_std_mps: f64::NAN,
-        }
-    }
 }
 
 /// Where the filter's inputs come from.

@@ -17,43 +17,21 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use controllers::ControllerConfig;
-use nalgebra::{Isometry3, Quaternion, UnitQuaternion};
-use platform::Vehicle;
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal};
+use platform::{RandomStream, Vehicle};
 use serde::Serialize;
 use sim_twin::{Twin, TwinConfig};
 
-use crate::flight_log::{FlightLog, rotors_saturated};
+use crate::flight::{
+    ActionNoise, End, FlightError, FlightSpec, Observer, Progress, TrackMetrics, TrajectorySource,
+};
+use crate::flight_log::FlightLog;
 use crate::link::{Link, LinkError, TwinLink};
 use crate::record::{McapRecorder, RecordError, RunMetadata};
-use crate::stack::{Action, BaseJointTarget, EeTarget, FlightStack, StackError};
-use crate::state_source::{
-    EstimateError, EstimatorSummary, StateEstimate, StateSource, VehicleSensors,
-};
+use crate::stack::{Clock, FlightStack, StackError};
+use crate::state_source::{EstimateError, EstimatorSummary, StateSource};
 use crate::trajectory::Trajectory;
 
-/// Which action interface carries the reference to the controller.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Interface {
-    /// Base pose and arm joints straight to the controller and the joint drives.
-    BaseJoint,
-    /// The end-effector pose the reference implies, through whole-body IK (the paper's
-    /// ground-effect comparison flies this way).
-    Ee,
-}
-
-impl Interface {
-    /// The command-line name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::BaseJoint => "base-joint",
-            Self::Ee => "ee",
-        }
-    }
-}
+pub use crate::stack::Interface;
 
 /// What to fly.
 #[derive(Debug, Clone)]
@@ -76,6 +54,9 @@ pub struct TrackConfig {
     pub mcap: Option<PathBuf>,
     /// Where the controllers' base state comes from (the measurement, or the estimator).
     pub state_source: StateSource,
+    /// The MPC's solve-budget clock (None in the twin: results must not depend on the wall
+    /// clock; a flight on hardware may pass one).
+    pub clock: Option<Clock>,
 }
 
 /// The scores of one flight.
@@ -151,37 +132,24 @@ pub enum TrackError {
         /// Simulated time reached, s.
         at_s: f64,
     },
+    /// The flight stack produced a non-finite setpoint (nothing was sent).
+    #[error("the flight stack produced a non-finite setpoint at t = {at_s:.3} s; it was not sent")]
+    NonFinite {
+        /// Simulated time of the tick, s.
+        at_s: f64,
+    },
 }
 
-#[derive(Debug, Default)]
-struct Sums {
-    n: u64,
-    ee: f64,
-    base: f64,
-    base_z: f64,
-    tilt: f64,
-    saturated: u64,
-    rotor_ticks: u64,
-    max_thrust: Option<f64>,
-}
-
-/// Adds action noise (AMBENCH_SPEC §3.1: N(0, σ) on every action value) to a target.
-fn noisy(target: &mut BaseJointTarget, rng: &mut ChaCha8Rng, noise: &Normal<f64>) {
-    let t = &mut target.world_from_base.translation.vector;
-    for x in t.iter_mut() {
-        *x += noise.sample(rng);
+impl From<FlightError> for TrackError {
+    fn from(e: FlightError) -> Self {
+        match e {
+            FlightError::Link(e) => Self::Link(e),
+            FlightError::Record(e) => Self::Record(e),
+            FlightError::Estimate(e) => Self::Estimate(e),
+            FlightError::Stack(e) => Self::Stack(e),
+            FlightError::Source(e) => Self::Config(e.to_string()),
+        }
     }
-    let q = target
-        .world_from_base
-        .rotation
-        .into_inner()
-        .coords
-        .map(|c| c + noise.sample(rng));
-    target.world_from_base.rotation = UnitQuaternion::new_normalize(Quaternion::from(q));
-    for q in &mut target.arm_joints {
-        *q += noise.sample(rng);
-    }
-    target.gripper += noise.sample(rng);
 }
 
 /// Checks the flight length and the settling time.
@@ -223,12 +191,13 @@ pub fn run_track(
 pub fn run_track_with_link(
     config: &TrackConfig,
     link: &mut dyn Link,
-    mut progress: impl FnMut(f64) -> ControlFlow<()>,
+    progress: impl FnMut(f64) -> ControlFlow<()>,
 ) -> Result<TrackResult, TrackError> {
     validate(config)?;
     let vehicle = &config.vehicle;
     let dt = config.twin.control_dt_s();
-    let mut stack = FlightStack::for_twin(vehicle.clone(), &config.controller, &config.twin)?;
+    let mut stack = FlightStack::for_twin(vehicle.clone(), &config.controller, &config.twin)?
+        .with_clock(config.clock.clone());
     let mut log = match &config.mcap {
         None => None,
         Some(path) => {
@@ -237,141 +206,75 @@ pub fn run_track_with_link(
                 .with_trajectory(config.trajectory.name())
                 .with_config(&config.twin)?
                 .with_controller_config(&config.controller)?;
-            Some(FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?)
+            Some(
+                FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
+                    .with_rotor_limits(config.twin.disturbances.saturation),
+            )
         }
     };
-    let action_noise = config
-        .twin
-        .disturbances
-        .action_noise
-        .then(|| Normal::new(0.0, config.twin.noise.action_std).ok())
-        .flatten();
-    let mut rng = ChaCha8Rng::seed_from_u64(config.twin.seed ^ 0x6163_7469_6f6e);
-    let limits_n = (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n);
-
-    let ticks = (config.duration_s / dt).round() as u64;
-    let mut sums = Sums::default();
-    let started = Instant::now();
-    let mut measurement = link.receive()?;
-    if let Some(log) = &mut log {
-        link.log_tick(log, measurement.time_s)?;
-    }
-    // The controllers' view of the vehicle: the measurement, or the estimator's.
-    // A link with sensors of its own (a MAVLink autopilot) feeds the estimator with them.
-    let mut estimate = match (&config.state_source, link.vehicle_sensors()) {
-        (StateSource::Truth, _) => None,
-        (StateSource::Estimator(settings), Some(sensors)) => Some(StateEstimate::from_vehicle(
-            settings,
-            &measurement,
-            &sensors,
-        )?),
-        (StateSource::Estimator(settings), None) => Some(StateEstimate::new(
-            settings,
-            config.twin.control_rate_hz,
+    let action_noise = if config.twin.disturbances.action_noise {
+        ActionNoise::new(
+            config.twin.noise.action_std,
+            RandomStream::TrackActionNoise,
             config.twin.seed,
-            &measurement,
-        )?),
+        )
+    } else {
+        None
     };
-    let mut fed = match &mut estimate {
-        None => None,
-        Some(e) => Some(observe(e, &measurement, None, false, &mut log)?),
+    let ticks = (config.duration_s / dt).round() as u64;
+    let mut metrics = TrackMetrics::new(
+        config.settle_s,
+        (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n),
+    );
+    let mut progress = Progress::new(progress);
+    let started = Instant::now();
+    let mut source = TrajectorySource::new(config.trajectory, vehicle.clone());
+    let flown = {
+        let mut observers: Vec<&mut dyn Observer> = Vec::with_capacity(3);
+        if let Some(log) = &mut log {
+            observers.push(log);
+        }
+        observers.push(&mut metrics);
+        observers.push(&mut progress);
+        crate::flight::run(
+            link,
+            &mut stack,
+            &mut source,
+            &mut observers,
+            FlightSpec {
+                max_ticks: ticks,
+                dt_s: dt,
+                control_rate_hz: config.twin.control_rate_hz,
+                seed: config.twin.seed,
+                state_source: config.state_source,
+                score_from_s: config.settle_s,
+                interface: Some(config.interface),
+                action_noise,
+                stop: None,
+            },
+        )
     };
-    let start = fed.as_ref().unwrap_or(&measurement);
-    stack.reset_at(&start.base, &start.joint_positions);
-    let mut next_progress = 1.0;
-    for k in 0..ticks {
-        let t = k as f64 * dt;
-        let mut target = config.trajectory.target(vehicle, t);
-        if let Some(n) = &action_noise {
-            noisy(&mut target, &mut rng, n);
-        }
-        let ee_reference = ee_link_target(vehicle, &target);
-        let action = match config.interface {
-            Interface::BaseJoint => Action::BaseJoint(target.clone()),
-            Interface::Ee => {
-                let mut world_from_ee_command = ee_reference;
-                world_from_ee_command.rotation =
-                    vehicle.command_to_link.inverse() * ee_reference.rotation;
-                Action::Ee(EeTarget {
-                    world_from_ee_command,
-                    gripper: target.gripper,
-                })
-            }
-        };
-        let record = stack.act(fed.as_ref().unwrap_or(&measurement), &action);
-        if let Some(log) = &mut log {
-            log.action(measurement.time_s, &action)?;
-            log.tick(&measurement, &record, &ee_reference)?;
-        }
-        if t >= config.settle_s {
-            score(&mut sums, &measurement, &record.base_target, &ee_reference);
-        }
-        measurement = match link.send_tick(&record).and_then(|()| link.receive()) {
-            Ok(m) => m,
-            Err(e) => {
-                // The world stopped answering (a twin process gone): the log is still closed,
-                // with what the link has to say about it (a MAVLink link: the frames up to the
-                // failure), best effort: the link's error is the one reported.
-                if let Some(mut log) = log {
-                    let _ = link.log_tick(&mut log, measurement.time_s);
-                    log.finish()?;
-                }
-                return Err(e.into());
-            }
-        };
-        if let Some(log) = &mut log {
-            log.outcome(&measurement)?;
-            link.log_tick(log, measurement.time_s)?;
-        }
-        if let Some(e) = &mut estimate {
-            let scored = t + dt >= config.settle_s;
-            let sensors = link.vehicle_sensors();
-            fed = match observe(e, &measurement, sensors.as_ref(), scored, &mut log) {
-                Ok(m) => Some(m),
-                Err(err) => {
-                    if let Some(log) = log {
-                        log.finish()?;
-                    }
-                    return Err(err);
-                }
-            };
-        }
-        if !measurement.rotors.is_empty() {
-            let peak = measurement
-                .rotors
-                .iter()
-                .map(|r| r.realised_n)
-                .fold(f64::NEG_INFINITY, f64::max);
-            sums.max_thrust = Some(sums.max_thrust.map_or(peak, |m: f64| m.max(peak)));
-            if t >= config.settle_s {
-                sums.rotor_ticks += 1;
-                sums.saturated += u64::from(rotors_saturated(&measurement, limits_n));
-            }
-        }
-        if measurement.time_s >= next_progress {
-            next_progress += 1.0;
-            if progress(measurement.time_s).is_break() {
-                if let Some(log) = log {
-                    log.finish()?;
-                }
-                return Err(TrackError::Interrupted {
-                    at_s: measurement.time_s,
-                });
-            }
-        }
-    }
+    // The log is closed whatever happened (a link that stopped answering, Ctrl-C).
     let mcap = match log {
         Some(log) => Some(log.finish()?.path),
         None => None,
     };
-    let wall_time_s = started.elapsed().as_secs_f64();
-    let rms = |sum: f64| {
-        if sums.n > 0 {
-            (sum / sums.n as f64).sqrt()
-        } else {
-            f64::NAN
+    let flown = flown?;
+    match flown.end {
+        End::Completed | End::Success => {}
+        End::Interrupted => {
+            return Err(TrackError::Interrupted {
+                at_s: progress.stopped_at_s.unwrap_or(flown.last_time_s),
+            });
         }
-    };
+        End::NanAction => {
+            return Err(TrackError::NonFinite {
+                at_s: flown.last_time_s,
+            });
+        }
+        End::Diverged(why) => return Err(TrackError::Link(LinkError::Diverged(why))),
+    }
+    let wall_time_s = started.elapsed().as_secs_f64();
     Ok(TrackResult {
         vehicle: vehicle.id.clone(),
         controller: config.controller.name().to_owned(),
@@ -390,60 +293,17 @@ pub fn run_track_with_link(
         duration_s: config.duration_s,
         settle_s: config.settle_s,
         ticks,
-        ee_pos_rmse_m: rms(sums.ee),
-        base_pos_rmse_m: rms(sums.base),
-        base_z_rmse_m: rms(sums.base_z),
-        tilt_use_rad: sums.tilt,
-        saturation_rate: (sums.rotor_ticks > 0)
-            .then(|| sums.saturated as f64 / sums.rotor_ticks as f64),
-        max_rotor_thrust_n: sums.max_thrust,
+        ee_pos_rmse_m: metrics.rms(metrics.ee),
+        base_pos_rmse_m: metrics.rms(metrics.base),
+        base_z_rmse_m: metrics.rms(metrics.base_z),
+        tilt_use_rad: metrics.tilt,
+        saturation_rate: (metrics.rotor_ticks > 0)
+            .then(|| metrics.saturated as f64 / metrics.rotor_ticks as f64),
+        max_rotor_thrust_n: metrics.max_thrust,
         wall_time_s,
         ticks_per_second: ticks as f64 / wall_time_s.max(1e-9),
         mcap,
         state_source: config.state_source.name().to_owned(),
-        estimator: estimate.as_ref().map(StateEstimate::summary),
+        estimator: flown.estimator,
     })
-}
-
-/// One tick of the state estimator: the measurement the controllers get, the estimate logged.
-fn observe(
-    estimate: &mut StateEstimate,
-    measurement: &platform::Measurement,
-    vehicle: Option<&VehicleSensors>,
-    scored: bool,
-    log: &mut Option<FlightLog>,
-) -> Result<platform::Measurement, TrackError> {
-    let (fed, report) = estimate.observe(measurement, vehicle, scored)?;
-    if let Some(log) = log {
-        log.estimate(
-            measurement.time_s,
-            &crate::flight_log::EstimatorState::from_report(&report),
-        )?;
-    }
-    Ok(fed)
-}
-
-/// Where a base + joint target puts the end-effector link.
-fn ee_link_target(vehicle: &Vehicle, target: &BaseJointTarget) -> Isometry3<f64> {
-    let mut q = vehicle.initial_configuration();
-    for (&dof, &value) in vehicle.arm_dofs().iter().zip(&target.arm_joints) {
-        q[dof] = value;
-    }
-    target.world_from_base * vehicle.model.root_from_link(&q, vehicle.ee_link)
-}
-
-fn score(
-    sums: &mut Sums,
-    m: &platform::Measurement,
-    base_reference: &Isometry3<f64>,
-    ee_reference: &Isometry3<f64>,
-) {
-    let base_error = base_reference.translation.vector - m.base.position_in_world_m;
-    let ee_error = ee_reference.translation.vector - m.world_from_ee.translation.vector;
-    let (roll, pitch, _) = m.base.world_from_body.euler_angles();
-    sums.n += 1;
-    sums.ee += ee_error.norm_squared();
-    sums.base += base_error.norm_squared();
-    sums.base_z += base_error.z * base_error.z;
-    sums.tilt = sums.tilt.max(roll.hypot(pitch));
 }

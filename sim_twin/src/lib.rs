@@ -15,18 +15,17 @@
 //! - [`ipc`]: the twin in its own process, served over iceoryx2 shared memory
 //!   (`amstack twin serve`), lockstep or realtime, with a handshake, loss detection and a
 //!   failsafe.
-//! - [`autopilot`]: the twin as a PX4-style autopilot over MAVLink 2
-//!   (`amstack twin serve --mavlink`): heartbeat, telemetry, arming, offboard setpoints at
-//!   actuator or attitude level, lockstep or realtime, an offboard-loss failsafe.
 //! - [`visuals`]: the scene as a renderer sees it (shapes, poses, roles of every scene
 //!   collider), read-only; the renderer itself is the `render` crate, so the physics core and
 //!   its tests do not link wgpu.
+//!
+//! The twin as a PX4-style autopilot over MAVLink 2 (`amstack twin serve --mavlink`) is the
+//! `twin_autopilot` crate: this one builds without the MAVLink crates.
 //!
 //! Frames: world Z-up, gravity (0, 0, −9.81) m/s²; body FLU. rapier's glam types stay
 //! inside this crate ([`convert`] is the one boundary).
 
 pub mod aero;
-pub mod autopilot;
 mod config;
 mod convert;
 mod error;

@@ -337,3 +337,18 @@ fn invalid_configs_are_refused() {
     );
     assert!(Disturbances::parse_list("drag,gravity").is_err_and(|m| m.contains("'gravity'")));
 }
+
+/// An ideal rotor (no limits) commanded a negative thrust pushes backwards, and the report's
+/// applied thrust keeps the sign (it was the vector's norm, always positive).
+#[test]
+fn a_reversed_ideal_rotor_reports_a_negative_applied_thrust() {
+    let v = Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"));
+    let mut t = Twin::new(v.clone(), TwinConfig::default()).unwrap_or_else(|e| panic!("{e}"));
+    let mut cmd = hover(&v);
+    cmd.rotor_thrusts_n[0] = -1.5;
+    let m = t.step(&cmd).unwrap_or_else(|e| panic!("{e}"));
+    // No ground or near-wall effect by default: applied = realised = commanded.
+    assert_eq!(m.rotors[0].realised_n, -1.5);
+    assert_eq!(m.rotors[0].applied_n, -1.5);
+    assert!(m.rotors[1].applied_n > 0.0);
+}

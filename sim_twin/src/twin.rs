@@ -19,9 +19,9 @@
 use allocation::{RotorActuator, RotorActuatorConfig};
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 use platform::{
-    ActuatorCommand, DisturbanceReport, Measurement, RigidBodyState, RotorReport, Vehicle, Wrench,
+    ActuatorCommand, DisturbanceReport, Measurement, RandomStream, RigidBodyState, RotorReport,
+    Vehicle, Wrench,
 };
-use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use rapier3d_f64::prelude::*;
@@ -141,7 +141,7 @@ impl Twin {
         let mut twin = Self {
             joint_targets: q0,
             vehicle,
-            rng: ChaCha8Rng::seed_from_u64(config.seed),
+            rng: RandomStream::TwinNoise.rng(config.seed),
             config,
             world,
             body,
@@ -530,7 +530,9 @@ impl Twin {
             }
             disturbances.ground_effect_n += base_rotation.inverse() * (after_ground - thrust);
             disturbances.near_wall_n += base_rotation.inverse() * (after_wall - after_ground);
-            report.applied_n = after_wall.norm();
+            // Signed along the rotor's axis: an ideal rotor may push backwards (a negative
+            // thrust), and the report keeps that sign.
+            report.applied_n = after_wall.norm().copysign(after_wall.dot(&axis));
             self.rotors[i].force_in_rotor = world_from_rotor.rotation.inverse() * after_wall;
             reports.push(report);
         }
@@ -832,9 +834,8 @@ impl Twin {
         let Some(mut scene) = self.task.scene.take() else {
             return Ok(());
         };
-        let mut rng = ChaCha8Rng::seed_from_u64(self.config.seed);
         // Its own stream: noise draws never shift the scene's randomisation.
-        rng.set_stream(1);
+        let mut rng = RandomStream::Scene.rng(self.config.seed);
         let tool_tip = self.tool_tip();
         let mut b = Build {
             world: &mut self.world,

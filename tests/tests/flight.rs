@@ -32,6 +32,7 @@ fn flight(
         twin,
         mcap: None,
         state_source: StateSource::Truth,
+        clock: None,
     }
 }
 
@@ -359,6 +360,7 @@ fn bench(
         episode: policy_runtime::bench::EpisodeLength::Script,
         mcap_dir: None,
         link: policy_runtime::bench::BenchLink::InProcess,
+        state_source: StateSource::Truth,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     policy_runtime::bench::run_bench(&config, &|_| {}, &stop).unwrap_or_else(|e| panic!("{e}"))

@@ -31,7 +31,15 @@ struct Autopilot {
 
 impl Autopilot {
     fn start(args: &[&str]) -> Self {
-        let mut all = vec!["twin", "serve", "--mavlink", "udp:127.0.0.1:0"];
+        // The actuator-level peer flies SET_ACTUATOR_CONTROL_TARGET: a SITL extension of the
+        // twin (current PX4 has no actuator offboard), off unless asked for.
+        let mut all = vec![
+            "twin",
+            "serve",
+            "--mavlink",
+            "udp:127.0.0.1:0",
+            "--allow-actuator-setpoints",
+        ];
         all.extend_from_slice(args);
         let mut proc = Proc::start("twin serve --mavlink", &all);
         // "… on udp:127.0.0.1:PORT (lockstep, …); resting height 0.025 m"
@@ -512,6 +520,10 @@ mod bridge {
             .unwrap_or_else(|e| panic!("no free port: {e}"));
         let address = format!("udp:127.0.0.1:{port}");
         let mut args = vec!["twin", "serve", "--mavlink", &address, mode];
+        // Only the actuator level needs the twin's SITL extension (SET_ACTUATOR_CONTROL_TARGET).
+        if !flags.windows(2).any(|w| w == ["--level", "attitude"]) {
+            args.push("--allow-actuator-setpoints");
+        }
         args.extend_from_slice(FLIGHT);
         args.extend_from_slice(twin_flags);
         let _autopilot = Proc::start("twin serve --mavlink", &args);
@@ -1007,7 +1019,15 @@ mod bridge {
             panic!("pty_pair.py printed {line:?}");
         };
         let device = format!("serial:{twin_end}:921600");
-        let mut args = vec!["twin", "serve", "--mavlink", &device, "--lockstep"];
+        // Actuator level: the twin's SITL extension.
+        let mut args = vec![
+            "twin",
+            "serve",
+            "--mavlink",
+            &device,
+            "--lockstep",
+            "--allow-actuator-setpoints",
+        ];
         args.extend_from_slice(FLIGHT);
         args.extend_from_slice(TASK_SCENE);
         let twin = Proc::start("twin serve --mavlink serial", &args);

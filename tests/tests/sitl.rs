@@ -468,7 +468,7 @@ fn bad_link_and_serve_flags_are_bad_input() {
 
 #[test]
 fn a_command_the_twin_refuses_ends_the_session_and_the_twin_serves_on() {
-    use policy_runtime::{IpcLink, IpcLinkConfig, IpcLinkError, Link, LinkError};
+    use policy_runtime::{IpcLink, IpcLinkConfig, Link, LinkError, Setpoint};
     let mut sitl = Sitl::new();
     let svc = service("refused-command");
     let twin = sitl.twin(&svc, &["--sessions", "2"]);
@@ -490,12 +490,15 @@ fn a_command_the_twin_refuses_ends_the_session_and_the_twin_serves_on() {
         joint_targets: vehicle.initial_configuration(),
         direct_wrench_in_body: None,
     };
-    link.send(&bad).unwrap_or_else(|e| panic!("{e}"));
+    link.send(&Setpoint::Actuators(bad.clone()))
+        .unwrap_or_else(|e| panic!("{e}"));
     let refused = link.receive();
     assert!(
         matches!(
             refused,
-            Err(LinkError::Ipc(IpcLinkError::TwinFailed { .. }))
+            // The twin process failed to step (IpcLinkError::TwinFailed): categorised as a
+            // simulation that diverged.
+            Err(LinkError::Diverged(ref why)) if why.contains("failed at t =")
         ),
         "{refused:?}"
     );
@@ -507,7 +510,8 @@ fn a_command_the_twin_refuses_ends_the_session_and_the_twin_serves_on() {
         rotor_thrusts_n: vec![0.0; vehicle.rotors.len()],
         ..bad
     };
-    link.send(&idle).unwrap_or_else(|e| panic!("{e}"));
+    link.send(&Setpoint::Actuators(idle))
+        .unwrap_or_else(|e| panic!("{e}"));
     let after = link.receive().unwrap_or_else(|e| panic!("{e}"));
     assert!(
         (after.time_s - config.control_dt_s()).abs() < 1e-12,

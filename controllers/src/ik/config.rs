@@ -21,6 +21,9 @@ pub enum IkConfigError {
         /// What it must be.
         requirement: &'static str,
     },
+    /// A vehicle names an IK preset that does not exist.
+    #[error("{0}")]
+    UnknownPreset(String),
     /// The TOML text does not parse into an [`IkConfig`] (syntax, type or unknown key).
     #[error("ik config: {0}")]
     Toml(String),
@@ -247,15 +250,30 @@ impl IkConfig {
         c
     }
 
-    /// The preset of a built-in vehicle id (`fa-hexa`, `ua-hexa`, `ua-quad`, `omni-hexa`);
-    /// None for `ee-only` (it flies its end effector directly) and unknown ids.
-    pub fn for_vehicle(id: &str) -> Option<Self> {
-        match id {
+    /// The preset named `name` (`fa-hexa`, `ua-hexa`, `ua-quad`, `omni-hexa`: the reference's
+    /// profiles, AMBENCH_SPEC §2.6), as a vehicle file's `[control] ik` names it; None for
+    /// an unknown name.
+    pub fn preset(name: &str) -> Option<Self> {
+        match name {
             "fa-hexa" => Some(Self::fa_hexa()),
             "ua-hexa" => Some(Self::ua_hexa()),
             "ua-quad" => Some(Self::ua_quad()),
             "omni-hexa" => Some(Self::omni_hexa()),
             _ => None,
+        }
+    }
+
+    /// The IK preset of `vehicle` (its `[control] ik`): the default profile when it names
+    /// none (its end effector is its base); an error naming an unknown preset.
+    pub fn for_vehicle(vehicle: &platform::Vehicle) -> Result<Self, IkConfigError> {
+        match vehicle.control.ik.as_deref() {
+            None => Ok(Self::default()),
+            Some(name) => Self::preset(name).ok_or_else(|| {
+                IkConfigError::UnknownPreset(format!(
+                    "{}: [control] ik = \"{name}\" is not a preset (known: fa-hexa, ua-hexa, ua-quad, omni-hexa)",
+                    vehicle.id
+                ))
+            }),
         }
     }
 

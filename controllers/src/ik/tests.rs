@@ -42,7 +42,7 @@ fn ik_with(v: &Vehicle, config: IkConfig) -> WholeBodyIk {
 }
 
 fn ik_for(v: &Vehicle) -> WholeBodyIk {
-    let config = IkConfig::for_vehicle(&v.id).unwrap_or_else(|| panic!("{}: no preset", v.id));
+    let config = IkConfig::for_vehicle(v).unwrap_or_else(|e| panic!("{}: {e}", v.id));
     ik_with(v, config)
 }
 
@@ -841,13 +841,10 @@ fn config_defaults_and_presets_follow_the_reference() {
         assert_eq!(c.initial_base_position_m, [0.0, 0.0, 1.0]);
         assert!(c.validate().is_ok());
     }
-    assert_eq!(IkConfig::for_vehicle("fa-hexa"), Some(IkConfig::fa_hexa()));
-    assert_eq!(
-        IkConfig::for_vehicle("omni-hexa"),
-        Some(IkConfig::omni_hexa())
-    );
-    assert_eq!(IkConfig::for_vehicle("ee-only"), None);
-    assert_eq!(IkConfig::for_vehicle("nope"), None);
+    assert_eq!(IkConfig::preset("fa-hexa"), Some(IkConfig::fa_hexa()));
+    assert_eq!(IkConfig::preset("omni-hexa"), Some(IkConfig::omni_hexa()));
+    assert_eq!(IkConfig::preset("ee-only"), None);
+    assert_eq!(IkConfig::preset("nope"), None);
 }
 
 #[test]

@@ -153,7 +153,11 @@ impl WholeBodyMpc {
     /// The controller of `vehicle` (FA-Hexa) with `config`.
     pub fn new(vehicle: &Vehicle, config: MpcConfig) -> Result<Self, MpcError> {
         let rti = SqpRti::new(vehicle, config)?;
-        let ik_config = IkConfig::for_vehicle(&vehicle.id).unwrap_or_default();
+        let ik_config = IkConfig::for_vehicle(vehicle).map_err(|e| {
+            MpcError::Model(crate::mpc::model::ModelError::Unsupported(format!(
+                "fallback IK: {e}"
+            )))
+        })?;
         let ik = WholeBodyIk::new(vehicle, ik_config).map_err(|e| {
             MpcError::Model(crate::mpc::model::ModelError::Unsupported(format!(
                 "fallback IK: {e}"

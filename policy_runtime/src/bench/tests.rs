@@ -3,10 +3,13 @@
 use std::sync::atomic::AtomicBool;
 
 use controllers::{ControllerKind, profile};
-use platform::Vehicle;
-use sim_twin::{TaskId, Twin, TwinConfig};
+use nalgebra::Isometry3;
+use platform::{RandomStream, Vehicle};
+use sim_twin::{TaskId, TwinConfig};
 
 use super::*;
+use crate::flight::{Flow, Stepped};
+use crate::stack::{Action, EeTarget};
 
 fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> BenchConfig {
     let vehicle = Vehicle::builtin(vehicle).unwrap_or_else(|e| panic!("{e}"));
@@ -23,43 +26,57 @@ fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> Be
         episode: EpisodeLength::Script,
         mcap_dir: None,
         link: BenchLink::InProcess,
+        state_source: StateSource::Truth,
     }
 }
 
-/// A scripted rollout at its start, as the runner sets it up (PID, EE interface, ideal
-/// rotors): the twin with `task` at `seed`, the stack, the reset measurement, the policy's
-/// context and the policy (its own stream of the seed).
-fn scripted_start(
-    task: TaskId,
-    vehicle: &str,
-    seed: u64,
-) -> (
-    Twin,
-    FlightStack,
-    platform::Measurement,
-    PolicyContext,
-    Box<dyn crate::task_policies::TaskPolicy>,
-) {
+/// An observer that hands every step to a closure (the debugging aids below).
+struct Watch<F: FnMut(&Stepped<'_>) -> bool>(F);
+
+impl<F: FnMut(&Stepped<'_>) -> bool> Observer for Watch<F> {
+    fn stepped(&mut self, step: &mut Stepped<'_>) -> Result<Flow, FlightError> {
+        (self.0)(step);
+        Ok(Flow::Continue)
+    }
+}
+
+/// Flies the scripted rollout of `task` on `vehicle` at `seed` (PID, EE interface, ideal
+/// rotors) through the one flight loop, `watch` seeing every step; the criteria stop it at
+/// success.
+fn fly_scripted(task: TaskId, vehicle: &str, seed: u64, watch: impl FnMut(&Stepped<'_>) -> bool) {
     let cfg = config(vehicle, ControllerKind::Pid, Interface::Ee);
     let twin_config = TwinConfig {
         task: Some(task),
         seed,
         ..TwinConfig::default()
     };
+    let mut link = cfg
+        .link
+        .open(&cfg.vehicle, &twin_config)
+        .unwrap_or_else(|e| panic!("{e}"));
     let mut stack = FlightStack::for_twin(cfg.vehicle.clone(), &cfg.controller, &twin_config)
         .unwrap_or_else(|e| panic!("{e}"));
-    let twin = Twin::new(cfg.vehicle.clone(), twin_config).unwrap_or_else(|e| panic!("{e}"));
-    let m = twin.truth().clone();
-    stack.reset_at(&m.base, &m.joint_positions);
-    let ctx = PolicyContext {
-        init: m.world_from_ee.translation.vector,
-        task: twin.task_observation().unwrap_or_default(),
-        wall: twin.task_wall(),
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    rng.set_stream(2);
-    let policy = scripted(task, &ctx, &mut rng).unwrap_or_else(|e| panic!("{e}"));
-    (twin, stack, m, ctx, policy)
+    let mut criteria = TaskCriteria::new(task.criteria_names().len(), true);
+    let mut watch = Watch(watch);
+    let mut source = ScriptedTask::new(task, seed, 120.0, EpisodeLength::Spec);
+    crate::flight::run(
+        link.as_mut(),
+        &mut stack,
+        &mut source,
+        &mut [&mut criteria, &mut watch],
+        FlightSpec {
+            max_ticks: task.max_steps(120.0),
+            dt_s: twin_config.control_dt_s(),
+            control_rate_hz: 120.0,
+            seed,
+            state_source: StateSource::Truth,
+            score_from_s: 0.0,
+            interface: Some(Interface::Ee),
+            action_noise: None,
+            stop: None,
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
 }
 
 /// Prints a rollout's trace every `AMSTACK_TRACE_EVERY` steps (default 60):
@@ -74,46 +91,28 @@ fn trace() {
         TaskId::parse(parts.next().unwrap_or("press-button")).unwrap_or_else(|e| panic!("{e}"));
     let vehicle = parts.next().unwrap_or("ee-only").to_owned();
     let seed: u64 = parts.next().and_then(|s| s.parse().ok()).unwrap_or(0);
-    let (mut twin, mut stack, mut m, ctx, mut policy) = scripted_start(task, &vehicle, seed);
-    println!("reset observation: {:?}\nwall: {:?}", ctx.task, ctx.wall);
     let every: u64 = std::env::var("AMSTACK_TRACE_EVERY")
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(60)
         .max(1);
-    for step in 0..task.max_steps(120.0) {
-        stack.keep_in_front_of(twin.obstacle_face_x());
-        let (pose, mut g) = policy.action(step);
-        if let Some(o) = gripper_override(task) {
-            g = o;
-        }
-        let ee = EeTarget {
-            world_from_ee_command: pose,
-            gripper: g,
-        };
-        let record = stack.act(&m, &Action::Ee(ee.clone()));
-        m = twin.step(&record.command).unwrap_or_else(|e| panic!("{e}"));
-        let status = twin.task_status().cloned().unwrap_or_default();
-        if step % every == 0 || status.success {
-            let p = m.world_from_ee.translation.vector;
-            let t = stack.link_target(&ee).translation.vector;
+    fly_scripted(task, &vehicle, seed, |step| {
+        let success = step.scene.is_some_and(|s| s.status.success);
+        if step.k % every == 0 || success {
+            let p = step.measurement.world_from_ee.translation.vector;
             println!(
-                "{step:5} ee ({:.3} {:.3} {:.3}) target ({:.3} {:.3} {:.3}) grip {g:+.2} held {} {:?} obs {:?}",
+                "{:5} ee ({:.3} {:.3} {:.3}) held {} {:?} obs {:?}",
+                step.k,
                 p.x,
                 p.y,
                 p.z,
-                t.x,
-                t.y,
-                t.z,
-                twin.holding(),
-                status,
-                twin.task_observation().map(|o| o.entries)
+                step.scene.is_some_and(|s| s.holding),
+                step.scene.map(|s| &s.status),
+                step.scene.map(|s| &s.observation.entries)
             );
         }
-        if status.success {
-            break;
-        }
-    }
+        true
+    });
 }
 
 #[test]
@@ -137,20 +136,50 @@ fn rollouts_do_not_depend_on_threads() {
 fn action_noise_perturbs_every_element_by_its_standard_deviation() {
     // 1000 draws of σ = 1e-2: the sample std of the x offset is σ within 10 %, the
     // quaternion stays unit and the gripper moves too.
-    let noise = Normal::new(0.0, 1e-2).unwrap_or_else(|e| panic!("{e}"));
-    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut noise =
+        ActionNoise::new(1e-2, RandomStream::ActionNoise, 3).unwrap_or_else(|| panic!("σ"));
     let mut dx = Vec::new();
     for _ in 0..1000 {
-        let mut pose = Isometry3::translation(1.0, 0.0, 1.0);
-        let mut gripper = -1.0;
-        add_action_noise(&mut pose, &mut gripper, &mut rng, &noise);
-        dx.push(pose.translation.x - 1.0);
-        assert!((pose.rotation.norm() - 1.0).abs() < 1e-12);
-        assert!(gripper != -1.0);
+        let mut action = Action::Ee(EeTarget {
+            world_from_ee_command: Isometry3::translation(1.0, 0.0, 1.0),
+            gripper: -1.0,
+        });
+        noise.apply(&mut action);
+        let Action::Ee(ee) = action else {
+            panic!("an EE action stays one");
+        };
+        dx.push(ee.world_from_ee_command.translation.x - 1.0);
+        assert!((ee.world_from_ee_command.rotation.norm() - 1.0).abs() < 1e-12);
+        assert!(ee.gripper != -1.0);
     }
     let mean = dx.iter().sum::<f64>() / dx.len() as f64;
     let std = (dx.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (dx.len() - 1) as f64).sqrt();
     assert!((std - 1e-2).abs() < 1e-3, "std {std}");
+}
+
+/// The benchmark flies on the estimator too: a Press Button rollout on the FA-Hexa with the
+/// estimator as state source reports the estimate's error against the truth (a few mm with
+/// the default motion-capture sensor), and the same seed gives the same result.
+#[test]
+fn a_rollout_on_the_estimator_reports_its_error_and_repeats() {
+    let mut cfg = config("fa-hexa", ControllerKind::Pid, Interface::Ee);
+    cfg.tasks = vec![TaskId::PressButton];
+    cfg.state_source = StateSource::Estimator(crate::EstimatorSettings::default());
+    let stop = AtomicBool::new(false);
+    let a = run_rollout(&cfg, TaskId::PressButton, 0, &stop).unwrap_or_else(|e| panic!("{e}"));
+    let b = run_rollout(&cfg, TaskId::PressButton, 0, &stop).unwrap_or_else(|e| panic!("{e}"));
+    let e = a
+        .estimator
+        .unwrap_or_else(|| panic!("no estimator summary"));
+    assert_eq!(e.sensors, "simulated");
+    assert!(e.fused > 0 && e.rejected == 0, "{e:?}");
+    // The pose sensor's noise is 2 mm per axis: the estimate is within a centimetre.
+    assert!(e.position_rmse_m > 0.0 && e.position_rmse_m < 0.01, "{e:?}");
+    assert_eq!(a.executed_steps, b.executed_steps);
+    assert_eq!(
+        a.estimator.map(|e| e.position_rmse_m.to_bits()),
+        b.estimator.map(|e| e.position_rmse_m.to_bits())
+    );
 }
 
 /// Prints where each Toss Ball throw comes down relative to the container (the aim of the
@@ -162,40 +191,34 @@ fn action_noise_perturbs_every_element_by_its_standard_deviation() {
 fn toss_ball_landing() {
     const RIM_HEIGHT_M: f64 = 0.17;
     for seed in 0..40u64 {
-        let (mut twin, mut stack, mut m, ctx, mut policy) =
-            scripted_start(TaskId::TossBall, "ee-only", seed);
-        let target = ctx
-            .task
-            .vec3("target_pos", 0)
-            .unwrap_or_else(|e| panic!("{e}"));
+        let mut target_x = None;
         let mut released = None;
         let mut landing_x = None;
         let mut success = false;
-        for step in 0..TaskId::TossBall.max_steps(120.0) {
-            let (pose, gripper) = policy.action(step);
-            let ee = EeTarget {
-                world_from_ee_command: pose,
-                gripper,
+        fly_scripted(TaskId::TossBall, "ee-only", seed, |step| {
+            let Some(scene) = step.scene else {
+                return true;
             };
-            let record = stack.act(&m, &Action::Ee(ee));
-            m = twin.step(&record.command).unwrap_or_else(|e| panic!("{e}"));
-            let o = twin.task_observation().unwrap_or_default();
+            let o = &scene.observation;
+            let target = o.vec3("target_pos", 0).unwrap_or_else(|e| panic!("{e}"));
+            target_x.get_or_insert(target.x);
             let ball = o.vec3("ball_pos", 0).unwrap_or_else(|e| panic!("{e}"));
             let velocity = o.vec3("ball_lin_vel", 0).unwrap_or_else(|e| panic!("{e}"));
-            if released.is_none() && !twin.holding() {
-                released = Some((step, velocity));
+            if released.is_none() && !scene.holding {
+                released = Some((step.k, velocity));
             }
             if released.is_some() && landing_x.is_none() && ball.z < RIM_HEIGHT_M {
                 landing_x = Some(ball.x);
             }
-            success |= twin.task_status().is_some_and(|s| s.success);
-        }
+            success |= scene.status.success;
+            true
+        });
         let (step, v) = released.unwrap_or_default();
+        let target_x = target_x.unwrap_or(f64::NAN);
         println!(
-            "seed {seed:2}: container x {:.3}, comes down at {:+.3} from its centre, released at \
-             step {step} at ({:.2}, {:.2}) m/s, success {success}",
-            target.x,
-            landing_x.map_or(f64::NAN, |x| x - target.x),
+            "seed {seed:2}: container x {target_x:.3}, comes down at {:+.3} from its centre, \
+             released at step {step} at ({:.2}, {:.2}) m/s, success {success}",
+            landing_x.map_or(f64::NAN, |x| x - target_x),
             v.x,
             v.z
         );

@@ -28,12 +28,15 @@ use serde::{Deserialize, Serialize};
 use sim_twin::{Twin, TwinConfig, TwinError};
 
 use super::FlightLogFile;
-use crate::flight_log::{ActionMessage, FlightLog, TaskState};
-use crate::link::{Link, LinkError, TwinLink};
-use crate::metrics::CriteriaLatch;
+use crate::flight::{
+    ActionSource, End, FlightError, FlightSpec, Observation, SourceError, Step, TaskCriteria,
+};
+use crate::flight_log::{ActionMessage, FlightLog};
+use crate::link::{LinkError, TwinLink};
 use crate::record::foxglove::PoseInFrame;
 use crate::record::{McapRecorder, RecordError, RecordedMessage, RunMetadata};
 use crate::stack::{Action, BaseJointTarget, EeTarget, FlightStack, StackError, TickRecord};
+use crate::state_source::StateSource;
 
 /// What a replay feeds the twin.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -398,6 +401,53 @@ fn action_from_references(
     }
 }
 
+/// The logged flight as an action source: its actions through the stack (reference mode),
+/// or its commands open loop.
+#[derive(Debug)]
+struct LoggedActions<'a> {
+    logged: &'a LoggedFlight,
+    mode: ReplayMode,
+    interface: &'a str,
+    vehicle: &'a Vehicle,
+}
+
+impl ActionSource for LoggedActions<'_> {
+    fn next(
+        &mut self,
+        k: u64,
+        observation: &Observation<'_>,
+        _stack: &mut FlightStack,
+    ) -> Result<Step, SourceError> {
+        let k = usize::try_from(k).map_err(|e| SourceError(e.to_string()))?;
+        let logged = self.logged;
+        let ee_reference = logged.ee_references[k];
+        Ok(match self.mode {
+            ReplayMode::Reference => Step::Act {
+                action: match &logged.actions {
+                    Some(actions) => actions[k].clone(),
+                    None => action_from_references(self.vehicle, logged, self.interface, k),
+                },
+                ee_reference: Some(ee_reference),
+            },
+            ReplayMode::Commands => {
+                let command = ActuatorCommand {
+                    rotor_thrusts_n: logged.rotor_commands.get(k).cloned().unwrap_or_default(),
+                    joint_targets: logged.joint_targets[k].clone(),
+                    direct_wrench_in_body: self
+                        .vehicle
+                        .rotors
+                        .is_empty()
+                        .then_some(logged.wrenches[k]),
+                };
+                Step::OpenLoop {
+                    record: Box::new(open_loop_record(observation.truth, logged, k, command)),
+                    ee_reference,
+                }
+            }
+        })
+    }
+}
+
 /// A tick record for a command replayed open loop: the logged references and wrench, no
 /// controller.
 fn open_loop_record(
@@ -427,10 +477,12 @@ fn open_loop_record(
             input: InputHealth::Ok,
             dt_clamped: false,
             output: logged.wrenches[k],
+            attitude_target: None,
         },
         command,
         ik: None,
         mpc: None,
+        attitude: None,
     }
 }
 
@@ -493,7 +545,6 @@ pub fn replay_flight(
     check_replay(logged, config)?;
     let vehicle = &config.vehicle;
     let ticks = logged.ticks();
-    let rotors = vehicle.rotors.len();
     let (twin, moved) = twin_at_initial_state(vehicle, &config.twin, logged)?;
     let twin_joints = &twin.truth().joint_positions;
     let initial_joint_mismatch = (vehicle.id == logged.run.vehicle_id
@@ -518,59 +569,56 @@ pub fn replay_flight(
     if let Some(interface) = &logged.run.interface {
         run = run.with_interface(interface.clone());
     }
-    let mut log = FlightLog::new(McapRecorder::create(&config.out, &run)?, vehicle)?;
-    let interface = logged.run.interface.as_deref().unwrap_or("base-joint");
-    let mut measurement = link.receive()?;
-    stack.reset_at(&measurement.base, &measurement.joint_positions);
-    let mut stopped_early = None;
-    let mut replayed = 0;
+    let mut log = FlightLog::new(McapRecorder::create(&config.out, &run)?, vehicle)?
+        .with_rotor_limits(config.twin.disturbances.saturation);
     let task = link.twin().task();
     let criteria_names = task.map(|t| t.criteria_names()).unwrap_or_default();
-    let mut latch = CriteriaLatch::new(criteria_names.len());
-    for k in 0..ticks {
-        if link.twin().task().is_some() {
-            stack.keep_in_front_of(link.twin().obstacle_face_x());
+    // The replay's own success, as a bench rollout logs it; the replay flies every tick.
+    let mut criteria = TaskCriteria::new(criteria_names.len(), false);
+    let mut source = LoggedActions {
+        logged,
+        mode: config.mode,
+        interface: logged.run.interface.as_deref().unwrap_or("base-joint"),
+        vehicle,
+    };
+    let flown = crate::flight::run(
+        &mut link,
+        &mut stack,
+        &mut source,
+        &mut [&mut criteria, &mut log],
+        FlightSpec {
+            max_ticks: ticks as u64,
+            dt_s: config.twin.control_dt_s(),
+            control_rate_hz: config.twin.control_rate_hz,
+            seed: config.twin.seed,
+            state_source: StateSource::Truth,
+            score_from_s: 0.0,
+            interface: None,
+            action_noise: None,
+            stop: None,
+        },
+    );
+    let flown = match flown {
+        Ok(f) => f,
+        Err(e) => {
+            log.finish()?;
+            return Err(match e {
+                FlightError::Link(e) => e.into(),
+                FlightError::Record(e) => e.into(),
+                FlightError::Stack(e) => e.into(),
+                e => ReplayError::Log {
+                    file: logged.path.display().to_string(),
+                    reason: e.to_string(),
+                },
+            });
         }
-        let record = match config.mode {
-            ReplayMode::Reference => {
-                let action = match &logged.actions {
-                    Some(actions) => actions[k].clone(),
-                    None => action_from_references(vehicle, logged, interface, k),
-                };
-                let record = stack.act(&measurement, &action);
-                log.action(measurement.time_s, &action)?;
-                record
-            }
-            ReplayMode::Commands => {
-                let command = ActuatorCommand {
-                    rotor_thrusts_n: logged.rotor_commands.get(k).cloned().unwrap_or_default(),
-                    joint_targets: logged.joint_targets[k].clone(),
-                    direct_wrench_in_body: (rotors == 0).then_some(logged.wrenches[k]),
-                };
-                open_loop_record(&measurement, logged, k, command)
-            }
-        };
-        log.tick(&measurement, &record, &logged.ee_references[k])?;
-        match link.send(&record.command).and_then(|()| link.receive()) {
-            Ok(m) => measurement = m,
-            Err(LinkError::Twin(TwinError::Diverged(why))) => {
-                stopped_early = Some(why);
-                break;
-            }
-            Err(e) => {
-                log.finish()?;
-                return Err(e.into());
-            }
-        }
-        log.outcome(&measurement)?;
-        // A task scene's state, as a bench rollout logs it: the replay's own success.
-        if let Some(snapshot) = link.twin().task_snapshot() {
-            latch.observe(&snapshot.status.criteria);
-            let state = TaskState::from_snapshot(&snapshot, latch.reached());
-            log.task_state(measurement.time_s, &state)?;
-        }
-        replayed += 1;
-    }
+    };
+    let stopped_early = match flown.end {
+        End::Diverged(why) => Some(why),
+        End::NanAction => Some("the replayed command was not finite".to_owned()),
+        _ => None,
+    };
+    let replayed = usize::try_from(flown.ticks).unwrap_or(usize::MAX);
     let out = log.finish()?.path;
     Ok(ReplayResult {
         mode: config.mode,

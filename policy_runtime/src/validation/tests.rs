@@ -378,6 +378,7 @@ fn twin_flight(dir: &Path, name: &str, disturbances: &str, interface: Interface)
         },
         mcap: Some(path.clone()),
         state_source: crate::StateSource::Truth,
+        clock: None,
     };
     run_track(&config, |_| std::ops::ControlFlow::Continue(())).unwrap();
     path
@@ -599,6 +600,7 @@ fn a_bench_rollout_replays_with_its_scene_and_the_same_task_outcome() {
         episode: crate::bench::EpisodeLength::Script,
         mcap_dir: Some(dir.path().to_path_buf()),
         link: crate::bench::BenchLink::InProcess,
+        state_source: crate::StateSource::Truth,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     crate::bench::run_bench(&config, &|_| {}, &stop).unwrap();

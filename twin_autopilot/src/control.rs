@@ -1,20 +1,20 @@
 //! The autopilot's own control: the position hold and landing of the internal modes
-//! (amstack's geometric PID from `controllers` on the twin's truth) and the attitude loop of
-//! the attitude-level setpoint, both through amstack's allocation to rotor thrusts.
+//! (amstack's geometric PID from `controllers` on the twin's truth) and the attitude and rate
+//! loops of the offboard attitude setpoints (`controllers::AttitudeLaw`, the law PID6 and
+//! PID4 run inside), all through amstack's allocator (`allocation`) to rotor thrusts.
 
 use allocation::{Allocation, AllocationMethod, Allocator};
-use controllers::{BaseController, BodyParams, ControllerConfig, ControllerKind, attitude_error};
+use controllers::{AttitudeGains, AttitudeLaw, BaseController, BodyParams, ControllerKind};
 use firmware_bridge::AttitudeSetpoint;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
-use platform::{ActuatorCommand, GRAVITY_MPS2, Measurement, Vehicle, Wrench};
+use platform::{ActuatorCommand, Measurement, Vehicle, Wrench};
 
 /// The internal controller and the attitude loop of one vehicle.
 #[derive(Debug)]
 pub struct Control {
     body: BodyParams,
     controller: Box<dyn BaseController>,
-    kp_rot: f64,
-    kd_rot: f64,
+    attitude_law: AttitudeLaw,
     allocator: Allocator,
     allocation: Allocation,
     tilt_dofs: Vec<usize>,
@@ -29,11 +29,8 @@ impl Control {
     pub fn new(vehicle: &Vehicle, dt_s: f64) -> Result<Self, String> {
         let config =
             controllers::profile(vehicle, ControllerKind::Pid).map_err(|e| e.to_string())?;
-        let (kp_rot, kd_rot) = match &config {
-            ControllerConfig::Pid6(g) => (g.kp_rot, g.kd_rot),
-            ControllerConfig::Pid4(g) => (g.kp_rot, g.kd_rot),
-            _ => return Err(format!("{}: no PID profile", vehicle.id)),
-        };
+        let attitude_gains = AttitudeGains::from_config(&config)
+            .ok_or_else(|| format!("{}: no PID profile", vehicle.id))?;
         let body = BodyParams::from_vehicle(vehicle);
         let controller = controllers::build(&config, body).map_err(|e| e.to_string())?;
         let allocator = Allocator::new(
@@ -47,8 +44,7 @@ impl Control {
         Ok(Self {
             body,
             controller,
-            kp_rot,
-            kd_rot,
+            attitude_law: AttitudeLaw::new(attitude_gains),
             allocator,
             allocation,
             measured_tilt: vec![0.0; tilt_dofs.len()],
@@ -77,31 +73,54 @@ impl Control {
         command
     }
 
-    /// One tick of the attitude loop: the geometric attitude law of the vehicle's PID profile
-    /// (τ = J(−k_R e_R − k_Ω(Ω − Ω_d)) + Ω×JΩ + c × Rᵀ m g ẑ) with the setpoint's body force.
+    /// One tick of the attitude loop: `controllers::AttitudeLaw` with the attitude gains of
+    /// the vehicle's PID profile toward the setpoint's attitude (its body rates as
+    /// feed-forward), and the setpoint's body force.
     pub fn attitude(
         &mut self,
         m: &Measurement,
         setpoint: &AttitudeSetpoint,
         joint_targets: &[f64],
     ) -> ActuatorCommand {
-        let base = &m.base;
-        let r = base.world_from_body.to_rotation_matrix().into_inner();
-        let r_d = setpoint.world_from_body.to_rotation_matrix().into_inner();
-        let e_r = attitude_error(&r, &r_d);
-        // Desired rates are given in the desired body frame; expressed in the current one.
         let rates = setpoint.body_rates_radps.unwrap_or_else(Vector3::zeros);
-        let omega_d = r.transpose() * r_d * rates;
-        let omega = base.angular_velocity_in_body_radps;
-        let e_omega = omega - omega_d;
-        let j = self.body.inertia_kgm2;
-        let lift_in_body =
-            base.world_from_body.inverse() * Vector3::z() * (self.body.mass_kg * GRAVITY_MPS2);
-        let torque = j * (-self.kp_rot * e_r - self.kd_rot * e_omega)
-            + omega.cross(&(j * omega))
-            + self.body.com_in_body_m.cross(&lift_in_body);
+        let torque = self.attitude_law.attitude(
+            &self.body,
+            &m.base,
+            &setpoint.world_from_body,
+            &rates,
+            self.dt_s,
+        );
         let wrench = Wrench::new(setpoint.force_in_body_n, torque);
+        let command = self.allocate(m, &wrench, joint_targets);
+        self.attitude_law
+            .saturation_feedback(&self.allocation.unallocated, &m.base.world_from_body);
+        command
+    }
+
+    /// One tick of the rate loop (attitude ignored): `controllers::AttitudeLaw::rates` toward
+    /// `body_rates_radps` (FLU) with the body force `force_in_body_n`.
+    pub fn rates(
+        &mut self,
+        m: &Measurement,
+        body_rates_radps: &Vector3<f64>,
+        force_in_body_n: &Vector3<f64>,
+        joint_targets: &[f64],
+    ) -> ActuatorCommand {
+        let torque = self
+            .attitude_law
+            .rates(&self.body, &m.base, body_rates_radps, self.dt_s);
+        let wrench = Wrench::new(*force_in_body_n, torque);
         self.allocate(m, &wrench, joint_targets)
+    }
+
+    /// Clears the attitude loop's integral (a new offboard attitude stream).
+    pub fn reset_attitude(&mut self) {
+        self.attitude_law.reset();
+    }
+
+    /// Body mass properties the loops use.
+    pub fn body(&self) -> &BodyParams {
+        &self.body
     }
 
     /// Rotor thrusts (and tilt angles) for a body wrench; idle thrust when the request or the

@@ -7,21 +7,23 @@
 use firmware_bridge::frames;
 use firmware_bridge::task_array::TaskArray;
 use mavlink::dialects::common::{
-    ACTUATOR_OUTPUT_STATUS_DATA, ATTITUDE_DATA, ATTITUDE_QUATERNION_DATA, AUTOPILOT_VERSION_DATA,
-    DEBUG_FLOAT_ARRAY_DATA, EXTENDED_SYS_STATE_DATA, GLOBAL_POSITION_INT_DATA, HEARTBEAT_DATA,
-    HIGHRES_IMU_DATA, HOME_POSITION_DATA, HighresImuUpdatedFlags, LOCAL_POSITION_NED_DATA,
+    ACTUATOR_OUTPUT_STATUS_DATA, ALTITUDE_DATA, ATTITUDE_DATA, ATTITUDE_QUATERNION_DATA,
+    AUTOPILOT_VERSION_DATA, DEBUG_FLOAT_ARRAY_DATA, EXTENDED_SYS_STATE_DATA,
+    GLOBAL_POSITION_INT_DATA, GPS_RAW_INT_DATA, GpsFixType, HEARTBEAT_DATA, HIGHRES_IMU_DATA,
+    HOME_POSITION_DATA, HighresImuUpdatedFlags, LOCAL_POSITION_NED_DATA, MISSION_CURRENT_DATA,
     MavAutopilot, MavEstimatorType, MavFrame, MavLandedState, MavMessage, MavModeFlag,
     MavProtocolCapability, MavState, MavSysStatusSensor, MavSysStatusSensorExtended, MavType,
-    MavVtolState, ODOMETRY_DATA, SYS_STATUS_DATA,
+    MavVtolState, MissionState, ODOMETRY_DATA, SYS_STATUS_DATA,
 };
 use nalgebra::Vector3;
 use platform::{GRAVITY_MPS2, Measurement};
 
-use super::modes::{Commander, Failsafe};
-use super::wire::LinkCounters;
-use crate::tasks::{TaskId, TaskSnapshot};
+use crate::modes::{Commander, Failsafe};
+use crate::wire::LinkCounters;
+use sim_twin::{TaskId, TaskSnapshot};
 
-/// Where the twin's world origin is on the globe: PX4 SITL's default home (Zürich).
+/// Where the twin's world origin is on the globe: PX4 SITL's default home (Zürich). The
+/// ground under the origin is at `alt_m`; world z is the height above it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Home {
     /// Latitude, degrees.
@@ -80,8 +82,10 @@ pub enum Landed {
     OnGround,
     /// Flying.
     InAir,
-    /// Landing (AUTO.LAND).
+    /// Landing (AUTO.LAND, RTL's or a mission's landing).
     Landing,
+    /// Taking off (AUTO.TAKEOFF, a mission's takeoff).
+    Takeoff,
 }
 
 fn f(x: f64) -> f32 {
@@ -235,16 +239,36 @@ pub fn heartbeat(mav_type: MavType, commander: &Commander) -> MavMessage {
     })
 }
 
-/// SYS_STATUS: the comm error counters of the link (errors_comm: bad frames; drop_rate_comm:
-/// their share in c%; errors_count1–4: bad CRC, unknown id, truncated, refused by signing).
-pub fn sys_status(counters: &LinkCounters) -> MavMessage {
+/// SYS_STATUS: the sensors and control functions the twin's autopilot has (present, enabled,
+/// healthy: it flies on the twin's truth, so they are healthy while it runs; the
+/// pre-arm check is healthy when arming would be accepted now, as PX4 reports it), and the
+/// comm error counters of the link (errors_comm: bad frames; drop_rate_comm: their share in
+/// c%; errors_count1–4: bad CRC, unknown id, truncated, refused by signing).
+pub fn sys_status(counters: &LinkCounters, armable: bool) -> MavMessage {
     let sat = |x: u64| u16::try_from(x).unwrap_or(u16::MAX);
-    let sensors = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_3D_GYRO
-        | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_3D_ACCEL;
+    type S = MavSysStatusSensor;
+    let sensors = S::MAV_SYS_STATUS_SENSOR_3D_GYRO
+        | S::MAV_SYS_STATUS_SENSOR_3D_ACCEL
+        | S::MAV_SYS_STATUS_SENSOR_3D_MAG
+        | S::MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+        | S::MAV_SYS_STATUS_SENSOR_GPS
+        | S::MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+        | S::MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+        | S::MAV_SYS_STATUS_SENSOR_YAW_POSITION
+        | S::MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+        | S::MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+        | S::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+        | S::MAV_SYS_STATUS_AHRS
+        | S::MAV_SYS_STATUS_PREARM_CHECK;
+    let health = if armable {
+        sensors
+    } else {
+        sensors & !S::MAV_SYS_STATUS_PREARM_CHECK
+    };
     MavMessage::SYS_STATUS(SYS_STATUS_DATA {
         onboard_control_sensors_present: sensors,
         onboard_control_sensors_enabled: sensors,
-        onboard_control_sensors_health: sensors,
+        onboard_control_sensors_health: health,
         load: 0,
         voltage_battery: u16::MAX,
         current_battery: -1,
@@ -269,6 +293,7 @@ pub fn extended_sys_state(landed: Landed) -> MavMessage {
             Landed::OnGround => MavLandedState::MAV_LANDED_STATE_ON_GROUND,
             Landed::InAir => MavLandedState::MAV_LANDED_STATE_IN_AIR,
             Landed::Landing => MavLandedState::MAV_LANDED_STATE_LANDING,
+            Landed::Takeoff => MavLandedState::MAV_LANDED_STATE_TAKEOFF,
         },
     })
 }
@@ -287,6 +312,15 @@ pub fn attitude(m: &Measurement) -> MavMessage {
         pitchspeed: f(w.y),
         yawspeed: f(w.z),
     })
+}
+
+/// World (x east, y north) in metres of a (lat, lon) in degrees: the inverse of
+/// [`lat_lon_deg`].
+pub fn world_xy_of(home: &Home, lat_deg: f64, lon_deg: f64) -> (f64, f64) {
+    let north = (lat_deg - home.lat_deg).to_radians() * EARTH_RADIUS_M;
+    let east =
+        (lon_deg - home.lon_deg).to_radians() * EARTH_RADIUS_M * home.lat_deg.to_radians().cos();
+    (east, north)
 }
 
 /// (lat, lon) in degrees of a local NED position.
@@ -341,21 +375,38 @@ pub fn global_position_int(m: &Measurement) -> MavMessage {
     })
 }
 
-/// HOME_POSITION: the world origin.
-pub fn home_position(m: &Measurement) -> MavMessage {
+/// HOME_POSITION: `home_m` (world; the ground under the point where the vehicle armed).
+pub fn home_position(m: &Measurement, home_m: &Vector3<f64>) -> MavMessage {
+    let ned = frames::ned_from_world(home_m);
+    let (lat, lon) = lat_lon_deg(&HOME, ned.x, ned.y);
     MavMessage::HOME_POSITION(HOME_POSITION_DATA {
-        latitude: e7(HOME.lat_deg),
-        longitude: e7(HOME.lon_deg),
-        altitude: mm(HOME.alt_m),
-        x: 0.0,
-        y: 0.0,
-        z: 0.0,
+        latitude: e7(lat),
+        longitude: e7(lon),
+        altitude: mm(HOME.alt_m + home_m.z),
+        x: f(ned.x),
+        y: f(ned.y),
+        z: f(ned.z),
         q: [1.0, 0.0, 0.0, 0.0],
         approach_x: 0.0,
         approach_y: 0.0,
         approach_z: 0.0,
         time_usec: time_us(m),
     })
+}
+
+/// The protocols the twin's autopilot implements, exactly: MAVLink 2 (and MAVLink 1 peers),
+/// COMMAND_INT, the parameter protocol with PX4's bytewise encoding, the mission protocol
+/// with MISSION_INT (MISSION_ITEM is accepted on upload too, but downloads answer with
+/// MISSION_ITEM_INT: MISSION_FLOAT is not claimed), SET_ATTITUDE_TARGET and
+/// SET_POSITION_TARGET_LOCAL_NED. Not: SET_POSITION_TARGET_GLOBAL_INT, FTP, fences, rally
+/// points, terrain, flight termination.
+pub fn capabilities() -> MavProtocolCapability {
+    MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+        | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+        | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MISSION_INT
+        | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+        | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
 }
 
 /// AUTOPILOT_VERSION: amstack's version as the flight software version
@@ -369,13 +420,104 @@ pub fn autopilot_version() -> MavMessage {
         parts.next().map_or(0, part),
     );
     MavMessage::AUTOPILOT_VERSION(AUTOPILOT_VERSION_DATA {
-        capabilities: MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
-            | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
-            | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT,
+        capabilities: capabilities(),
         uid: 0x616D_7374_6163_6B00, // "amstack\0"
         flight_sw_version: (major << 24) | (minor << 16) | (patch << 8) | 0xFF,
         flight_custom_version: *b"amstack\0",
         ..Default::default()
+    })
+}
+
+/// A fix of the simulated GNSS receiver. The twin's autopilot takes it from the truth
+/// (exact, 3D fix, 12 satellites, accuracies of a good receiver) until the GNSS sensor model
+/// of `sim_twin::sensors` is in place; GPS_RAW_INT and GLOBAL_POSITION_INT come from it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GnssFix {
+    /// Latitude, degrees.
+    pub lat_deg: f64,
+    /// Longitude, degrees.
+    pub lon_deg: f64,
+    /// Altitude AMSL, m.
+    pub alt_m: f64,
+    /// Velocity, NED, m/s.
+    pub velocity_ned_mps: Vector3<f64>,
+    /// Horizontal accuracy (1σ), m.
+    pub h_acc_m: f64,
+    /// Vertical accuracy (1σ), m.
+    pub v_acc_m: f64,
+    /// Satellites used.
+    pub satellites: u8,
+}
+
+/// The GNSS fix of the state `m`.
+pub fn gnss_fix(m: &Measurement) -> GnssFix {
+    let p = frames::ned_from_world(&m.base.position_in_world_m);
+    let (lat_deg, lon_deg) = lat_lon_deg(&HOME, p.x, p.y);
+    GnssFix {
+        lat_deg,
+        lon_deg,
+        alt_m: HOME.alt_m - p.z,
+        velocity_ned_mps: frames::ned_from_world(&m.base.velocity_in_world_mps),
+        h_acc_m: 0.3,
+        v_acc_m: 0.5,
+        satellites: 12,
+    }
+}
+
+/// GPS_RAW_INT of a fix.
+pub fn gps_raw_int(m: &Measurement, fix: &GnssFix) -> MavMessage {
+    let v = fix.velocity_ned_mps;
+    let ground = v.x.hypot(v.y);
+    let cog = if ground > 0.1 {
+        (v.y.atan2(v.x).to_degrees().rem_euclid(360.0) * 100.0).round()
+    } else {
+        f64::from(u16::MAX)
+    };
+    let mm_u32 = |x: f64| (x * 1e3).round().clamp(0.0, f64::from(u32::MAX)) as u32;
+    MavMessage::GPS_RAW_INT(GPS_RAW_INT_DATA {
+        time_usec: time_us(m),
+        lat: e7(fix.lat_deg),
+        lon: e7(fix.lon_deg),
+        alt: mm(fix.alt_m),
+        eph: 80,
+        epv: 120,
+        vel: (ground * 100.0).round().clamp(0.0, 65_534.0) as u16,
+        cog: cog.clamp(0.0, f64::from(u16::MAX)) as u16,
+        fix_type: GpsFixType::GPS_FIX_TYPE_3D_FIX,
+        satellites_visible: fix.satellites,
+        alt_ellipsoid: mm(fix.alt_m),
+        h_acc: mm_u32(fix.h_acc_m),
+        v_acc: mm_u32(fix.v_acc_m),
+        vel_acc: mm_u32(0.1),
+        hdg_acc: 0,
+        yaw: 0,
+    })
+}
+
+/// ALTITUDE: AMSL, local (up), relative to `home_m`, and the clearance above the ground.
+pub fn altitude(m: &Measurement, home_m: &Vector3<f64>) -> MavMessage {
+    let z = m.base.position_in_world_m.z;
+    MavMessage::ALTITUDE(ALTITUDE_DATA {
+        time_usec: time_us(m),
+        altitude_monotonic: f(HOME.alt_m + z),
+        altitude_amsl: f(HOME.alt_m + z),
+        altitude_local: f(z),
+        altitude_relative: f(z - home_m.z),
+        altitude_terrain: f(z),
+        bottom_clearance: f(z),
+    })
+}
+
+/// MISSION_CURRENT: the item flown (or next), the item count and the mission's state.
+pub fn mission_current(seq: u16, total: u16, state: MissionState, mission_id: u32) -> MavMessage {
+    MavMessage::MISSION_CURRENT(MISSION_CURRENT_DATA {
+        seq,
+        total,
+        mission_state: state,
+        mission_mode: 0,
+        mission_id,
+        fence_id: 0,
+        rally_points_id: 0,
     })
 }
 
@@ -444,5 +586,13 @@ mod tests {
         );
         assert_eq!(g.hdg, 0, "facing north");
         assert_eq!(g.vz, -50);
+        // The inverse map.
+        let (x, y) = world_xy_of(&HOME, f64::from(g.lat) / 1e7, f64::from(g.lon) / 1e7);
+        assert!((x - 1.0).abs() < 0.02 && (y - 2.0).abs() < 0.02, "{x} {y}");
+        let MavMessage::GPS_RAW_INT(r) = gps_raw_int(&m, &gnss_fix(&m)) else {
+            panic!()
+        };
+        assert_eq!((r.lat, r.lon, r.alt), (g.lat, g.lon, g.alt));
+        assert_eq!(r.fix_type, GpsFixType::GPS_FIX_TYPE_3D_FIX);
     }
 }

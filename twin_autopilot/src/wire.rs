@@ -44,11 +44,13 @@ impl Signing {
     }
 }
 
-/// Frames in and out of one link: decoder, encoder (own ids, sequence, signing), counters.
+/// Frames in and out of one link: decoder (MAVLink 2 and 1), encoders (own ids, sequence,
+/// signing; MAVLink 1 for the peers that speak it), counters.
 #[derive(Debug)]
 pub struct Wire {
     decoder: Decoder,
     encoder: Encoder,
+    encoder_v1: Encoder,
     counters: Counters,
 }
 
@@ -57,8 +59,9 @@ impl Wire {
     pub fn new(system_id: u8, component_id: u8, signing: Option<&Signing>) -> Self {
         let signing = signing.map(Signing::to_wire);
         Self {
-            decoder: Decoder::new(signing.as_ref()),
+            decoder: Decoder::new(signing.as_ref()).accepting_v1(true),
             encoder: Encoder::new(system_id, component_id, signing.as_ref().map(|s| &s.key)),
+            encoder_v1: Encoder::new(system_id, component_id, None),
             counters: Counters::default(),
         }
     }
@@ -86,6 +89,13 @@ impl Wire {
     /// Encodes `message` (signed when signing is on), appending it to `out`.
     pub fn encode(&mut self, message: &MavMessage, out: &mut Vec<u8>) {
         self.encoder.encode_into(message, out);
+    }
+
+    /// Encodes `message` as MAVLink 1 (its own sequence; extensions dropped), appending it to
+    /// `out`; false (nothing appended) for a message id above 255, which PX4 does not send to
+    /// a MAVLink 1 peer either.
+    pub fn encode_v1(&mut self, message: &MavMessage, out: &mut Vec<u8>) -> bool {
+        self.encoder_v1.encode_v1_into(message, out)
     }
 }
 

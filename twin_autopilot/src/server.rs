@@ -1,33 +1,58 @@
 //! The autopilot's loop: receive frames, answer commands, run the commander, step the twin
-//! (lockstep on setpoints, or on the wall clock), send telemetry.
+//! (lockstep on setpoints, or on the wall clock), send telemetry. Commands (COMMAND_LONG and
+//! COMMAND_INT) are in [`commands`], the parameter and mission protocols in [`protocols`],
+//! where the internal controller flies (hold, takeoff, land, RTL, missions, offboard position)
+//! in [`guidance`].
+
+#![allow(
+    deprecated,
+    reason = "PX4 still serves the deprecated MISSION_ITEM, MISSION_REQUEST, MISSION_SET_CURRENT, frames and commands: so does the twin"
+)]
+
+mod commands;
+mod guidance;
+mod protocols;
 
 use std::fmt;
+use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use mavlink::dialects::common::{
-    COMMAND_ACK_DATA, COMMAND_LONG_DATA, MavCmd, MavMessage, MavModeFlag, MavResult, MavSeverity,
-    MavType, STATUSTEXT_DATA,
+    COMMAND_ACK_DATA, MavCmd, MavMessage, MavResult, MavSeverity, MavType, MissionState,
+    STATUSTEXT_DATA,
 };
-use mavlink::{MavHeader, Message};
-use nalgebra::{Isometry3, Vector3};
-use platform::{Actuation, ActuatorCommand, Measurement, Vehicle};
+use mavlink::{MavHeader, MavlinkVersion, Message};
+use nalgebra::Vector3;
+use platform::{Actuation, ActuatorCommand, GRAVITY_MPS2, Measurement, Vehicle};
 
-use super::control::{Control, hold_target};
-use super::modes::{Commander, FORCE_DISARM_MAGIC, FlightMode, Refusal, Transition, VehicleFacts};
-use super::telemetry::{self, Landed};
-use super::transport::{Endpoint, Incoming, Transport};
-use super::wire::{Frame, LinkCounters, Signing, Wire};
-use crate::ipc::Mode;
-use crate::{Twin, TwinConfig, TwinError};
-use firmware_bridge::{ActuatorUpdate, AttitudeSetpoint, SetpointCodec};
+use crate::control::Control;
+use crate::mission::Missions;
+use crate::modes::{Commander, FlightMode, LossAction, Refusal, Transition, VehicleFacts};
+use crate::navigator::Carrot;
+use crate::offboard::{self, AttitudeTarget, PositionTarget, RateLimits};
+use crate::params::{Param, Params};
+use crate::realtime::{RealtimeMonitor, RealtimePolicy};
+use crate::telemetry::{self, Landed};
+use crate::transport::{Endpoint, Incoming, Transport};
+use crate::wire::{Frame, LinkCounters, Signing, Wire};
+use firmware_bridge::setpoint::GROUP_ARM;
+use firmware_bridge::{ActuatorUpdate, SetpointCodec};
+use guidance::Guidance;
+use sim_twin::ipc::Mode;
+use sim_twin::{Twin, TwinConfig, TwinError};
 
 /// The autopilot's MAVLink system id.
 pub const SYSTEM_ID: u8 = 1;
 /// The autopilot's MAVLink component id (MAV_COMP_ID_AUTOPILOT1).
 pub const COMPONENT_ID: u8 = 1;
-/// Descent rate of AUTO.LAND, m/s.
-pub const LAND_SPEED_MPS: f64 = 0.5;
+/// The STATUSTEXT (≤ 50 characters) refusing SET_ACTUATOR_CONTROL_TARGET without
+/// `--allow-actuator-setpoints`; the log line adds how to allow them.
+pub const ACTUATOR_REFUSAL: &str = "Actuator setpoints refused: not in PX4 (SITL flag)";
+
+/// Refusals of the same kind are announced by STATUSTEXT at most this often (a refused
+/// setpoint stream would flood the link otherwise); every one is counted.
+pub const REFUSAL_TEXT_PERIOD: Duration = Duration::from_secs(1);
 /// Above its resting height by more than this, a running vehicle is in the air, m.
 pub const IN_AIR_MARGIN_M: f64 = 0.1;
 /// Landed: within this of the resting height, m …
@@ -55,6 +80,11 @@ pub struct AutopilotConfig {
     pub failsafe_hold_s: f64,
     /// Message signing.
     pub signing: Option<Signing>,
+    /// Accept SET_ACTUATOR_CONTROL_TARGET (a SITL extension current PX4 does not have).
+    /// Default off: refused with a STATUSTEXT saying why.
+    pub allow_actuator_setpoints: bool,
+    /// What a realtime twin that cannot keep up does.
+    pub realtime_policy: RealtimePolicy,
 }
 
 impl AutopilotConfig {
@@ -66,6 +96,8 @@ impl AutopilotConfig {
             offboard_timeout: Duration::from_millis(500),
             failsafe_hold_s: 5.0,
             signing: None,
+            allow_actuator_setpoints: false,
+            realtime_policy: RealtimePolicy::Warn,
         }
     }
 }
@@ -82,6 +114,9 @@ pub enum AutopilotError {
     /// The endpoint cannot be opened or failed.
     #[error("{0}")]
     Link(String),
+    /// A realtime twin could not keep up and `--realtime-policy fail` stopped it.
+    #[error("{0}")]
+    Realtime(String),
 }
 
 /// What the autopilot reports as it runs (the CLI prints these on stderr).
@@ -128,6 +163,21 @@ pub enum AutopilotEvent {
         command: String,
         /// Why.
         reason: String,
+    },
+    /// A realtime twin ran slower than the wall clock over the last second.
+    RealtimeFactor {
+        /// Twin time, s.
+        at_s: f64,
+        /// Twin time advanced per wall time over the window.
+        factor: f64,
+    },
+    /// Something a peer changed or asked for (a parameter set, a mission uploaded, an item
+    /// reached).
+    Notice {
+        /// Twin time, s.
+        at_s: f64,
+        /// What.
+        text: String,
     },
     /// The twin could not step: the vehicle was reset.
     TwinFailed {
@@ -179,6 +229,11 @@ impl fmt::Display for AutopilotEvent {
                 command,
                 reason,
             } => write!(f, "t = {at_s:.3} s: {command} refused: {reason}"),
+            Self::RealtimeFactor { at_s, factor } => write!(
+                f,
+                "t = {at_s:.3} s: real-time factor {factor:.3} over the last second (the twin cannot keep up with the wall clock; it runs at this slower pace)"
+            ),
+            Self::Notice { at_s, text } => write!(f, "t = {at_s:.3} s: {text}"),
             Self::TwinFailed { at_s, error } => {
                 write!(
                     f,
@@ -196,9 +251,12 @@ impl fmt::Display for AutopilotEvent {
 #[derive(Debug, Clone, PartialEq)]
 enum Offboard {
     None,
-    /// Rotor thrusts, N.
+    /// Rotor thrusts, N (SET_ACTUATOR_CONTROL_TARGET, with --allow-actuator-setpoints).
     Motors(Vec<f64>),
-    Attitude(AttitudeSetpoint),
+    /// SET_ATTITUDE_TARGET (attitude or rates; the body force resolved).
+    Attitude(AttitudeTarget),
+    /// SET_POSITION_TARGET_LOCAL_NED.
+    Position(PositionTarget),
 }
 
 /// A slow stream's interval and next due time.
@@ -214,6 +272,9 @@ const HEARTBEAT_ID: u32 = 0;
 const SYS_STATUS_ID: u32 = 1;
 const ATTITUDE_ID: u32 = 30;
 const GLOBAL_POSITION_INT_ID: u32 = 33;
+const GPS_RAW_INT_ID: u32 = 24;
+const ALTITUDE_ID: u32 = 141;
+const MISSION_CURRENT_ID: u32 = 42;
 const EXTENDED_SYS_STATE_ID: u32 = 245;
 const HOME_POSITION_ID: u32 = 242;
 const AUTOPILOT_VERSION_ID: u32 = 148;
@@ -236,9 +297,37 @@ pub struct Autopilot {
     rest_z_m: f64,
     joint_targets: Vec<f64>,
     offboard: Offboard,
+    /// The body force of the last attitude setpoint that carried one (thrust-ignore bit), N.
+    last_force_in_body_n: Vector3<f64>,
     last_setpoint: Option<Instant>,
-    internal_target: Option<Isometry3<f64>>,
+    /// Where the internal controller (and offboard position) flies.
+    guidance: Guidance,
+    /// The moving position target (None: take the vehicle's pose at the next step).
+    carrot: Option<Carrot>,
     landed_since_s: Option<f64>,
+    params: Params,
+    missions: Missions,
+    /// The mission item flown (or to fly next).
+    mission_seq: u16,
+    /// Home: the ground under the point where the vehicle last armed (world, m).
+    home_m: Vector3<f64>,
+    /// UDP peers that spoke MAVLink 1 and never MAVLink 2 (answered in MAVLink 1, as PX4).
+    v1_peers: Vec<SocketAddr>,
+    /// UDP peers that spoke MAVLink 2 (stay on MAVLink 2).
+    v2_peers: Vec<SocketAddr>,
+    /// Serial: the peer speaks MAVLink 1 only.
+    serial_v1: bool,
+    /// The peer (address) of the frame being handled.
+    current_peer: Option<SocketAddr>,
+    /// The horizontal speed commanded by DO_CHANGE_SPEED / DO_REPOSITION / a mission, m/s.
+    cruise_override_mps: Option<f64>,
+    /// What the last step decided, reported after it.
+    deferred: Vec<guidance::Deferred>,
+    /// When each kind of refusal was last announced.
+    refusal_texts: Vec<(&'static str, Instant)>,
+    realtime: RealtimeMonitor,
+    /// Set when `--realtime-policy fail` stops the autopilot.
+    realtime_failure: Option<String>,
     previous_velocity: Vector3<f64>,
     specific_force: Vector3<f64>,
     /// Wall clock of the next step while the twin runs on the clock.
@@ -250,6 +339,7 @@ pub struct Autopilot {
     streams: Vec<Stream>,
     steps: u64,
     out: Vec<u8>,
+    out_v1: Vec<u8>,
 }
 
 impl fmt::Debug for Autopilot {
@@ -325,7 +415,16 @@ impl Autopilot {
             stream(EXTENDED_SYS_STATE_ID, 1.0),
             stream(ATTITUDE_ID, 50.0),
             stream(GLOBAL_POSITION_INT_ID, 10.0),
+            stream(GPS_RAW_INT_ID, 5.0),
+            stream(ALTITUDE_ID, 10.0),
+            stream(MISSION_CURRENT_ID, 1.0),
+            stream(HOME_POSITION_ID, 0.5),
         ];
+        let mut params = Params::default();
+        params
+            .set(Param::ComOfLossT, config.offboard_timeout.as_secs_f64())
+            .map_err(|e| AutopilotError::Vehicle(format!("--offboard-timeout-ms: {e}")))?;
+        let hover_force = Vector3::z() * (control.body().mass_kg * GRAVITY_MPS2);
         let previous_velocity = twin.truth().base.velocity_in_world_mps;
         Ok(Self {
             specific_force: telemetry::specific_force(twin.truth(), &previous_velocity, dt_s),
@@ -342,15 +441,31 @@ impl Autopilot {
             rest_z_m,
             joint_targets,
             offboard: Offboard::None,
+            last_force_in_body_n: hover_force,
             last_setpoint: None,
-            internal_target: None,
+            guidance: Guidance::Hold,
+            carrot: None,
             landed_since_s: None,
+            params,
+            missions: Missions::default(),
+            mission_seq: 0,
+            home_m: Vector3::zeros(),
+            v1_peers: Vec::new(),
+            v2_peers: Vec::new(),
+            serial_v1: false,
+            current_peer: None,
+            cruise_override_mps: None,
+            deferred: Vec::new(),
+            refusal_texts: Vec::new(),
+            realtime: RealtimeMonitor::new(),
+            realtime_failure: None,
             next_step: None,
             clock_started: false,
             next_idle_telemetry: now,
             streams,
             steps: 0,
             out: Vec::with_capacity(4096),
+            out_v1: Vec::with_capacity(4096),
             config,
         })
     }
@@ -366,7 +481,7 @@ impl Autopilot {
     }
 
     /// The local UDP address (e.g. when bound to port 0).
-    pub fn local_addr(&self) -> Option<std::net::SocketAddr> {
+    pub fn local_addr(&self) -> Option<SocketAddr> {
         self.transport.local_addr()
     }
 
@@ -408,19 +523,21 @@ impl Autopilot {
                 first = false;
                 let Some(incoming) = got else { break };
                 received.clear();
-                let new_peer = match incoming {
+                let (new_peer, from) = match incoming {
                     Incoming::Datagram { len, from } => {
                         self.wire
                             .datagram(buf.get(..len).unwrap_or(&[]), &mut received);
                         // Only a sender of an accepted frame is a peer (with signing required,
                         // an unsigned sender gets nothing).
-                        (!received.is_empty() && self.transport.note_peer(from)).then_some(from)
+                        let new = !received.is_empty() && self.transport.note_peer(from);
+                        (new.then_some(from), Some(from))
                     }
                     Incoming::Stream(n) => {
                         self.wire.stream(buf.get(..n).unwrap_or(&[]), &mut received);
-                        None
+                        (None, None)
                     }
                 };
+                self.note_versions(from, &received);
                 if let (Some(addr), Some(r)) = (new_peer, received.first()) {
                     on_event(&AutopilotEvent::Peer {
                         addr: addr.to_string(),
@@ -428,11 +545,20 @@ impl Autopilot {
                         component: r.header.component_id,
                     });
                 }
+                self.current_peer = from;
                 for r in std::mem::take(&mut received) {
                     self.handle(&r, &mut on_event);
                 }
+                self.current_peer = None;
             }
             self.tick(&mut on_event);
+            if let Some(why) = self.realtime_failure.take() {
+                on_event(&AutopilotEvent::Stopped {
+                    steps: self.steps,
+                    counters: self.wire.counters(),
+                });
+                return Err(AutopilotError::Realtime(why));
+            }
         }
         let counters = self.wire.counters();
         on_event(&AutopilotEvent::Stopped {
@@ -458,9 +584,51 @@ impl Autopilot {
         due.saturating_duration_since(now)
     }
 
+    /// Records which MAVLink version each peer speaks: MAVLink 1 until it is heard speaking
+    /// MAVLink 2, then MAVLink 2 for good (PX4's MAV_PROTO_VER = 0 behaviour).
+    fn note_versions(&mut self, from: Option<SocketAddr>, frames: &[Frame]) {
+        for r in frames {
+            match (from, r.version) {
+                (Some(a), MavlinkVersion::V2) => {
+                    self.v1_peers.retain(|p| *p != a);
+                    if !self.v2_peers.contains(&a) {
+                        self.v2_peers.push(a);
+                    }
+                }
+                (Some(a), MavlinkVersion::V1) => {
+                    if !self.v2_peers.contains(&a) && !self.v1_peers.contains(&a) {
+                        self.v1_peers.push(a);
+                    }
+                }
+                (None, MavlinkVersion::V2) => self.serial_v1 = false,
+                (None, MavlinkVersion::V1) => self.serial_v1 = true,
+            }
+        }
+    }
+
+    /// The offboard timeout, COM_OF_LOSS_T.
+    fn offboard_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.params.get(Param::ComOfLossT).max(0.0))
+    }
+
     fn streaming(&self) -> bool {
-        self.last_setpoint
-            .is_some_and(|t| t.elapsed() <= self.config.offboard_timeout)
+        let timeout = self.offboard_timeout();
+        self.last_setpoint.is_some_and(|t| t.elapsed() <= timeout)
+    }
+
+    /// Whether arming would be accepted now (SYS_STATUS's pre-arm check).
+    fn armable(&self) -> bool {
+        let mut c = self.commander.clone();
+        !self.commander.armed() && c.arm(&self.facts()).is_ok()
+    }
+
+    /// The rate limits of offboard rates (MC_*RATE_MAX), rad/s.
+    fn rate_limits(&self) -> RateLimits {
+        RateLimits {
+            roll_radps: self.params.get(Param::McRollrateMax).to_radians(),
+            pitch_radps: self.params.get(Param::McPitchrateMax).to_radians(),
+            yaw_radps: self.params.get(Param::McYawrateMax).to_radians(),
+        }
     }
 
     fn truth(&self) -> &Measurement {
@@ -482,6 +650,7 @@ impl Autopilot {
             speed_mps: base.velocity_in_world_mps.norm(),
             in_air: self.runs_on_clock()
                 && base.position_in_world_m.z > self.rest_z_m + IN_AIR_MARGIN_M,
+            has_mission: !self.missions.items().is_empty(),
         }
     }
 
@@ -489,8 +658,10 @@ impl Autopilot {
         let z = self.truth().base.position_in_world_m.z;
         if !self.commander.armed() {
             Landed::OnGround
-        } else if self.commander.mode() == FlightMode::AutoLand {
+        } else if self.commander.mode() == FlightMode::AutoLand || self.guidance.landing() {
             Landed::Landing
+        } else if self.guidance.taking_off() {
+            Landed::Takeoff
         } else if z > self.rest_z_m + IN_AIR_MARGIN_M {
             Landed::InAir
         } else {
@@ -503,13 +674,35 @@ impl Autopilot {
         let landed = self
             .landed_since_s
             .is_some_and(|t| self.twin.time_s() - t >= LANDED_FOR_S);
+        let action = LossAction::from_param(self.params.get(Param::ComOblRcAct));
         if let Some(t) = self
             .commander
-            .update(self.twin.time_s(), self.streaming(), landed)
+            .update(self.twin.time_s(), self.streaming(), landed, action)
         {
             self.transition(t, on_event);
         }
         let now = Instant::now();
+        let mut replies = Vec::new();
+        if let crate::mission::Outcome::Failed(why) = self.missions.poll(now, &mut replies) {
+            self.notice(format!("mission upload failed: {why}"), on_event);
+        }
+        self.send(&replies);
+        if self.config.mode == Mode::Realtime && self.runs_on_clock() {
+            if let Some(factor) = self.realtime.update(now, self.twin.time_s()) {
+                on_event(&AutopilotEvent::RealtimeFactor {
+                    at_s: self.twin.time_s(),
+                    factor,
+                });
+                if self.config.realtime_policy == RealtimePolicy::Fail {
+                    self.realtime_failure = Some(format!(
+                        "the realtime twin ran at {factor:.3} of the wall clock over the last second (below {}): stopped (--realtime-policy fail)",
+                        crate::realtime::SLOW_FACTOR
+                    ));
+                }
+            }
+        } else {
+            self.realtime.reset();
+        }
         if self.runs_on_clock() {
             let next = *self.next_step.get_or_insert(now);
             if now >= next {
@@ -539,15 +732,26 @@ impl Autopilot {
         match &t {
             Transition::Armed => {
                 self.clock_started |= self.config.mode == Mode::Realtime;
-                self.internal_target = None;
+                self.carrot = None;
+                // Home: the ground under the vehicle at arming, as PX4 sets it.
+                let p = self.truth().base.position_in_world_m;
+                let home = Vector3::new(p.x, p.y, 0.0);
+                if (home - self.home_m).norm() > 1e-3 {
+                    self.home_m = home;
+                    let msg = telemetry::home_position(self.twin.truth(), &self.home_m);
+                    self.send(&[msg]);
+                }
+                self.enter(self.commander.mode());
             }
             Transition::Disarmed(_) => {
-                self.internal_target = None;
+                self.carrot = None;
                 self.landed_since_s = None;
+                self.guidance = Guidance::Hold;
             }
-            Transition::Mode { .. } => {
-                self.internal_target = None;
+            Transition::Mode { mode, .. } => {
+                let mode = *mode;
                 self.landed_since_s = None;
+                self.enter(mode);
             }
         }
         on_event(&AutopilotEvent::Transition {
@@ -568,7 +772,7 @@ impl Autopilot {
         }
         match self.commander.mode() {
             FlightMode::Offboard => self.offboard_command(),
-            mode => self.internal_command(mode),
+            _ => self.internal_command(),
         }
     }
 
@@ -588,42 +792,34 @@ impl Autopilot {
                 joint_targets: self.joint_targets.clone(),
                 direct_wrench_in_body: None,
             },
-            Offboard::Attitude(sp) => {
-                let sp = *sp;
+            Offboard::Attitude(AttitudeTarget::Attitude {
+                world_from_body,
+                body_rates_radps,
+                force_in_body_n,
+            }) => {
+                let force = force_in_body_n.unwrap_or(self.last_force_in_body_n);
+                let sp = firmware_bridge::AttitudeSetpoint {
+                    world_from_body: *world_from_body,
+                    force_in_body_n: force,
+                    body_rates_radps: Some(*body_rates_radps),
+                };
                 self.control
                     .attitude(self.twin.truth(), &sp, &self.joint_targets)
             }
-        }
-    }
-
-    fn internal_command(&mut self, mode: FlightMode) -> ActuatorCommand {
-        let m = self.twin.truth().clone();
-        let target = match self.internal_target {
-            Some(t) => t,
-            None => {
-                self.control.reset(&m);
-                hold_target(&m)
+            Offboard::Attitude(AttitudeTarget::Rates {
+                body_rates_radps,
+                force_in_body_n,
+            }) => {
+                let force = force_in_body_n.unwrap_or(self.last_force_in_body_n);
+                let rates = *body_rates_radps;
+                self.control
+                    .rates(self.twin.truth(), &rates, &force, &self.joint_targets)
             }
-        };
-        let mut target = target;
-        if mode == FlightMode::AutoLand {
-            // Down to the resting height, not into the ground: a controller pushing into the
-            // ground winds up and tips an under-actuated vehicle over.
-            let floor = self.rest_z_m;
-            target.translation.z = (target.translation.z - LAND_SPEED_MPS * self.dt_s).max(floor);
-            let z = m.base.position_in_world_m.z;
-            let still = m.base.velocity_in_world_mps.norm() < LANDED_SPEED_MPS;
-            // On the ground: at the resting height, or held up (by an arm or an object below)
-            // while the target is well below, as PX4's land detector.
-            let held_up = target.translation.z < z - LAND_STALL_M;
-            if (z < self.rest_z_m + LANDED_MARGIN_M || held_up) && still {
-                self.landed_since_s.get_or_insert(m.time_s);
-            } else {
-                self.landed_since_s = None;
+            Offboard::Position(target) => {
+                let target = *target;
+                self.offboard_position_command(&target)
             }
         }
-        self.internal_target = Some(target);
-        self.control.hold(&m, &target, &self.joint_targets)
     }
 
     /// One twin step, then its telemetry. A failed step disarms and resets the twin.
@@ -653,16 +849,50 @@ impl Autopilot {
                 self.clock_started = false;
             }
         }
+        self.flush_deferred(on_event);
     }
 
+    /// Reports what the last step decided (transitions, reached items).
+    fn flush_deferred(&mut self, on_event: &mut impl FnMut(&AutopilotEvent)) {
+        for d in std::mem::take(&mut self.deferred) {
+            match d {
+                guidance::Deferred::Transition(t) => self.transition(t, on_event),
+                guidance::Deferred::Notice(text) => self.notice(text, on_event),
+                guidance::Deferred::Send(msg) => self.send(&[*msg]),
+            }
+        }
+    }
+
+    /// Sends `messages` to every peer: MAVLink 2, or MAVLink 1 to a peer that speaks only
+    /// that (messages with ids above 255 are not sent to it, as PX4).
     fn send(&mut self, messages: &[MavMessage]) {
+        if messages.is_empty() {
+            return;
+        }
         self.out.clear();
         for m in messages {
             self.wire.encode(m, &mut self.out);
         }
+        let any_v1 = !self.v1_peers.is_empty() || self.serial_v1;
+        self.out_v1.clear();
+        if any_v1 {
+            for m in messages {
+                self.wire.encode_v1(m, &mut self.out_v1);
+            }
+        }
         let out = std::mem::take(&mut self.out);
-        self.transport.send(&out);
+        let out_v1 = std::mem::take(&mut self.out_v1);
+        let v1_peers = &self.v1_peers;
+        let serial_v1 = self.serial_v1;
+        self.transport.send_each(|peer| {
+            let v1 = match peer {
+                Some(a) => v1_peers.contains(&a),
+                None => serial_v1,
+            };
+            if v1 { &out_v1 } else { &out }
+        });
         self.out = out;
+        self.out_v1 = out_v1;
     }
 
     fn send_per_step(&mut self) {
@@ -707,11 +937,14 @@ impl Autopilot {
         let m = self.truth();
         Some(match id {
             HEARTBEAT_ID => telemetry::heartbeat(self.mav_type, &self.commander),
-            SYS_STATUS_ID => telemetry::sys_status(&self.wire.counters()),
+            SYS_STATUS_ID => telemetry::sys_status(&self.wire.counters(), self.armable()),
             EXTENDED_SYS_STATE_ID => telemetry::extended_sys_state(self.landed_state()),
             ATTITUDE_ID => telemetry::attitude(m),
             GLOBAL_POSITION_INT_ID => telemetry::global_position_int(m),
-            HOME_POSITION_ID => telemetry::home_position(m),
+            GPS_RAW_INT_ID => telemetry::gps_raw_int(m, &telemetry::gnss_fix(m)),
+            ALTITUDE_ID => telemetry::altitude(m, &self.home_m),
+            MISSION_CURRENT_ID => self.mission_current(),
+            HOME_POSITION_ID => telemetry::home_position(m, &self.home_m),
             AUTOPILOT_VERSION_ID => telemetry::autopilot_version(),
             id => {
                 let per_step = telemetry::per_step(m, &self.specific_force);
@@ -725,11 +958,24 @@ impl Autopilot {
         let for_us = |system: u8, component: u8| {
             (system == 0 || system == SYSTEM_ID) && (component == 0 || component == COMPONENT_ID)
         };
+        let peer = (
+            u8::try_from(r.header.system_id).unwrap_or(0),
+            r.header.component_id,
+        );
         match &r.message {
             MavMessage::HEARTBEAT(_) => {}
             MavMessage::COMMAND_LONG(c) => {
                 if for_us(c.target_system, c.target_component) {
-                    self.command(&r.header, c, on_event);
+                    let cmd = commands::Cmd::from_long(c);
+                    self.command(&r.header, &cmd, on_event);
+                } else {
+                    self.wire.count_rejected_input();
+                }
+            }
+            MavMessage::COMMAND_INT(c) => {
+                if for_us(c.target_system, c.target_component) {
+                    let cmd = commands::Cmd::from_int(c);
+                    self.command(&r.header, &cmd, on_event);
                 } else {
                     self.wire.count_rejected_input();
                 }
@@ -737,6 +983,14 @@ impl Autopilot {
             MavMessage::SET_ACTUATOR_CONTROL_TARGET(s) => {
                 if !for_us(s.target_system, s.target_component) {
                     self.wire.count_rejected_input();
+                    return;
+                }
+                // Groups 0 (motors) and 1 (tilt servos) are what PX4 would fly: a SITL
+                // extension. Group 2 (arm and gripper) is not PX4's on a real vehicle either (the
+                // companion drives the arm on its own bus): accepted as that bus's stand-in.
+                if !self.config.allow_actuator_setpoints && s.group_mlx != GROUP_ARM {
+                    self.wire.count_rejected_input();
+                    self.refuse_input("actuator", ACTUATOR_REFUSAL, on_event);
                     return;
                 }
                 let mut targets = self.joint_targets.clone();
@@ -754,18 +1008,182 @@ impl Autopilot {
                     self.wire.count_rejected_input();
                     return;
                 }
-                match self.decoder.decode_attitude(s) {
-                    Ok(sp) => {
-                        self.offboard = Offboard::Attitude(sp);
+                let scale =
+                    self.decoder.rotor_count() as f64 * self.twin.vehicle().rotors.thrust_max_n;
+                match offboard::attitude_target(s, &self.rate_limits(), scale) {
+                    Ok(target) => {
+                        let (AttitudeTarget::Attitude {
+                            force_in_body_n, ..
+                        }
+                        | AttitudeTarget::Rates {
+                            force_in_body_n, ..
+                        }) = target;
+                        if let Some(f) = force_in_body_n {
+                            self.last_force_in_body_n = f;
+                        }
+                        if !matches!(self.offboard, Offboard::Attitude(_)) {
+                            self.control.reset_attitude();
+                        }
+                        self.offboard = Offboard::Attitude(target);
                         self.setpoint_arrived(on_event);
                     }
-                    Err(_) => self.wire.count_rejected_input(),
+                    Err(why) => {
+                        self.wire.count_rejected_input();
+                        self.refuse_input(
+                            "attitude",
+                            &format!("Attitude refused: {why}"),
+                            on_event,
+                        );
+                    }
+                }
+            }
+            MavMessage::SET_POSITION_TARGET_LOCAL_NED(s) => {
+                if !for_us(s.target_system, s.target_component) {
+                    self.wire.count_rejected_input();
+                    return;
+                }
+                let base = &self.truth().base;
+                let (_, _, yaw) = base.world_from_body.euler_angles();
+                match offboard::position_target(s, &base.position_in_world_m, yaw) {
+                    Ok(target) => {
+                        if !matches!(self.offboard, Offboard::Position(_)) {
+                            // A new position stream starts from where the vehicle is.
+                            self.carrot = None;
+                        }
+                        self.offboard = Offboard::Position(target);
+                        self.setpoint_arrived(on_event);
+                    }
+                    Err(why) => {
+                        self.wire.count_rejected_input();
+                        self.refuse_input(
+                            "position",
+                            &format!("Position refused: {why}"),
+                            on_event,
+                        );
+                    }
+                }
+            }
+            MavMessage::PARAM_REQUEST_LIST(p) if for_us(p.target_system, p.target_component) => {
+                self.param_list();
+            }
+            MavMessage::PARAM_REQUEST_READ(p) if for_us(p.target_system, p.target_component) => {
+                self.param_read(p);
+            }
+            MavMessage::PARAM_SET(p) if for_us(p.target_system, p.target_component) => {
+                self.param_set(p, on_event);
+            }
+            MavMessage::MISSION_COUNT(m) if for_us(m.target_system, m.target_component) => {
+                let mut out = Vec::new();
+                let outcome = self.missions.count(peer, m, Instant::now(), &mut out);
+                self.send(&out);
+                self.mission_outcome(outcome, on_event);
+            }
+            MavMessage::MISSION_ITEM_INT(m) if for_us(m.target_system, m.target_component) => {
+                let mut out = Vec::new();
+                let outcome =
+                    self.missions
+                        .item(peer, m, &telemetry::HOME, Instant::now(), &mut out);
+                self.send(&out);
+                self.mission_outcome(outcome, on_event);
+            }
+            MavMessage::MISSION_ITEM(m) if for_us(m.target_system, m.target_component) => {
+                let item = crate::mission::item_int_of(m);
+                let mut out = Vec::new();
+                let outcome =
+                    self.missions
+                        .item(peer, &item, &telemetry::HOME, Instant::now(), &mut out);
+                self.send(&out);
+                self.mission_outcome(outcome, on_event);
+            }
+            MavMessage::MISSION_REQUEST_LIST(m) if for_us(m.target_system, m.target_component) => {
+                let mut out = Vec::new();
+                self.missions.request_list(peer, m.mission_type, &mut out);
+                self.send(&out);
+            }
+            MavMessage::MISSION_REQUEST_INT(m) if for_us(m.target_system, m.target_component) => {
+                let mut out = Vec::new();
+                self.missions
+                    .request_item(peer, m.seq, m.mission_type, &mut out);
+                self.send(&out);
+            }
+            MavMessage::MISSION_REQUEST(m) if for_us(m.target_system, m.target_component) => {
+                let mut out = Vec::new();
+                self.missions
+                    .request_item(peer, m.seq, m.mission_type, &mut out);
+                self.send(&out);
+            }
+            MavMessage::MISSION_CLEAR_ALL(m) if for_us(m.target_system, m.target_component) => {
+                let mut out = Vec::new();
+                let outcome = self.missions.clear(peer, m.mission_type, &mut out);
+                self.send(&out);
+                self.mission_outcome(outcome, on_event);
+            }
+            MavMessage::MISSION_SET_CURRENT(m) if for_us(m.target_system, m.target_component) => {
+                if let Err(why) = self.set_mission_current(m.seq) {
+                    self.status_text(MavSeverity::MAV_SEVERITY_WARNING, &why);
                 }
             }
             // Everything else in the common dialect is understood and ignored, as PX4 ignores
             // what it does not handle.
             _ => {}
         }
+    }
+
+    /// A refused input, announced by STATUSTEXT at most every [`REFUSAL_TEXT_PERIOD`] per
+    /// kind (and logged as often).
+    fn refuse_input(
+        &mut self,
+        kind: &'static str,
+        text: &str,
+        on_event: &mut impl FnMut(&AutopilotEvent),
+    ) {
+        let now = Instant::now();
+        if let Some((_, last)) = self.refusal_texts.iter_mut().find(|(k, _)| *k == kind) {
+            if now.duration_since(*last) < REFUSAL_TEXT_PERIOD {
+                return;
+            }
+            *last = now;
+        } else {
+            self.refusal_texts.push((kind, now));
+        }
+        self.status_text(MavSeverity::MAV_SEVERITY_WARNING, text);
+        let reason = if text == ACTUATOR_REFUSAL {
+            "current PX4 has no actuator offboard over MAVLink (fly SET_ATTITUDE_TARGET or SET_POSITION_TARGET_LOCAL_NED; in SITL: twin serve --allow-actuator-setpoints)".to_owned()
+        } else {
+            text.to_owned()
+        };
+        on_event(&AutopilotEvent::Refused {
+            at_s: self.twin.time_s(),
+            command: format!("{kind} setpoint"),
+            reason,
+        });
+    }
+
+    fn notice(&mut self, text: String, on_event: &mut impl FnMut(&AutopilotEvent)) {
+        on_event(&AutopilotEvent::Notice {
+            at_s: self.twin.time_s(),
+            text,
+        });
+    }
+
+    /// MISSION_CURRENT of the mission state now.
+    fn mission_current(&self) -> MavMessage {
+        let total = u16::try_from(self.missions.items().len()).unwrap_or(u16::MAX);
+        let state = if total == 0 {
+            MissionState::MISSION_STATE_NO_MISSION
+        } else if self.mission_seq >= total {
+            MissionState::MISSION_STATE_COMPLETE
+        } else if self.commander.mode() == FlightMode::AutoMission && self.commander.armed() {
+            MissionState::MISSION_STATE_ACTIVE
+        } else {
+            MissionState::MISSION_STATE_NOT_STARTED
+        };
+        telemetry::mission_current(
+            self.mission_seq.min(total.saturating_sub(1)),
+            total,
+            state,
+            self.missions.id(),
+        )
     }
 
     /// A tick's completing setpoint: refreshes the stream; in lockstep, armed and in
@@ -842,124 +1260,5 @@ impl Autopilot {
             }
             Err(refusal) => self.refuse(to, command, &refusal, on_event),
         }
-    }
-
-    /// A COMMAND_LONG for this autopilot: every one gets a COMMAND_ACK.
-    fn command(
-        &mut self,
-        from: &MavHeader,
-        c: &COMMAND_LONG_DATA,
-        on_event: &mut impl FnMut(&AutopilotEvent),
-    ) {
-        let facts = self.facts();
-        match c.command {
-            MavCmd::MAV_CMD_COMPONENT_ARM_DISARM => {
-                let outcome = if c.param1 == 1.0 {
-                    self.commander.arm(&facts)
-                } else if c.param1 == 0.0 {
-                    self.commander
-                        .disarm(&facts, c.param2 == FORCE_DISARM_MAGIC)
-                } else {
-                    Err(Refusal {
-                        temporary: false,
-                        reason: format!("Arm/disarm: param1 {} not 0 or 1", c.param1),
-                    })
-                };
-                self.outcome(from, c.command, outcome, on_event);
-            }
-            MavCmd::MAV_CMD_DO_SET_MODE => {
-                let custom = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED.bits();
-                let outcome =
-                    if !(c.param1.is_finite() && (c.param1 as u32) & u32::from(custom) != 0) {
-                        Err(Refusal {
-                            temporary: false,
-                            reason: "Set mode: param1 lacks CUSTOM_MODE_ENABLED".to_owned(),
-                        })
-                    } else {
-                        match FlightMode::from_main_and_sub(c.param2 as u8, c.param3 as u8) {
-                            Ok(mode) => self.commander.set_mode(mode, &facts),
-                            Err(reason) => Err(Refusal {
-                                temporary: false,
-                                reason: format!("Set mode: {reason}"),
-                            }),
-                        }
-                    };
-                self.outcome(from, c.command, outcome, on_event);
-            }
-            MavCmd::MAV_CMD_NAV_LAND => {
-                let outcome = if self.commander.armed() {
-                    self.commander.set_mode(FlightMode::AutoLand, &facts)
-                } else {
-                    Err(Refusal {
-                        temporary: false,
-                        reason: "Land denied: not armed".to_owned(),
-                    })
-                };
-                self.outcome(from, c.command, outcome, on_event);
-            }
-            MavCmd::MAV_CMD_REQUEST_MESSAGE => {
-                let id = c.param1;
-                let msg = (id.is_finite() && id >= 0.0)
-                    .then(|| self.message(id as u32))
-                    .flatten();
-                match msg {
-                    Some(msg) => {
-                        self.ack(from, c.command, MavResult::MAV_RESULT_ACCEPTED);
-                        self.send(&[msg]);
-                    }
-                    None => self.refuse(
-                        from,
-                        c.command,
-                        &Refusal {
-                            temporary: false,
-                            reason: format!("Request: message {id} not available"),
-                        },
-                        on_event,
-                    ),
-                }
-            }
-            MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => {
-                let outcome = self.set_interval(c.param1, c.param2);
-                match outcome {
-                    Ok(()) => self.ack(from, c.command, MavResult::MAV_RESULT_ACCEPTED),
-                    Err(reason) => self.refuse(
-                        from,
-                        c.command,
-                        &Refusal {
-                            temporary: false,
-                            reason,
-                        },
-                        on_event,
-                    ),
-                }
-            }
-            other => {
-                self.ack(from, other, MavResult::MAV_RESULT_UNSUPPORTED);
-            }
-        }
-    }
-
-    /// MAV_CMD_SET_MESSAGE_INTERVAL: param1 message id, param2 interval µs (−1 off, 0 default).
-    fn set_interval(&mut self, id: f32, interval_us: f32) -> Result<(), String> {
-        if !(id.is_finite() && interval_us.is_finite()) {
-            return Err("Interval: parameters not finite".to_owned());
-        }
-        let id = id as u32;
-        if PER_STEP_IDS.contains(&id) {
-            return Err(format!("Interval: message {id} is sent every step"));
-        }
-        let Some(stream) = self.streams.iter_mut().find(|s| s.id == id) else {
-            return Err(format!("Interval: message {id} not streamed"));
-        };
-        stream.interval = if interval_us < 0.0 {
-            None
-        } else if interval_us == 0.0 {
-            Some(stream.default)
-        } else {
-            // At most 1 kHz.
-            Some(Duration::from_micros(interval_us.max(1000.0) as u64))
-        };
-        stream.next = Instant::now();
-        Ok(())
     }
 }

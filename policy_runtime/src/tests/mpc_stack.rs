@@ -1,15 +1,21 @@
 //! The `mpc` controller flying the FA-Hexa in the twin through the flight stack.
 
+use controllers::mpc::StructuredQp;
 use controllers::mpc::{
     ClarabelQp, FallbackEvent, MpcMode, QpSettings, QpSolution, QpSolver, QpStatus, RiccatiIpm,
 };
 use controllers::{ControllerConfig, ControllerKind, profile};
-use nalgebra::Translation3;
-use platform::Vehicle;
+use nalgebra::{Isometry3, Translation3};
+use platform::{Measurement, Vehicle};
 use sim_twin::{Twin, TwinConfig};
 
+use crate::flight::{
+    ActionSource, Decided, FlightError, FlightSpec, Flow, Observation, Observer, SourceError, Step,
+    Stepped,
+};
 use crate::link::{Link, TwinLink};
-use crate::stack::{Action, EeTarget, FlightStack, ThrustLimits};
+use crate::stack::{Action, EeTarget, FlightStack, ThrustLimits, TickRecord};
+use crate::state_source::StateSource;
 use allocation::AllocationMethod;
 
 /// Final EE position error the step must settle within, m (issue 6).
@@ -19,6 +25,115 @@ const STEP_M: f64 = 0.3;
 
 fn fa_hexa() -> Vehicle {
     Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// The EE step of these tests as an action source: `start` until 0.5 s, then `goal`. It keeps
+/// the MPC's QP of each tick named in `capture` (read at the next tick, before the stack acts
+/// again).
+struct EeStep {
+    start: Isometry3<f64>,
+    goal: Isometry3<f64>,
+    capture: Vec<u64>,
+    recorded: Vec<StructuredQp>,
+}
+
+impl ActionSource for EeStep {
+    fn next(
+        &mut self,
+        k: u64,
+        observation: &Observation<'_>,
+        stack: &mut FlightStack,
+    ) -> Result<Step, SourceError> {
+        if k > 0
+            && self.capture.contains(&(k - 1))
+            && let Some(mpc) = stack.mpc()
+        {
+            self.recorded.push(mpc.rti().qp().clone());
+        }
+        let target = if observation.time_s < 0.5 {
+            self.start
+        } else {
+            self.goal
+        };
+        Ok(Step::Act {
+            action: Action::Ee(EeTarget {
+                world_from_ee_command: target,
+                gripper: -1.0,
+            }),
+            ee_reference: None,
+        })
+    }
+}
+
+/// Sees every tick's record, keeps the largest roll or pitch and the last measurement.
+struct Watch<F: FnMut(u64, &TickRecord)> {
+    on_tick: F,
+    worst_tilt: f64,
+    last: Option<Measurement>,
+}
+
+impl<F: FnMut(u64, &TickRecord)> Observer for Watch<F> {
+    fn decided(&mut self, tick: &Decided<'_>) -> Result<(), FlightError> {
+        (self.on_tick)(tick.k, tick.record);
+        Ok(())
+    }
+
+    fn stepped(&mut self, step: &mut Stepped<'_>) -> Result<Flow, FlightError> {
+        let (roll, pitch, _) = step.measurement.base.world_from_body.euler_angles();
+        self.worst_tilt = self.worst_tilt.max(roll.abs()).max(pitch.abs());
+        self.last = Some(step.measurement.clone());
+        Ok(Flow::Continue)
+    }
+}
+
+/// Flies a 30 cm EE step for 5 s with `stack` in the twin of `twin_config` through the flight
+/// loop; `on_tick` sees every record. The final measurement, the largest tilt and the QPs of
+/// the ticks in `capture`.
+fn fly_step(
+    stack: &mut FlightStack,
+    twin_config: TwinConfig,
+    capture: &[u64],
+    on_tick: impl FnMut(u64, &TickRecord),
+) -> (Measurement, Isometry3<f64>, f64, Vec<StructuredQp>) {
+    let dt = twin_config.control_dt_s();
+    let twin = Twin::new(fa_hexa(), twin_config).unwrap_or_else(|e| panic!("{e}"));
+    let mut link = TwinLink::new(twin);
+    let start = link
+        .receive()
+        .unwrap_or_else(|e| panic!("{e}"))
+        .world_from_ee;
+    let goal = Translation3::new(STEP_M, 0.0, 0.0) * start;
+    let mut source = EeStep {
+        start,
+        goal,
+        capture: capture.to_vec(),
+        recorded: Vec::new(),
+    };
+    let mut watch = Watch {
+        on_tick,
+        worst_tilt: 0.0,
+        last: None,
+    };
+    crate::flight::run(
+        &mut link,
+        stack,
+        &mut source,
+        &mut [&mut watch],
+        FlightSpec {
+            max_ticks: (5.0 / dt).round() as u64,
+            dt_s: dt,
+            control_rate_hz: 1.0 / dt,
+            seed: 0,
+            state_source: StateSource::Truth,
+            score_from_s: 0.0,
+            interface: None,
+            action_noise: None,
+            stop: None,
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let last = watch.last.unwrap_or_else(|| panic!("no tick flown"));
+    (last, goal, watch.worst_tilt, source.recorded)
 }
 
 #[test]
@@ -36,38 +151,17 @@ fn mpc_settles_a_30cm_ee_step_in_the_twin() {
         dt,
     )
     .unwrap_or_else(|e| panic!("{e}"));
-    let twin = Twin::new(vehicle, twin_config).unwrap_or_else(|e| panic!("{e}"));
-    let mut link = TwinLink::new(twin);
-    let mut m = link.receive().unwrap_or_else(|e| panic!("{e}"));
-    stack.reset_at(&m.base, &m.joint_positions);
-    let start = m.world_from_ee;
-    let goal = Translation3::new(STEP_M, 0.0, 0.0) * start;
-    let ticks = (5.0 / dt).round() as usize;
-    let mut worst_tilt: f64 = 0.0;
-    let mut recorded = Vec::new();
-    for k in 0..ticks {
-        let target = if k as f64 * dt < 0.5 { start } else { goal };
-        let record = stack.act(
-            &m,
-            &Action::Ee(EeTarget {
-                world_from_ee_command: target,
-                gripper: -1.0,
-            }),
-        );
-        let status = record
-            .mpc
-            .unwrap_or_else(|| panic!("tick {k}: no MPC status"));
-        assert_eq!(status.mode, MpcMode::Mpc, "tick {k}: {status:?}");
-        if [0, 61, 64, 90, 150, 300, 470].contains(&k)
-            && let Some(mpc) = stack.mpc()
-        {
-            recorded.push(mpc.rti().qp().clone());
-        }
-        link.send(&record.command).unwrap_or_else(|e| panic!("{e}"));
-        m = link.receive().unwrap_or_else(|e| panic!("{e}"));
-        let (roll, pitch, _) = m.base.world_from_body.euler_angles();
-        worst_tilt = worst_tilt.max(roll.abs()).max(pitch.abs());
-    }
+    let (m, goal, worst_tilt, recorded) = fly_step(
+        &mut stack,
+        twin_config,
+        &[0, 61, 64, 90, 150, 300, 470],
+        |k, record| {
+            let status = record
+                .mpc
+                .unwrap_or_else(|| panic!("tick {k}: no MPC status"));
+            assert_eq!(status.mode, MpcMode::Mpc, "tick {k}: {status:?}");
+        },
+    );
     let error = (m.world_from_ee.translation.vector - goal.translation.vector).norm();
     assert!(error < SETTLED_EE_ERROR_M, "final EE error {error} m");
     // The MPC bounds its *predicted* roll and pitch to 0.01 rad; the flown base tilts more
@@ -128,33 +222,14 @@ fn with_thrust_limits_a_wrench_the_rotors_cannot_deliver_hands_over_to_ik_pid() 
         dt,
     )
     .unwrap_or_else(|e| panic!("{e}"));
-    let twin = Twin::new(vehicle, twin_config).unwrap_or_else(|e| panic!("{e}"));
-    let mut link = TwinLink::new(twin);
-    let mut m = link.receive().unwrap_or_else(|e| panic!("{e}"));
-    stack.reset_at(&m.base, &m.joint_positions);
-    let start = m.world_from_ee;
-    let goal = Translation3::new(STEP_M, 0.0, 0.0) * start;
-    let mut worst_tilt: f64 = 0.0;
     let (mut mpc_ticks, mut takeovers) = (0, 0);
-    for k in 0..(5.0 / dt).round() as usize {
-        let target = if k as f64 * dt < 0.5 { start } else { goal };
-        let record = stack.act(
-            &m,
-            &Action::Ee(EeTarget {
-                world_from_ee_command: target,
-                gripper: -1.0,
-            }),
-        );
+    let (m, goal, worst_tilt, _) = fly_step(&mut stack, twin_config, &[], |k, record| {
         let status = record
             .mpc
             .unwrap_or_else(|| panic!("tick {k}: no MPC status"));
         mpc_ticks += usize::from(status.mode == MpcMode::Mpc);
         takeovers += usize::from(status.event == Some(FallbackEvent::IkPidTookOver));
-        link.send(&record.command).unwrap_or_else(|e| panic!("{e}"));
-        m = link.receive().unwrap_or_else(|e| panic!("{e}"));
-        let (roll, pitch, _) = m.base.world_from_body.euler_angles();
-        worst_tilt = worst_tilt.max(roll.abs()).max(pitch.abs());
-    }
+    });
     let error = (m.world_from_ee.translation.vector - goal.translation.vector).norm();
     // Without the fallback this flight flips the vehicle (the MPC's tilt bounds ask for
     // torques beyond the rotors while the arm swings); with it the step completes.
@@ -179,42 +254,4 @@ fn mpc_is_refused_for_other_vehicles() {
         );
         assert!(stack.is_err(), "{id}");
     }
-}
-
-#[test]
-fn an_mpc_flight_logs_the_mpc_status_every_tick() {
-    use crate::record::Recording;
-    use crate::track::{Interface, TrackConfig, run_track};
-    use crate::trajectory::Trajectory;
-    let vehicle = fa_hexa();
-    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-    let path = dir.path().join("mpc.mcap");
-    let config = TrackConfig {
-        controller: profile(&vehicle, ControllerKind::Mpc).unwrap_or_else(|e| panic!("{e}")),
-        vehicle,
-        trajectory: Trajectory::Hover,
-        interface: Interface::Ee,
-        duration_s: 0.5,
-        settle_s: 0.0,
-        twin: TwinConfig::default(),
-        mcap: Some(path.clone()),
-        state_source: crate::StateSource::Truth,
-    };
-    let result = run_track(&config, |_| std::ops::ControlFlow::Continue(()))
-        .unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(result.controller, "mpc");
-    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{e}"));
-    let recording = Recording::from_bytes(&bytes).unwrap_or_else(|e| panic!("{e}"));
-    let counts = recording.message_counts();
-    assert_eq!(counts.get("/mpc/status"), Some(&result.ticks));
-    let first = recording
-        .messages
-        .iter()
-        .find(|m| m.topic == "/mpc/status")
-        .unwrap_or_else(|| panic!("no /mpc/status"));
-    let v: serde_json::Value =
-        serde_json::from_slice(&first.data).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(v["mode"], "mpc");
-    assert_eq!(v["qp_status"], "solved");
-    assert!(v["solve_time_ms"].as_f64().is_some_and(|t| t > 0.0));
 }

@@ -17,11 +17,13 @@ use mavlink::dialects::common::{
     COMMAND_ACK_DATA, HEARTBEAT_DATA, MavCmd, MavMessage, MavModeFlag, MavResult,
 };
 use mavlink::{MavHeader, MavlinkReader, MavlinkVersion};
+use nalgebra::{UnitQuaternion, Vector3};
 use platform::{ActuatorCommand, Measurement, Vehicle};
-use sim_twin::autopilot::telemetry;
 use sim_twin::{Twin, TwinConfig};
+use twin_autopilot::telemetry;
 
-use super::*;
+use crate::link::{Setpoint, SetpointLevel};
+use crate::mavlink_link::{Level, MavlinkLink, MavlinkLinkConfig};
 use crate::track::{Interface, TrackConfig, run_track, run_track_with_link};
 use crate::trajectory::Trajectory;
 
@@ -217,6 +219,7 @@ fn track_config(vehicle: &Vehicle, trajectory: Trajectory, duration_s: f64) -> T
         },
         mcap: None,
         state_source: crate::StateSource::Truth,
+        clock: None,
     }
 }
 
@@ -463,45 +466,59 @@ fn an_autopilot_that_disarms_mid_flight_stops_it_naming_why() {
 }
 
 #[test]
-fn attitude_setpoint_recovers_the_controllers_desired_attitude() {
-    // R = R_d · exp(θ ê) with θ = 0.3 rad about body x: e_R = sin θ · x̂, so R_d comes back.
+fn the_attitude_level_sends_the_controllers_own_cascade() {
+    // The PID6 steers to the target's attitude: the attitude setpoint is that R_d itself (no
+    // re-derivation from the attitude error), with the body force the allocation produces.
     let r_d = UnitQuaternion::from_euler_angles(0.1, -0.2, 0.7);
     let r = r_d * UnitQuaternion::from_scaled_axis(Vector3::x() * 0.3);
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let mut stack = crate::stack::FlightStack::new(
+        vehicle.clone(),
+        &profile(&vehicle, ControllerKind::Pid).unwrap(),
+        allocation::AllocationMethod::PseudoInverse,
+        crate::stack::ThrustLimits::Enforced,
+        0.004,
+    )
+    .unwrap();
     let m = Measurement {
         base: platform::RigidBodyState {
             world_from_body: r,
             angular_velocity_in_body_radps: Vector3::new(0.5, 0.0, 0.0),
             ..platform::RigidBodyState::default()
         },
+        joint_positions: vehicle.initial_configuration(),
+        joint_velocities: vec![0.0; vehicle.model.dof()],
         ..Measurement::default()
     };
-    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
-    let mut stack = crate::stack::FlightStack::new(
-        vehicle.clone(),
-        &profile(&vehicle, ControllerKind::Pid).unwrap(),
-        allocation::AllocationMethod::PseudoInverse,
-        crate::stack::ThrustLimits::Ideal,
-        0.004,
-    )
-    .unwrap();
     let mut record = stack.act(
-        &Measurement {
-            joint_positions: vehicle.initial_configuration(),
-            joint_velocities: vec![0.0; vehicle.model.dof()],
-            ..m.clone()
-        },
+        &m,
         &crate::stack::Action::BaseJoint(crate::stack::BaseJointTarget {
-            world_from_base: nalgebra::Isometry3::identity(),
+            world_from_base: nalgebra::Isometry3::from_parts(Default::default(), r_d),
             arm_joints: vec![0.0; vehicle.arm_dof()],
             gripper: 0.0,
         }),
     );
-    record.controller.attitude_error = Vector3::x() * 0.3f64.sin();
-    record.controller.angular_velocity_error_radps = Vector3::new(0.2, 0.0, 0.0);
-    record.wrench.force = Vector3::new(1.0, 2.0, 30.0);
-    record.unallocated.force = Vector3::new(0.0, 0.0, 5.0);
-    let sp = attitude_setpoint(&m, &record);
-    assert!(sp.world_from_body.angle_to(&r_d) < 1e-12);
-    assert_eq!(sp.force_in_body_n, Vector3::new(1.0, 2.0, 25.0));
-    assert_eq!(sp.body_rates_radps, Some(Vector3::new(0.3, 0.0, 0.0)));
+    let target = record.controller.attitude_target.unwrap();
+    assert!(target.world_from_body.angle_to(&r_d) < 1e-9);
+    let Setpoint::Attitude { attitude, command } =
+        record.setpoint(SetpointLevel::Attitude).unwrap()
+    else {
+        panic!("an attitude setpoint");
+    };
+    assert_eq!(command, record.command);
+    assert_eq!(attitude.world_from_body, target.world_from_body);
+    assert_eq!(attitude.body_rates_radps, Some(target.body_rates_radps));
+    assert_eq!(
+        attitude.force_in_body_n,
+        record.wrench.force - record.unallocated.force
+    );
+    // A tick with no attitude loop behind it (the whole-body MPC's) is refused by name.
+    record.attitude = None;
+    record.controller.controller = "mpc";
+    let e = record.setpoint(SetpointLevel::Attitude).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("mpc controller has no attitude loop"),
+        "{e}"
+    );
 }

@@ -187,6 +187,24 @@ impl Transport {
         }
     }
 
+    /// Sends to every peer the bytes `pick` chooses for it (its address; None for serial), e.g.
+    /// MAVLink 1 frames to a MAVLink 1 peer; returns how many sends failed.
+    pub fn send_each<'a>(&mut self, pick: impl Fn(Option<SocketAddr>) -> &'a [u8]) -> u64 {
+        match self {
+            Self::Udp { socket, peers } => peers
+                .iter()
+                .filter(|(addr, _)| {
+                    let bytes = pick(Some(*addr));
+                    !bytes.is_empty() && socket.send_to(bytes, addr).is_err()
+                })
+                .count() as u64,
+            Self::Serial(port) => {
+                let bytes = pick(None);
+                u64::from(!bytes.is_empty() && port.write_all(bytes).is_err())
+            }
+        }
+    }
+
     /// Sends `bytes` to every peer; returns how many sends failed.
     pub fn send(&mut self, bytes: &[u8]) -> u64 {
         if bytes.is_empty() {

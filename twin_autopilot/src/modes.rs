@@ -16,8 +16,14 @@ pub enum FlightMode {
     Offboard,
     /// Hold position with the internal controller (also the offboard-loss failsafe).
     AutoLoiter,
-    /// Descend at 0.5 m/s with the internal controller, disarm on the ground.
+    /// Descend at MPC_LAND_SPEED with the internal controller, disarm on the ground.
     AutoLand,
+    /// Climb at MPC_TKO_SPEED to the takeoff altitude, then AUTO.LOITER.
+    AutoTakeoff,
+    /// Fly the uploaded mission.
+    AutoMission,
+    /// Climb to RTL_RETURN_ALT, return above home, land, disarm.
+    AutoRtl,
 }
 
 impl FlightMode {
@@ -34,6 +40,9 @@ impl FlightMode {
             Self::Offboard => (px4_mode::OFFBOARD, 0),
             Self::AutoLoiter => (px4_mode::AUTO, px4_mode::AUTO_LOITER),
             Self::AutoLand => (px4_mode::AUTO, px4_mode::AUTO_LAND),
+            Self::AutoTakeoff => (px4_mode::AUTO, px4_mode::AUTO_TAKEOFF),
+            Self::AutoMission => (px4_mode::AUTO, px4_mode::AUTO_MISSION),
+            Self::AutoRtl => (px4_mode::AUTO, px4_mode::AUTO_RTL),
         }
     }
 
@@ -45,6 +54,9 @@ impl FlightMode {
             (px4_mode::OFFBOARD, _) => Ok(Self::Offboard),
             (px4_mode::AUTO, px4_mode::AUTO_LOITER) => Ok(Self::AutoLoiter),
             (px4_mode::AUTO, px4_mode::AUTO_LAND) => Ok(Self::AutoLand),
+            (px4_mode::AUTO, px4_mode::AUTO_TAKEOFF) => Ok(Self::AutoTakeoff),
+            (px4_mode::AUTO, px4_mode::AUTO_MISSION) => Ok(Self::AutoMission),
+            (px4_mode::AUTO, px4_mode::AUTO_RTL) => Ok(Self::AutoRtl),
             (px4_mode::MANUAL | px4_mode::ALTCTL | px4_mode::ACRO | px4_mode::STABILIZED, _) => {
                 Err(format!("mode {main} needs RC sticks (the twin has none)"))
             }
@@ -66,6 +78,9 @@ impl fmt::Display for FlightMode {
             Self::Offboard => "OFFBOARD",
             Self::AutoLoiter => "AUTO.LOITER",
             Self::AutoLand => "AUTO.LAND",
+            Self::AutoTakeoff => "AUTO.TAKEOFF",
+            Self::AutoMission => "AUTO.MISSION",
+            Self::AutoRtl => "AUTO.RTL",
         })
     }
 }
@@ -79,6 +94,33 @@ pub struct VehicleFacts {
     pub speed_mps: f64,
     /// Whether the vehicle is in the air (above its resting height while the twin runs).
     pub in_air: bool,
+    /// Whether an uploaded mission exists (AUTO.MISSION needs one).
+    pub has_mission: bool,
+}
+
+/// What the offboard-loss failsafe does: PX4's COM_OBL_RC_ACT values the twin flies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LossAction {
+    /// 0: POSCTL (sticks centred: hold), until a commanded mode.
+    Position,
+    /// 3: AUTO.RTL.
+    Return,
+    /// 4: AUTO.LAND.
+    Land,
+    /// 5: AUTO.LOITER for the failsafe's hold time, then AUTO.LAND (the twin's default).
+    HoldThenLand,
+}
+
+impl LossAction {
+    /// From COM_OBL_RC_ACT (values the twin does not fly: hold then land).
+    pub fn from_param(value: f64) -> Self {
+        match value.round() as i64 {
+            0 => Self::Position,
+            3 => Self::Return,
+            4 => Self::Land,
+            _ => Self::HoldThenLand,
+        }
+    }
 }
 
 /// A command the commander refused, with PX4-like wording.
@@ -124,6 +166,8 @@ pub enum Failsafe {
     },
     /// Landing.
     Landing,
+    /// Another action of COM_OBL_RC_ACT (position hold, return), until a commanded mode.
+    Acting,
 }
 
 /// What changed, for the log (each with the twin time when it is applied).
@@ -249,6 +293,16 @@ impl Commander {
         if mode == FlightMode::Offboard && !facts.setpoints_streaming {
             return Err(Refusal::temporary("Offboard denied: no setpoint stream"));
         }
+        if mode == FlightMode::AutoMission && !facts.has_mission {
+            return Err(Refusal::temporary("Mission denied: no mission uploaded"));
+        }
+        if matches!(
+            mode,
+            FlightMode::AutoTakeoff | FlightMode::AutoRtl | FlightMode::AutoLand
+        ) && !self.armed
+        {
+            return Err(Refusal::denied(format!("{mode} denied: not armed")));
+        }
         // A commanded mode ends the failsafe (the operator takes over, as in PX4).
         self.failsafe = Failsafe::None;
         if mode == self.mode {
@@ -261,25 +315,56 @@ impl Commander {
         }))
     }
 
-    /// Advances the failsafe at twin time `now_s`: offboard without setpoints → AUTO.LOITER,
-    /// after the hold → AUTO.LAND; `landed` (on the ground, at rest) in AUTO.LAND → disarm.
+    /// A mode change the autopilot makes itself (takeoff done → AUTO.LOITER, a mission's
+    /// RTL item), armed or not; no requirement checked.
+    pub fn switch(&mut self, mode: FlightMode, why: &'static str) -> Option<Transition> {
+        if mode == self.mode {
+            return None;
+        }
+        self.mode = mode;
+        Some(Transition::Mode { mode, why })
+    }
+
+    /// Advances the failsafe at twin time `now_s`: offboard without setpoints → `action`
+    /// (hold then land: AUTO.LOITER, after the hold AUTO.LAND); `landed` (on the ground, at
+    /// rest) while landing (AUTO.LAND, AUTO.RTL, a mission's land) → disarm.
     pub fn update(
         &mut self,
         now_s: f64,
         setpoints_streaming: bool,
         landed: bool,
+        action: LossAction,
     ) -> Option<Transition> {
         if !self.armed {
             return None;
         }
         match (self.mode, self.failsafe) {
             (FlightMode::Offboard, _) if !setpoints_streaming => {
-                self.mode = FlightMode::AutoLoiter;
-                self.failsafe = Failsafe::Holding { since_s: now_s };
-                Some(Transition::Mode {
-                    mode: FlightMode::AutoLoiter,
-                    why: "failsafe: offboard setpoints lost, holding",
-                })
+                let (mode, failsafe, why) = match action {
+                    LossAction::HoldThenLand => (
+                        FlightMode::AutoLoiter,
+                        Failsafe::Holding { since_s: now_s },
+                        "failsafe: offboard setpoints lost, holding",
+                    ),
+                    LossAction::Land => (
+                        FlightMode::AutoLand,
+                        Failsafe::Landing,
+                        "failsafe: offboard setpoints lost, landing",
+                    ),
+                    LossAction::Return => (
+                        FlightMode::AutoRtl,
+                        Failsafe::Acting,
+                        "failsafe: offboard setpoints lost, returning",
+                    ),
+                    LossAction::Position => (
+                        FlightMode::Posctl,
+                        Failsafe::Acting,
+                        "failsafe: offboard setpoints lost, position hold",
+                    ),
+                };
+                self.mode = mode;
+                self.failsafe = failsafe;
+                Some(Transition::Mode { mode, why })
             }
             (FlightMode::AutoLoiter, Failsafe::Holding { since_s })
                 if now_s - since_s >= self.hold_s =>
@@ -291,7 +376,9 @@ impl Commander {
                     why: "failsafe: hold over, landing",
                 })
             }
-            (FlightMode::AutoLand, _) if landed => Some(self.do_disarm("landed")),
+            (FlightMode::AutoLand | FlightMode::AutoRtl | FlightMode::AutoMission, _) if landed => {
+                Some(self.do_disarm("landed"))
+            }
             _ => None,
         }
     }
@@ -307,7 +394,50 @@ mod tests {
             setpoints_streaming: streaming,
             speed_mps: 0.0,
             in_air: false,
+            has_mission: false,
         }
+    }
+
+    impl Commander {
+        fn update_hold(&mut self, now_s: f64, streaming: bool, landed: bool) -> Option<Transition> {
+            self.update(now_s, streaming, landed, LossAction::HoldThenLand)
+        }
+    }
+
+    #[test]
+    fn the_loss_action_follows_com_obl_rc_act_and_auto_modes_have_requirements() {
+        let mut c = Commander::new(5.0);
+        assert!(
+            c.set_mode(FlightMode::AutoMission, &facts(false))
+                .unwrap_err()
+                .temporary
+        );
+        assert!(c.set_mode(FlightMode::AutoTakeoff, &facts(false)).is_err());
+        c.set_mode(FlightMode::Offboard, &facts(true)).unwrap();
+        c.arm(&facts(true)).unwrap();
+        let t = c.update(1.0, false, false, LossAction::Land).unwrap();
+        assert!(matches!(
+            t,
+            Transition::Mode {
+                mode: FlightMode::AutoLand,
+                ..
+            }
+        ));
+        c.set_mode(FlightMode::Offboard, &facts(true)).unwrap();
+        let t = c.update(2.0, false, false, LossAction::Return).unwrap();
+        assert!(matches!(
+            t,
+            Transition::Mode {
+                mode: FlightMode::AutoRtl,
+                ..
+            }
+        ));
+        assert_eq!(
+            c.update(3.0, false, true, LossAction::Return),
+            Some(Transition::Disarmed("landed"))
+        );
+        assert_eq!(LossAction::from_param(0.0), LossAction::Position);
+        assert_eq!(LossAction::from_param(5.0), LossAction::HoldThenLand);
     }
 
     #[test]
@@ -323,12 +453,15 @@ mod tests {
             FlightMode::Offboard,
             FlightMode::AutoLoiter,
             FlightMode::AutoLand,
+            FlightMode::AutoTakeoff,
+            FlightMode::AutoMission,
+            FlightMode::AutoRtl,
         ] {
             let (main, sub) = m.main_and_sub();
             assert_eq!(FlightMode::from_main_and_sub(main, sub).unwrap(), m);
         }
         assert!(FlightMode::from_main_and_sub(px4_mode::MANUAL, 0).is_err());
-        assert!(FlightMode::from_main_and_sub(px4_mode::AUTO, 4).is_err());
+        assert!(FlightMode::from_main_and_sub(px4_mode::AUTO, 7).is_err());
         assert!(FlightMode::from_main_and_sub(42, 0).is_err());
     }
 
@@ -381,8 +514,8 @@ mod tests {
         let mut c = Commander::new(5.0);
         c.set_mode(FlightMode::Offboard, &facts(true)).unwrap();
         c.arm(&facts(true)).unwrap();
-        assert_eq!(c.update(1.0, true, false), None);
-        let t = c.update(2.0, false, false).unwrap();
+        assert_eq!(c.update_hold(1.0, true, false), None);
+        let t = c.update_hold(2.0, false, false).unwrap();
         assert!(matches!(
             t,
             Transition::Mode {
@@ -392,8 +525,8 @@ mod tests {
         ));
         assert_eq!(c.failsafe(), Failsafe::Holding { since_s: 2.0 });
         // Setpoints coming back do not end the failsafe by themselves (PX4 needs a mode switch).
-        assert_eq!(c.update(6.99, true, false), None);
-        let t = c.update(7.0, false, false).unwrap();
+        assert_eq!(c.update_hold(6.99, true, false), None);
+        let t = c.update_hold(7.0, false, false).unwrap();
         assert!(matches!(
             t,
             Transition::Mode {
@@ -401,9 +534,9 @@ mod tests {
                 ..
             }
         ));
-        assert_eq!(c.update(8.0, false, false), None);
+        assert_eq!(c.update_hold(8.0, false, false), None);
         assert_eq!(
-            c.update(9.0, false, true),
+            c.update_hold(9.0, false, true),
             Some(Transition::Disarmed("landed"))
         );
         assert!(!c.armed());
