@@ -12,6 +12,7 @@ mod output;
 mod platforms;
 mod plot;
 mod px4_hil;
+mod render_frame;
 mod replay;
 mod track;
 mod twin_flags;
@@ -62,6 +63,9 @@ enum Command {
     /// Re-fly a logged flight (MCAP) in the twin from its logged initial state: its actions
     /// through the whole flight stack, or its actuator commands open loop.
     Replay(Box<replay::Args>),
+    /// One camera frame to a PNG: a vehicle's EE or base camera, or the scene camera, in a
+    /// task scene at reset (seeded), with or without visual randomisation.
+    Render(Box<render_frame::Args>),
     /// Compare two flight logs signal by signal: RMSE, max error and bias over the whole
     /// overlap and over intervals; table, JSON, PNG plot.
     Compare(Box<compare::Args>),
@@ -103,6 +107,7 @@ fn main() -> ExitCode {
         Command::Replay(args) => replay::run(&args),
         Command::Compare(args) => compare::run(&args),
         Command::Px4Airframe(args) => px4_hil::run_airframe(&args),
+        Command::Render(args) => render_frame::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -38,6 +38,12 @@ pub fn write_json(path: &Path, value: &serde_json::Value) -> anyhow::Result<()> 
         .map_err(|e| bad_input(format!("cannot write {}: {e}", path.display())))
 }
 
+/// Writes `bytes` to `path` atomically, as [`write_json`] does.
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    write_atomically(path, bytes)
+        .map_err(|e| bad_input(format!("cannot write {}: {e}", path.display())))
+}
+
 fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,

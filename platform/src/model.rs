@@ -119,6 +119,9 @@ pub struct Geometry {
     pub link_from_shape: Isometry3<f64>,
     /// The shape.
     pub shape: Shape,
+    /// Colour, linear RGBA in [0, 1], of a visual with a URDF `<material>` (its inline
+    /// `<color>`, or the robot-level material it names); None otherwise and for collisions.
+    pub rgba: Option<[f64; 4]>,
 }
 
 /// A link of the tree.
@@ -238,7 +241,42 @@ impl Checker<'_> {
         Ok(Geometry {
             link_from_shape: self.pose(field, origin)?,
             shape,
+            rgba: None,
         })
+    }
+
+    /// The colour of a visual's `<material>`: its own `<color>`, else the colour of the
+    /// robot-level material of that name; None without either.
+    fn material_rgba(
+        &self,
+        field: &str,
+        material: Option<&urdf_rs::Material>,
+        robot_materials: &[urdf_rs::Material],
+    ) -> Result<Option<[f64; 4]>, DescriptionError> {
+        let Some(m) = material else {
+            return Ok(None);
+        };
+        let color = m.color.as_ref().or_else(|| {
+            robot_materials
+                .iter()
+                .find(|r| r.name == m.name)
+                .and_then(|r| r.color.as_ref())
+        });
+        let Some(c) = color else {
+            return Ok(None);
+        };
+        let rgba = c.rgba.0;
+        if rgba
+            .iter()
+            .all(|v| v.is_finite() && (0.0..=1.0).contains(v))
+        {
+            Ok(Some(rgba))
+        } else {
+            Err(self.invalid(
+                format!("{field} material '{}'", m.name),
+                format!("rgba {rgba:?} must lie in [0, 1]"),
+            ))
+        }
     }
 
     /// urdf-rs reads a missing `<inertial>` as zero mass and zero inertia: such a link is a
@@ -316,7 +354,10 @@ impl KinematicModel {
                 .visual
                 .iter()
                 .map(|v| {
-                    check.geometry(&format!("link '{}' visual", l.name), &v.origin, &v.geometry)
+                    let field = format!("link '{}' visual", l.name);
+                    let mut g = check.geometry(&field, &v.origin, &v.geometry)?;
+                    g.rgba = check.material_rgba(&field, v.material.as_ref(), &robot.materials)?;
+                    Ok::<Geometry, DescriptionError>(g)
                 })
                 .collect::<Result<Vec<_>, _>>()?;
             let collisions = l

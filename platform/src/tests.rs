@@ -810,3 +810,52 @@ mod thrust_curve {
         assert!((linear.command(11.5) - 0.5).abs() < 1e-12);
     }
 }
+
+#[test]
+fn urdf_visual_colours_come_from_inline_or_named_materials() {
+    let urdf = r#"<robot name="painted">
+  <material name="red"><color rgba="1 0 0 1"/></material>
+  <link name="a">
+    <visual><geometry><box size="1 1 1"/></geometry><material name="red"/></visual>
+    <visual><geometry><sphere radius="0.1"/></geometry><material name="x"><color rgba="0 0.5 1 1"/></material></visual>
+    <visual><geometry><sphere radius="0.1"/></geometry></visual>
+  </link>
+</robot>"#;
+    let m = KinematicModel::from_urdf("painted.urdf", urdf).unwrap_or_else(|e| panic!("{e}"));
+    let colours: Vec<_> = m.links[0].visuals.iter().map(|v| v.rgba).collect();
+    assert_eq!(
+        colours,
+        [Some([1.0, 0.0, 0.0, 1.0]), Some([0.0, 0.5, 1.0, 1.0]), None]
+    );
+    let bad = urdf.replace("1 0 0 1", "2 0 0 1");
+    let err = KinematicModel::from_urdf("painted.urdf", &bad)
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    assert!(
+        err.contains("material 'red'") && err.contains("[0, 1]"),
+        "{err}"
+    );
+}
+
+#[test]
+fn vehicle_file_colours_are_checked_and_indexed_by_link() {
+    let (toml, urdf) = fa_files();
+    let painted = format!("{toml}\n[colors]\nbase_link = [0.1, 0.2, 0.3]\n");
+    let v = load(&painted, urdf).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(v.link_colors.len(), v.model.links.len());
+    assert_eq!(v.link_colors[v.base_link], Some([0.1, 0.2, 0.3]));
+    assert_eq!(v.link_colors.iter().flatten().count(), 1);
+    let unpainted = load(toml, urdf).unwrap_or_else(|e| panic!("{e}"));
+    assert!(unpainted.link_colors.iter().all(Option::is_none));
+    let e = refusal(
+        &format!("{toml}\n[colors]\nbase_link = [0.1, 2.0, 0.3]\n"),
+        urdf,
+    );
+    assert_eq!(
+        e.to_string(),
+        "my.toml: colors.base_link: [0.1, 2.0, 0.3] must lie in [0, 1]"
+    );
+    let e = refusal(&format!("{toml}\n[colors]\nwing = [0.1, 0.2, 0.3]\n"), urdf);
+    assert!(e.to_string().contains("colors.wing"), "{e}");
+}

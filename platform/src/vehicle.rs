@@ -54,6 +54,9 @@ pub struct Vehicle {
     pub cameras: Vec<CameraMount>,
     /// Normaliser of the tracking metrics, m.
     pub max_arm_reach_m: Option<f64>,
+    /// Colour of each link's visual shapes from the vehicle file's `[colors]`, linear RGB,
+    /// indexed by link id (None where the file names none).
+    pub link_colors: Vec<Option<[f64; 3]>>,
     /// The controller and IK presets that fly it (`[control]`).
     pub control: ControlPresets,
     /// PX4 HIL channel map (None: the vehicle file has no `[px4_hil]`).
@@ -321,6 +324,7 @@ impl Assembler<'_> {
         let rotors = self.rotors(f)?;
         let drives = self.drives(f)?;
         let cameras = self.cameras(f)?;
+        let link_colors = self.colors(f)?;
         let Some(c) = &f.control else {
             return Err(self.invalid(
                 "control",
@@ -372,6 +376,7 @@ impl Assembler<'_> {
             drives,
             cameras,
             max_arm_reach_m: f.max_arm_reach_m,
+            link_colors,
             control,
             px4_hil,
         })
@@ -689,6 +694,20 @@ impl Assembler<'_> {
             }
         }
         Ok(drives)
+    }
+
+    fn colors(&self, f: &VehicleFile) -> Result<Vec<Option<[f64; 3]>>, DescriptionError> {
+        let mut colors = vec![None; self.model.links.len()];
+        for (name, rgb) in &f.colors {
+            let field = format!("colors.{name}");
+            let link = self.link(&field, name)?;
+            let rgb: [f64; 3] = self.array(&field, rgb)?;
+            if !rgb.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v)) {
+                return Err(self.invalid(field, format!("{rgb:?} must lie in [0, 1]")));
+            }
+            colors[link] = Some(rgb);
+        }
+        Ok(colors)
     }
 
     fn cameras(&self, f: &VehicleFile) -> Result<Vec<CameraMount>, DescriptionError> {

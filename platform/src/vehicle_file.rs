@@ -53,6 +53,11 @@ pub struct VehicleFile {
     /// Cameras.
     #[serde(default)]
     pub camera: Vec<CameraFile>,
+    /// `[colors]`: the renderer's colour of a link's visual shapes, linear RGB in [0, 1], by
+    /// link name (`base_link = [0.2, 0.2, 0.25]`). A URDF `<material>` colour wins; links
+    /// named nowhere get the renderer's default by role.
+    #[serde(default)]
+    pub colors: std::collections::BTreeMap<String, Vec<f64>>,
     /// The controller and IK presets (required: read as `Option` so that its absence is
     /// refused with one line naming the section, not a parser's message).
     #[serde(default)]

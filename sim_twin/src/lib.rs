@@ -15,6 +15,9 @@
 //! - [`ipc`]: the twin in its own process, served over iceoryx2 shared memory
 //!   (`amstack twin serve`), lockstep or realtime, with a handshake, loss detection and a
 //!   failsafe.
+//! - [`visuals`]: the scene as a renderer sees it (shapes, poses, roles of every scene
+//!   collider), read-only; the renderer itself is the `render` crate, so the physics core and
+//!   its tests do not link wgpu.
 //!
 //! The twin as a PX4-style autopilot over MAVLink 2 (`amstack twin serve --mavlink`) is the
 //! `twin_autopilot` crate: this one builds without the MAVLink crates.
@@ -31,6 +34,7 @@ pub mod sensors;
 pub mod tasks;
 mod twin;
 mod vehicle_body;
+pub mod visuals;
 
 #[cfg(test)]
 mod tests;
@@ -40,3 +44,4 @@ pub use error::TwinError;
 pub use tasks::{GraspMode, TaskId, TaskObservation, TaskSnapshot, TaskStatus};
 pub use twin::Twin;
 pub use vehicle_body::{ROBOT_GROUP, WORLD_GROUP};
+pub use visuals::{SceneVisual, VisualRole, VisualShape};

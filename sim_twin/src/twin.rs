@@ -258,6 +258,11 @@ impl Twin {
         &self.truth
     }
 
+    /// The physics world, read-only (the renderer's view of the scene, [`crate::visuals`]).
+    pub(crate) fn world(&self) -> &PhysicsWorld {
+        &self.world
+    }
+
     /// The physics world, for scenes that add bodies (they belong to [`WORLD_GROUP`]).
     pub fn world_mut(&mut self) -> &mut PhysicsWorld {
         &mut self.world
