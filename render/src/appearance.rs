@@ -14,9 +14,9 @@
 //! Shading is Lambert: `rgb = albedo · (ambient + intensity · max(n·l, 0))`, clamped, written
 //! as 8-bit linear values (no sRGB curve: the numbers are the image).
 //!
-//! **Visual domain randomisation** (`VisualDr::On`), per episode from the seed's ChaCha stream
-//! [`VISUAL_DR_RNG_STREAM`] (the twin draws from streams 0 and 1, the benchmark's policy and
-//! action noise from 2 and 3, the simulated sensors from 4), in this order:
+//! **Visual domain randomisation** (`VisualDr::On`), per episode from the seed's
+//! [`platform::RandomStream::VisualDomain`] stream (the one registry of a run's streams), in
+//! this order:
 //! 1. light azimuth U(0°, 360°), elevation U(25°, 85°), intensity U(0.45, 1.05), ambient
 //!    U(0.15, 0.50);
 //! 2. for every scene object in scene order (floor and walls included; the vehicle is not
@@ -31,12 +31,9 @@
 //! colours.
 
 use nalgebra::Vector3;
-use rand::{Rng, SeedableRng};
+use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use sim_twin::VisualRole;
-
-/// The ChaCha stream of the run seed the visual randomisation draws from.
-pub const VISUAL_DR_RNG_STREAM: u64 = 5;
 
 /// Visual domain randomisation on or off.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -237,8 +234,7 @@ impl Appearance {
                 materials: nominal,
             },
             VisualDr::On => {
-                let mut rng = ChaCha8Rng::seed_from_u64(seed);
-                rng.set_stream(VISUAL_DR_RNG_STREAM);
+                let mut rng = platform::RandomStream::VisualDomain.rng(seed);
                 let az = rng.random_range(0.0..360.0);
                 let el = rng.random_range(25.0..85.0);
                 let intensity: f32 = rng.random_range(0.45..1.05);

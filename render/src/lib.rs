@@ -13,7 +13,7 @@
 //! `fx = fy = width · focal / aperture`; see [`camera`].
 //!
 //! Visual domain randomisation ([`VisualDr`]) draws the scene's colours, procedural textures
-//! and the light per episode from ChaCha stream [`VISUAL_DR_RNG_STREAM`] of the rollout seed;
+//! and the light per episode from [`platform::RandomStream::VisualDomain`] stream of the rollout seed;
 //! [`appearance`] lists the nominal look and every range. The same state and seed give the same
 //! pixels on the same adapter.
 //!
@@ -43,7 +43,7 @@ pub mod mesh;
 mod renderer;
 mod snapshot;
 
-pub use appearance::{Lighting, Material, Pattern, VISUAL_DR_RNG_STREAM, VisualDr};
+pub use appearance::{Lighting, Material, Pattern, VisualDr};
 pub use camera::{CameraParent, CameraSpec, Intrinsics};
 pub use error::RenderError;
 pub use image::Image;
