@@ -59,13 +59,15 @@ Example (lockstep SITL, the results equal the in-process run's):
   amstack twin serve --ipc sitl --platform fa-hexa --seed 3 &
   amstack fly --link ipc:sitl --platform fa-hexa --seed 3 --trajectory step --json r.json
 
-Example (the twin's autopilot over MAVLink, lockstep):
-  amstack twin serve --mavlink udp:127.0.0.1:14540 --lockstep --platform fa-hexa &
+Example (the twin's autopilot over MAVLink, lockstep; the actuator level is the twin's SITL
+extension, which current PX4 does not accept):
+  amstack twin serve --mavlink udp:127.0.0.1:14540 --lockstep --platform fa-hexa \\
+      --allow-actuator-setpoints &
   amstack fly --link mavlink:udp:127.0.0.1:14540 --platform fa-hexa --level actuator --timing
 
 Example (a task over MAVLink; the same rollout as in process within f32 rounding):
   amstack twin serve --mavlink udp:127.0.0.1:14540 --lockstep --task push-slider --seed 3 \\
-      --disturbances saturation &
+      --disturbances saturation --allow-actuator-setpoints &
   amstack fly --link mavlink:udp:127.0.0.1:14540 --task push-slider --trajectory scripted \\
       --seed 3 --disturbances saturation --json task.json")]
 pub struct FlyArgs {
