@@ -18,9 +18,10 @@ use firmware_bridge::RawFrame;
 use platform::{Measurement, Vehicle};
 use policy_runtime::flight_log::{
     BaseState, Disturbances, Joints, MAVLINK_RAW_TOPIC, MavlinkRawFrame, Rotors, TaskState,
-    rotors_saturated,
+    frame_transforms,
 };
-use policy_runtime::record::foxglove::{FrameTransform, FrameTransforms, PoseInFrame};
+use policy_runtime::metrics::CriteriaLatch;
+use policy_runtime::record::foxglove::{FrameTransforms, PoseInFrame};
 use policy_runtime::record::{Channel, McapRecorder, RunMetadata};
 use sim_twin::ipc::Mode;
 use sim_twin::{Twin, TwinConfig};
@@ -98,10 +99,6 @@ fn nanos(time_s: f64) -> u64 {
     ns
 }
 
-fn v3(v: &nalgebra::Vector3<f64>) -> [f64; 3] {
-    [v.x, v.y, v.z]
-}
-
 struct Channels {
     tf: Channel<FrameTransforms>,
     base_pose: Channel<PoseInFrame>,
@@ -119,11 +116,13 @@ struct SessionLog {
     path: Option<PathBuf>,
     vehicle_id: String,
     joint_names: Vec<String>,
-    limits: (f64, f64),
+    /// The rotor limits `/rotors.saturated` is judged against (None: the twin's rotors are
+    /// ideal).
+    limits: Option<(f64, f64)>,
     config_json: String,
     seed: u64,
     open: Option<(McapRecorder, Channels, Instant)>,
-    reached: Vec<bool>,
+    latch: CriteriaLatch,
     error: Option<String>,
 }
 
@@ -135,11 +134,14 @@ impl SessionLog {
             joint_names: (0..vehicle.model.dof())
                 .map(|d| vehicle.model.dof_joint(d).name.clone())
                 .collect(),
-            limits: (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n),
+            limits: twin
+                .disturbances
+                .saturation
+                .then_some((vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n)),
             config_json: serde_json::to_string(twin).unwrap_or_else(|_| "{}".to_owned()),
             seed: twin.seed,
             open: None,
-            reached: Vec::new(),
+            latch: CriteriaLatch::new(0),
             error: None,
         }
     }
@@ -171,9 +173,7 @@ impl SessionLog {
                 None => None,
             },
         };
-        self.reached = twin
-            .task_status()
-            .map_or_else(Vec::new, |s| vec![false; s.criteria.len()]);
+        self.latch = CriteriaLatch::new(twin.task_status().map_or(0, |s| s.criteria.len()));
         self.open = Some((r, channels, Instant::now()));
         Ok(())
     }
@@ -186,17 +186,7 @@ impl SessionLog {
         let m: &Measurement = tick.state;
         let t = nanos(tick.time_s);
         let base = m.base.pose();
-        r.log(
-            &c.tf,
-            t,
-            &FrameTransforms {
-                transforms: vec![
-                    FrameTransform::new(t, "world", "base", &base),
-                    FrameTransform::new(t, "world", "ee", &m.world_from_ee),
-                ],
-            },
-        )
-        .map_err(e)?;
+        r.log(&c.tf, t, &frame_transforms(t, m)).map_err(e)?;
         r.log(&c.base_pose, t, &PoseInFrame::new(t, "world", &base))
             .map_err(e)?;
         r.log(
@@ -205,18 +195,7 @@ impl SessionLog {
             &PoseInFrame::new(t, "world", &m.world_from_ee),
         )
         .map_err(e)?;
-        let q = m.base.world_from_body;
-        r.log(
-            &c.base_state,
-            t,
-            &BaseState {
-                position_m: v3(&m.base.position_in_world_m),
-                orientation_wxyz: [q.w, q.i, q.j, q.k],
-                velocity_world_mps: v3(&m.base.velocity_in_world_mps),
-                angular_velocity_body_radps: v3(&m.base.angular_velocity_in_body_radps),
-            },
-        )
-        .map_err(e)?;
+        r.log(&c.base_state, t, &BaseState::of(m)).map_err(e)?;
         r.log(
             &c.joints,
             t,
@@ -246,38 +225,17 @@ impl SessionLog {
             let a = tick.after;
             let t1 = nanos(a.time_s);
             if !a.rotors.is_empty() {
-                r.log(
-                    &c.rotors,
-                    t1,
-                    &Rotors {
-                        commanded_n: a.rotors.iter().map(|x| x.commanded_n).collect(),
-                        realised_n: a.rotors.iter().map(|x| x.realised_n).collect(),
-                        applied_n: a.rotors.iter().map(|x| x.applied_n).collect(),
-                        saturated: rotors_saturated(a, self.limits),
-                    },
-                )
-                .map_err(e)?;
+                r.log(&c.rotors, t1, &Rotors::of(a, self.limits))
+                    .map_err(e)?;
             }
-            let d = &a.disturbances;
-            r.log(
-                &c.disturbances,
-                t1,
-                &Disturbances {
-                    drag_n: v3(&d.drag_n),
-                    wind_n: v3(&d.wind_n),
-                    ground_effect_n: v3(&d.ground_effect_n),
-                    near_wall_n: v3(&d.near_wall_n),
-                },
-            )
-            .map_err(e)?;
+            r.log(&c.disturbances, t1, &Disturbances::of(a))
+                .map_err(e)?;
             if let (Some(channel), Some(snapshot)) = (&c.task, tick.twin.task_snapshot()) {
-                for (r, now) in self.reached.iter_mut().zip(&snapshot.status.criteria) {
-                    *r |= *now;
-                }
+                self.latch.observe(&snapshot.status.criteria);
                 r.log(
                     channel,
                     t1,
-                    &TaskState::from_snapshot(&snapshot, &self.reached),
+                    &TaskState::from_snapshot(&snapshot, self.latch.reached()),
                 )
                 .map_err(e)?;
             }

@@ -197,6 +197,58 @@ pub struct ControllerStatus {
     pub input: String,
 }
 
+impl BaseState {
+    /// The base state of measurement `m`.
+    pub fn of(m: &Measurement) -> Self {
+        let q = m.base.world_from_body;
+        Self {
+            position_m: v3(&m.base.position_in_world_m),
+            orientation_wxyz: [q.w, q.i, q.j, q.k],
+            velocity_world_mps: v3(&m.base.velocity_in_world_mps),
+            angular_velocity_body_radps: v3(&m.base.angular_velocity_in_body_radps),
+        }
+    }
+}
+
+impl Rotors {
+    /// What the rotors of `m` did over its period; `limits` (min, max, N) when the rotors are
+    /// limited — `None` (ideal rotors): no thrust is at a limit, only a clamped command counts.
+    pub fn of(m: &Measurement, limits: Option<(f64, f64)>) -> Self {
+        Self {
+            commanded_n: m.rotors.iter().map(|r| r.commanded_n).collect(),
+            realised_n: m.rotors.iter().map(|r| r.realised_n).collect(),
+            applied_n: m.rotors.iter().map(|r| r.applied_n).collect(),
+            saturated: match limits {
+                Some(limits) => rotors_saturated(m, limits),
+                None => m.rotors.iter().any(|r| r.saturated),
+            },
+        }
+    }
+}
+
+impl Disturbances {
+    /// The disturbance forces of `m`'s period, `base` frame.
+    pub fn of(m: &Measurement) -> Self {
+        let d = &m.disturbances;
+        Self {
+            drag_n: v3(&d.drag_n),
+            wind_n: v3(&d.wind_n),
+            ground_effect_n: v3(&d.ground_effect_n),
+            near_wall_n: v3(&d.near_wall_n),
+        }
+    }
+}
+
+/// `/tf` of measurement `m` at `t_ns`: world→base and world→ee.
+pub fn frame_transforms(t_ns: u64, m: &Measurement) -> FrameTransforms {
+    FrameTransforms {
+        transforms: vec![
+            FrameTransform::new(t_ns, "world", "base", &m.base.pose()),
+            FrameTransform::new(t_ns, "world", "ee", &m.world_from_ee),
+        ],
+    }
+}
+
 /// A task's state after one env step (benchmark rollouts): its criteria at this step and
 /// latched, and its observation keys (AMBENCH_SPEC §5.1), world frame.
 #[derive(Debug, Clone, Serialize, JsonSchema)]
@@ -502,16 +554,7 @@ impl FlightLog {
         let t = nanos(m.time_s);
         let r = &mut self.recorder;
         let base = m.base.pose();
-        r.log(
-            &self.tf,
-            t,
-            &FrameTransforms {
-                transforms: vec![
-                    FrameTransform::new(t, "world", "base", &base),
-                    FrameTransform::new(t, "world", "ee", &m.world_from_ee),
-                ],
-            },
-        )?;
+        r.log(&self.tf, t, &frame_transforms(t, m))?;
         r.log(&self.base_pose, t, &PoseInFrame::new(t, "world", &base))?;
         r.log(
             &self.ee_pose,
@@ -528,17 +571,7 @@ impl FlightLog {
             t,
             &PoseInFrame::new(t, "world", ee_reference),
         )?;
-        let q = m.base.world_from_body;
-        r.log(
-            &self.base_state,
-            t,
-            &BaseState {
-                position_m: v3(&m.base.position_in_world_m),
-                orientation_wxyz: [q.w, q.i, q.j, q.k],
-                velocity_world_mps: v3(&m.base.velocity_in_world_mps),
-                angular_velocity_body_radps: v3(&m.base.angular_velocity_in_body_radps),
-            },
-        )?;
+        r.log(&self.base_state, t, &BaseState::of(m))?;
         r.log(
             &self.wrench,
             t,
@@ -693,32 +726,11 @@ impl FlightLog {
     pub fn outcome(&mut self, m: &Measurement) -> Result<(), RecordError> {
         let t = nanos(m.time_s);
         if !m.rotors.is_empty() {
-            self.recorder.log(
-                &self.rotors,
-                t,
-                &Rotors {
-                    commanded_n: m.rotors.iter().map(|r| r.commanded_n).collect(),
-                    realised_n: m.rotors.iter().map(|r| r.realised_n).collect(),
-                    applied_n: m.rotors.iter().map(|r| r.applied_n).collect(),
-                    saturated: if self.limits_enforced {
-                        rotors_saturated(m, self.limits)
-                    } else {
-                        m.rotors.iter().any(|r| r.saturated)
-                    },
-                },
-            )?;
+            let limits = self.limits_enforced.then_some(self.limits);
+            self.recorder.log(&self.rotors, t, &Rotors::of(m, limits))?;
         }
-        let d = &m.disturbances;
-        self.recorder.log(
-            &self.disturbances,
-            t,
-            &Disturbances {
-                drag_n: v3(&d.drag_n),
-                wind_n: v3(&d.wind_n),
-                ground_effect_n: v3(&d.ground_effect_n),
-                near_wall_n: v3(&d.near_wall_n),
-            },
-        )
+        self.recorder
+            .log(&self.disturbances, t, &Disturbances::of(m))
     }
 
     /// Finishes the file (summary, index).
