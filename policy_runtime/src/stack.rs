@@ -184,7 +184,7 @@ impl TickRecord {
 enum Requester {
     /// The stack's base controller.
     Base,
-    /// The whole-body MPC (its own solution, or its internal fallback).
+    /// The whole-body MPC's own solution.
     Mpc,
 }
 
@@ -700,11 +700,10 @@ impl FlightStack {
                     }
                     if self.limits == ThrustLimits::Enforced {
                         unallocated = a.unallocated;
-                        match (&mut self.mpc, requester) {
-                            (Some(mpc), Requester::Mpc) => {
-                                mpc.controller.saturation_feedback(&unallocated);
-                            }
-                            _ => self.controller.saturation_feedback(&unallocated),
+                        // The base controller's integrators are guarded; the MPC's
+                        // solution has none (its fallback ticks are the base controller's).
+                        if requester == Requester::Base {
+                            self.controller.saturation_feedback(&unallocated);
                         }
                     }
                 } else {

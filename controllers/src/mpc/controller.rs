@@ -486,12 +486,6 @@ impl WholeBodyMpc {
             status: self.status,
         });
     }
-
-    /// The allocator's unallocated wrench of a tick the MPC flew. Its solution has no
-    /// integrator to guard (the caller's fallback PID gets the feedback of the ticks it flies).
-    pub fn saturation_feedback(&mut self, unallocated_in_body: &Wrench) {
-        let _ = unallocated_in_body;
-    }
 }
 
 fn event(previous: MpcMode, now: MpcMode) -> Option<FallbackEvent> {
