@@ -19,7 +19,15 @@
 //!   updates, so its Ω_d is a spike of 3× the rate on one tick in three and zero otherwise;
 //!   here Ω_d = log(R_d,prevᵀ R_d)/outer_dt is computed at each outer update and held;
 //! - the reference's decimation counter is global across environments; here it belongs to
-//!   the controller.
+//!   the controller;
+//! - the velocity error is that of the centre of mass (v + R (Ω × c), c from the stack's
+//!   posture-following body model), not of the base origin. The rate loop of the UA-Hexa's
+//!   gains is deadbeat (kd_rot·dt = 1): each outer update's rate feed-forward turns the base
+//!   about its centre of mass within one tick, which moves the base origin's velocity by
+//!   Ω × c. Fed back through k_d,xy and differentiated into the next Ω_d, that jump returns
+//!   with a gain of k_d,xy·|c|/(g·outer_dt), above one once the arm carries the centre of
+//!   mass ~3 cm from the base origin: the UA-Hexa's arm-sweep diverged at t = 4.6 s. The
+//!   centre of mass does not jump when the body turns about it.
 
 use nalgebra::{Isometry3, Matrix3, Rotation3, Vector3};
 use platform::{GRAVITY_MPS2, RigidBodyState, Wrench};
@@ -112,7 +120,13 @@ impl BaseController for Pid4 {
         let m = self.core.body.mass_kg;
         let d = self.core.desired.update(target, dt, &state.pose());
         let e_p = d.pose.translation.vector - state.position_in_world_m;
-        let e_v = d.velocity_mps - state.velocity_in_world_mps;
+        // The velocity of the centre of mass, not of the base origin (see the module doc).
+        let com_velocity = state.velocity_in_world_mps
+            + state.world_from_body
+                * state
+                    .angular_velocity_in_body_radps
+                    .cross(&self.core.body.com_in_body_m);
+        let e_v = d.velocity_mps - com_velocity;
 
         let decimation = u64::from(g.outer_loop_decimation.max(1));
         let outer = match self.outer {

@@ -515,3 +515,39 @@ fn controller_config_loads_from_toml_and_refuses_unknown_keys() {
         })
     ));
 }
+
+#[test]
+fn pid4_damps_the_centre_of_mass_velocity_not_the_base_origins() {
+    // The base turning about its centre of mass moves the base origin (v = −R (Ω × c)) but
+    // not the centre of mass: the outer loop sees no velocity error, so the thrust is the
+    // weight's and the desired attitude level. Fed back, that origin velocity closed a loop
+    // of gain k_d,xy·|c|/(g·outer_dt) through the rate feed-forward: the UA-Hexa's arm-sweep
+    // diverged once the arm carried the centre of mass ~3 cm from the base origin.
+    let ua = vehicle("ua-hexa");
+    let mut body = BodyParams::from_vehicle(&ua);
+    body.com_in_body_m = Vector3::new(0.10, 0.0, -0.02); // the arm reaching forward
+    let gains = Pid4Gains::ua_hexa();
+    let at = pose(0.0, 0.0, 1.0, 0.0);
+    let mut turning = RigidBodyState::at_rest(at);
+    turning.angular_velocity_in_body_radps = Vector3::new(0.0, 0.5, 0.0);
+    turning.velocity_in_world_mps = -(turning.world_from_body
+        * turning
+            .angular_velocity_in_body_radps
+            .cross(&body.com_in_body_m));
+    assert!(turning.velocity_in_world_mps.norm() > 0.04);
+    let mut pid = Pid4::new(gains, body);
+    let w = pid.update(&turning, &at, DT);
+    let weight = body.mass_kg * GRAVITY_MPS2;
+    assert!(
+        (w.force - Vector3::new(0.0, 0.0, weight)).norm() < 1e-9,
+        "{w:?}"
+    );
+    let status = pid.status();
+    assert!(status.velocity_error_mps.norm() < 1e-12, "{status:?}");
+    // The same origin velocity with the body not turning is a real velocity error.
+    let mut sliding = RigidBodyState::at_rest(at);
+    sliding.velocity_in_world_mps = turning.velocity_in_world_mps;
+    let mut pid = Pid4::new(gains, body);
+    pid.update(&sliding, &at, DT);
+    assert!((pid.status().velocity_error_mps + sliding.velocity_in_world_mps).norm() < 1e-12);
+}
