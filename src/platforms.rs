@@ -16,6 +16,8 @@ Figures are computed from each vehicle's description (URDF + vehicle file) at th
 configuration: inertia is the composite inertia about the centre of mass, in base-frame axes;
 hover thrust is m·g shared equally by the rotors' vertical components (g = 9.81 m/s²);
 thrust-to-weight is Σ T_max·n_z / (m·g). Max reach is the tracking-metric normaliser.
+Warnings name physically impossible data: the FA-Hexa's and UA-Hexa's base inertia is the
+reference's diag(0.198, 0.198, 0.460), whose Izz exceeds Ixx + Iyy (kept for comparable results).
 
 Examples:
   amstack platforms
@@ -44,6 +46,8 @@ struct Figures {
     max_thrust_per_rotor_n: Option<f64>,
     hover_thrust_per_rotor_n: Option<f64>,
     thrust_to_weight: Option<f64>,
+    /// Physically impossible data in the description (one line each).
+    warnings: Vec<String>,
 }
 
 fn figures(v: &Vehicle) -> Figures {
@@ -60,6 +64,7 @@ fn figures(v: &Vehicle) -> Figures {
         max_thrust_per_rotor_n: (!v.rotors.is_empty()).then_some(v.rotors.thrust_max_n),
         hover_thrust_per_rotor_n: v.hover_thrust_per_rotor_n(),
         thrust_to_weight: v.thrust_to_weight(),
+        warnings: v.model.physical_warnings(),
     }
 }
 
@@ -120,6 +125,11 @@ pub fn run(args: &Args) -> Result<()> {
         ]);
     }
     println!("{table}");
+    for (id, f) in &rows {
+        for warning in &f.warnings {
+            println!("warning: {id}: {warning}");
+        }
+    }
 
     if let Some(path) = &args.json {
         let object: serde_json::Map<String, serde_json::Value> = rows

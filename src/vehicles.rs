@@ -18,7 +18,14 @@ pub fn load_vehicle_file(path: &Path) -> Result<Vehicle> {
     let urdf_label = urdf_path.display().to_string();
     let urdf_text = std::fs::read_to_string(&urdf_path)
         .map_err(|e| bad_input(format!("{label}: urdf: cannot read {urdf_label}: {e}")))?;
-    Vehicle::assemble(&label, &file, &urdf_label, &urdf_text).map_err(|e| bad_input(e.to_string()))
+    let vehicle = Vehicle::assemble(&label, &file, &urdf_label, &urdf_text)
+        .map_err(|e| bad_input(e.to_string()))?;
+    // Loadable but impossible data of a user's vehicle, one line each. The built-in FA-Hexa and
+    // UA-Hexa keep the reference's base inertia, which is one (`amstack platforms` lists it).
+    for warning in vehicle.model.physical_warnings() {
+        eprintln!("amstack: warning: {urdf_label}: {warning}");
+    }
+    Ok(vehicle)
 }
 
 /// The built-in vehicles followed by the user's, refusing a user id that is already taken.

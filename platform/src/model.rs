@@ -332,6 +332,36 @@ impl Checker<'_> {
 }
 
 impl KinematicModel {
+    /// Physically impossible but loadable data, one line each: a link inertia whose principal
+    /// moments break the triangle inequality (I_a ≤ I_b + I_c holds for every rigid body;
+    /// MuJoCo refuses such a model). The reference's FA-Hexa and UA-Hexa base,
+    /// diag(0.198, 0.198, 0.460), is one: the built-in vehicles keep its numbers, and the
+    /// loader's caller says so.
+    pub fn physical_warnings(&self) -> Vec<String> {
+        let mut warnings = Vec::new();
+        for link in &self.links {
+            let Some(inertial) = &link.inertial else {
+                continue;
+            };
+            let e = inertial.inertia_kgm2.symmetric_eigenvalues();
+            let (a, b, c) = (e[0], e[1], e[2]);
+            let tol = 1e-9 * e.amax();
+            for (big, x, y) in [(a, b, c), (b, a, c), (c, a, b)] {
+                if big > x + y + tol {
+                    warnings.push(format!(
+                        "link '{}' inertia: principal moment {big:.4} > {x:.4} + {y:.4} \
+                         breaks the triangle inequality (no rigid body has it)",
+                        link.name
+                    ));
+                    break;
+                }
+            }
+        }
+        warnings
+    }
+}
+
+impl KinematicModel {
     /// Parses and validates a URDF document. `file` names it in errors.
     ///
     /// Rejected: XML that is not URDF, duplicate link or joint names, joints naming unknown

@@ -859,3 +859,24 @@ fn vehicle_file_colours_are_checked_and_indexed_by_link() {
     let e = refusal(&format!("{toml}\n[colors]\nwing = [0.1, 0.2, 0.3]\n"), urdf);
     assert!(e.to_string().contains("colors.wing"), "{e}");
 }
+
+#[test]
+fn the_reference_hexa_base_inertia_breaks_the_triangle_inequality_and_is_reported() {
+    // diag(0.198, 0.198, 0.460): 0.460 > 0.198 + 0.198 (AMBENCH_SPEC §1.2; issue 16).
+    for id in ["fa-hexa", "ua-hexa"] {
+        let warnings = vehicle(id).model.physical_warnings();
+        assert_eq!(warnings.len(), 1, "{id}: {warnings:?}");
+        assert!(
+            warnings[0].contains("'base_link'") && warnings[0].contains("0.4600 > 0.1980 + 0.1980"),
+            "{id}: {}",
+            warnings[0]
+        );
+    }
+    for id in ["ua-quad", "omni-hexa", "ee-only"] {
+        assert_eq!(
+            vehicle(id).model.physical_warnings(),
+            Vec::<String>::new(),
+            "{id}"
+        );
+    }
+}
