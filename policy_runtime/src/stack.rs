@@ -8,7 +8,10 @@ use controllers::{
     BaseController, BodyParams, ControllerConfig, ControllerStatus, InputHealth, Pid6Gains, build,
 };
 use nalgebra::Isometry3;
-use platform::{ActuatorCommand, AttitudeSetpoint, Measurement, RigidBodyState, Vehicle, Wrench};
+use platform::{
+    ActuatorCommand, AttitudeSetpoint, Measurement, PositionSetpoint, RigidBodyState, Vehicle,
+    Wrench,
+};
 use serde::Serialize;
 use sim_twin::{TiltThrust, TwinConfig};
 
@@ -161,10 +164,16 @@ pub struct TickRecord {
 
 impl TickRecord {
     /// The tick's setpoint at `level`. The attitude level needs the cascade of a base
-    /// controller: a tick flown otherwise (the whole-body MPC) is refused with why.
+    /// controller: a tick flown otherwise (the whole-body MPC) is refused with why. The
+    /// position level is the base target handed to the controller (the IK's, the MPC's, or
+    /// the action's base pose): its position and heading.
     pub fn setpoint(&self, level: SetpointLevel) -> Result<Setpoint, StackError> {
         match level {
             SetpointLevel::Actuators => Ok(Setpoint::Actuators(self.command.clone())),
+            SetpointLevel::Position => Ok(Setpoint::Position {
+                command: self.command.clone(),
+                position: PositionSetpoint::of_pose(&self.base_target),
+            }),
             SetpointLevel::Attitude => match self.attitude {
                 Some(attitude) => Ok(Setpoint::Attitude {
                     command: self.command.clone(),

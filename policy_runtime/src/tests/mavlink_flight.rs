@@ -57,6 +57,8 @@ struct Autopilot {
     disarm_after: Option<u64>,
     /// The base at the last telemetry (the IMU's period start).
     previous_base: platform::RigidBodyState,
+    /// Whether AUTOPILOT_VERSION declares SET_ACTUATOR_TARGET.
+    actuator_extension: bool,
 }
 
 impl Autopilot {
@@ -120,6 +122,13 @@ impl Autopilot {
                     self.armed = c.param1 == 1.0;
                     self.ack(c.command, MavResult::MAV_RESULT_ACCEPTED);
                 }
+                // AUTOPILOT_VERSION, as the twin's autopilot answers it (with or without the
+                // actuator extension).
+                MavCmd::MAV_CMD_REQUEST_MESSAGE if c.param1 == 148.0 => {
+                    self.ack(c.command, MavResult::MAV_RESULT_ACCEPTED);
+                    let version = telemetry::autopilot_version(self.actuator_extension);
+                    self.send(&version);
+                }
                 other => self.ack(other, MavResult::MAV_RESULT_UNSUPPORTED),
             },
             MavMessage::SET_ACTUATOR_CONTROL_TARGET(s) => {
@@ -149,6 +158,16 @@ impl Autopilot {
 }
 
 fn fixture(vehicle: &Vehicle, config: &TwinConfig, disarm_after: Option<u64>) -> Fixture {
+    fixture_declaring(vehicle, config, disarm_after, true)
+}
+
+/// The fixture, its AUTOPILOT_VERSION declaring the actuator extension or not.
+fn fixture_declaring(
+    vehicle: &Vehicle,
+    config: &TwinConfig,
+    disarm_after: Option<u64>,
+    actuator_extension: bool,
+) -> Fixture {
     let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
     socket
         .set_read_timeout(Some(Duration::from_millis(100)))
@@ -172,6 +191,7 @@ fn fixture(vehicle: &Vehicle, config: &TwinConfig, disarm_after: Option<u64>) ->
         steps: 0,
         disarm_after,
         previous_base: platform::RigidBodyState::default(),
+        actuator_extension,
     };
     let flag = stop.clone();
     let thread = std::thread::spawn(move || {
