@@ -532,6 +532,18 @@ fn the_attitude_level_sends_the_controllers_own_cascade() {
         attitude.force_in_body_n,
         record.wrench.force - record.unallocated.force
     );
+    // The position level: the base target handed to the controller, position and heading.
+    let Setpoint::Position { position, command } =
+        record.setpoint(SetpointLevel::Position).unwrap()
+    else {
+        panic!("a position setpoint");
+    };
+    assert_eq!(command, record.command);
+    assert_eq!(
+        position.position_in_world_m,
+        record.base_target.translation.vector
+    );
+    assert!((position.yaw_rad - 0.7).abs() < 1e-12, "{}", position.yaw_rad);
     // A tick with no attitude loop behind it (the whole-body MPC's) is refused by name.
     record.attitude = None;
     record.controller.controller = "mpc";
@@ -541,4 +553,40 @@ fn the_attitude_level_sends_the_controllers_own_cascade() {
             .contains("mpc controller has no attitude loop"),
         "{e}"
     );
+}
+
+#[test]
+fn the_actuator_level_needs_an_autopilot_that_declares_it() {
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let config = track_config(&vehicle, Trajectory::Hover, 1.0);
+    for declared in [false, true] {
+        let fixture = fixture_declaring(&vehicle, &config.twin, None, declared);
+        let address = Address::Udp {
+            host: "127.0.0.1".into(),
+            port: fixture.port,
+        };
+        let link = MavlinkLink::connect(
+            &vehicle,
+            MavlinkLinkConfig::new(BridgeConfig::new(address), Level::Actuator),
+        );
+        match (declared, link) {
+            (true, Ok(link)) => {
+                let version = link.autopilot_version().unwrap();
+                assert!(version.accepts_actuator_setpoints());
+                // The fixture answers as the twin's autopilot: the arm channel is on.
+                assert!(version.is_amstack_twin());
+                assert!(link.arm_channel());
+            }
+            (false, Err(crate::LinkError::Refused(e))) => assert!(
+                e.starts_with(
+                    "the actuator level needs an autopilot that declares \
+                     MAV_PROTOCOL_CAPABILITY_SET_ACTUATOR_TARGET in its AUTOPILOT_VERSION; this \
+                     one does not"
+                ),
+                "{e}"
+            ),
+            (d, other) => panic!("declared {d}: {other:?}"),
+        }
+        drop(fixture);
+    }
 }
