@@ -42,7 +42,7 @@ use mavlink::dialects::common::{
     SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA,
 };
 use nalgebra::Vector3;
-use platform::{ActuatorCommand, Actuation, PositionSetpoint, ThrustCurve, Vehicle};
+use platform::{Actuation, ActuatorCommand, PositionSetpoint, ThrustCurve, Vehicle};
 
 use crate::frames;
 
@@ -481,18 +481,19 @@ impl SetpointCodec {
             | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE;
         // time_boot_ms wraps after 49 days; the protocol's fields are 32 bits and f32.
         #[allow(clippy::cast_possible_truncation)]
-        let position = MavMessage::SET_POSITION_TARGET_LOCAL_NED(SET_POSITION_TARGET_LOCAL_NED_DATA {
-            time_boot_ms: (time_usec / 1000) as u32,
-            x: p.x as f32,
-            y: p.y as f32,
-            z: p.z as f32,
-            yaw: frames::ned_yaw_from_world_yaw(setpoint.yaw_rad) as f32,
-            type_mask,
-            target_system: self.target_system,
-            target_component: self.target_component,
-            coordinate_frame: MavFrame::MAV_FRAME_LOCAL_NED,
-            ..SET_POSITION_TARGET_LOCAL_NED_DATA::default()
-        });
+        let position =
+            MavMessage::SET_POSITION_TARGET_LOCAL_NED(SET_POSITION_TARGET_LOCAL_NED_DATA {
+                time_boot_ms: (time_usec / 1000) as u32,
+                x: p.x as f32,
+                y: p.y as f32,
+                z: p.z as f32,
+                yaw: frames::ned_yaw_from_world_yaw(setpoint.yaw_rad) as f32,
+                type_mask,
+                target_system: self.target_system,
+                target_component: self.target_component,
+                coordinate_frame: MavFrame::MAV_FRAME_LOCAL_NED,
+                ..SET_POSITION_TARGET_LOCAL_NED_DATA::default()
+            });
         let mut out = self.arm_messages(time_usec, &command.joint_targets);
         out.push(position);
         Ok(out)

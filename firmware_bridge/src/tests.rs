@@ -7,8 +7,8 @@ use std::net::UdpSocket;
 use std::time::Duration;
 
 use mavlink::dialects::common::{
-    ACTUATOR_OUTPUT_STATUS_DATA, AttitudeTargetTypemask, COMMAND_ACK_DATA, DEBUG_FLOAT_ARRAY_DATA,
-    AUTOPILOT_VERSION_DATA, HEARTBEAT_DATA, MavAutopilot, MavCmd, MavFrame, MavMessage,
+    ACTUATOR_OUTPUT_STATUS_DATA, AUTOPILOT_VERSION_DATA, AttitudeTargetTypemask, COMMAND_ACK_DATA,
+    DEBUG_FLOAT_ARRAY_DATA, HEARTBEAT_DATA, MavAutopilot, MavCmd, MavFrame, MavMessage,
     MavModeFlag, MavProtocolCapability, MavResult, MavState, MavType, ODOMETRY_DATA,
     PositionTargetTypemask, SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA,
 };
@@ -288,12 +288,16 @@ fn an_under_actuated_vehicle_sends_the_collective_thrust_alone() {
     let v = vehicle("ua-quad");
     let codec = SetpointCodec::new(&v, 1, 1).unwrap();
     assert!(!codec.sends_thrust_body());
-    assert!(SetpointCodec::new(&vehicle("fa-hexa"), 1, 1)
-        .unwrap()
-        .sends_thrust_body());
-    assert!(SetpointCodec::new(&vehicle("omni-hexa"), 1, 1)
-        .unwrap()
-        .sends_thrust_body());
+    assert!(
+        SetpointCodec::new(&vehicle("fa-hexa"), 1, 1)
+            .unwrap()
+            .sends_thrust_body()
+    );
+    assert!(
+        SetpointCodec::new(&vehicle("omni-hexa"), 1, 1)
+            .unwrap()
+            .sends_thrust_body()
+    );
     let total = 4.0 * v.rotors.thrust_max_n;
     let sp = AttitudeSetpoint {
         world_from_body: UnitQuaternion::identity(),
@@ -342,7 +346,10 @@ fn position_setpoint_is_local_ned_with_only_position_and_yaw_used() {
     // PX4's bits: 8/16/32 velocity, 64/128/256 acceleration, 2048 yaw rate ignored; position
     // (1/2/4), yaw (1024) and FORCE_SET (512) clear: 8+16+32+64+128+256+2048 = 2552.
     assert_eq!(p.type_mask.bits(), 2552);
-    assert!(!p.type_mask.contains(PositionTargetTypemask::POSITION_TARGET_TYPEMASK_YAW_IGNORE));
+    assert!(
+        !p.type_mask
+            .contains(PositionTargetTypemask::POSITION_TARGET_TYPEMASK_YAW_IGNORE)
+    );
     let west = platform::PositionSetpoint {
         yaw_rad: std::f64::consts::PI,
         ..sp
@@ -356,7 +363,10 @@ fn position_setpoint_is_local_ned_with_only_position_and_yaw_used() {
     let px4 = codec.clone().with_arm_channel(false);
     let msgs = px4.position_messages(0, &c, &sp).unwrap();
     assert_eq!(msgs.len(), 1);
-    assert!(matches!(msgs[0], MavMessage::SET_POSITION_TARGET_LOCAL_NED(_)));
+    assert!(matches!(
+        msgs[0],
+        MavMessage::SET_POSITION_TARGET_LOCAL_NED(_)
+    ));
     let msgs = px4
         .attitude_messages(
             0,

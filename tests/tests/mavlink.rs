@@ -852,7 +852,14 @@ mod bridge {
         // once there (scored after 4 s) the base holds the point (measured: 0.025 cm).
         let _one = serial();
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let step = ["--trajectory", "step", "--duration", "8", "--level", "position"];
+        let step = [
+            "--trajectory",
+            "step",
+            "--duration",
+            "8",
+            "--level",
+            "position",
+        ];
         let mut whole = step.to_vec();
         whole.extend_from_slice(&["--settle", "0"]);
         let (scores, stderr) = against_autopilot("--lockstep", &[], &whole, dir.path(), "whole");
@@ -912,8 +919,7 @@ mod bridge {
             let mut autopilot = Proc::start("twin serve --mavlink", &args);
             autopilot.wait_for("autopilot: serving");
             let json = dir.path().join(format!("actuator-{extension}.json"));
-            let (status, result, stderr) =
-                fly_over(&format!("mavlink:{address}"), &hover, &json);
+            let (status, result, stderr) = fly_over(&format!("mavlink:{address}"), &hover, &json);
             autopilot.interrupt();
             autopilot.wait_for("stopped after");
             let served = autopilot.stderr();

@@ -543,7 +543,11 @@ fn the_attitude_level_sends_the_controllers_own_cascade() {
         position.position_in_world_m,
         record.base_target.translation.vector
     );
-    assert!((position.yaw_rad - 0.7).abs() < 1e-12, "{}", position.yaw_rad);
+    assert!(
+        (position.yaw_rad - 0.7).abs() < 1e-12,
+        "{}",
+        position.yaw_rad
+    );
     // A tick with no attitude loop behind it (the whole-body MPC's) is refused by name.
     record.attitude = None;
     record.controller.controller = "mpc";
