@@ -38,6 +38,9 @@ ODOMETRY that closes it. Levels — what a real PX4 accepts is attitude and posi
                     (SET_ATTITUDE_TARGET: thrust_body on the fully actuated vehicles, the
                     collective thrust on the others); PX4's attitude/rate loops and
                     allocation fly
+  --level rates     the attitude level through amstack's attitude law (PX4's attitude P
+                    gains) as body rates + the same thrust (SET_ATTITUDE_TARGET with
+                    ATTITUDE_IGNORE): PX4's rate loop and allocation fly
   --level position  the stack's base target, position and heading (SET_POSITION_TARGET_
                     LOCAL_NED): PX4's position controller flies, within its MPC_* limits
   --level actuator  rotor thrusts through the vehicle's thrust curve (SET_ACTUATOR_CONTROL_
@@ -99,10 +102,11 @@ pub struct FlyArgs {
     #[arg(long, value_name = "MS", default_value_t = 10_000)]
     connect_timeout_ms: u64,
     /// MAVLink setpoint level: attitude (attitude + body force, the autopilot's attitude
-    /// loop and allocation), position (base position + heading, the autopilot's position
+    /// loop and allocation), rates (body rates + body force from amstack's attitude law, the
+    /// autopilot's rate loop), position (base position + heading, the autopilot's position
     /// controller) or actuator (rotor thrusts, our allocation: only to an autopilot that
     /// declares it). [default: attitude]
-    #[arg(long, value_parser = ["attitude", "position", "actuator"])]
+    #[arg(long, value_parser = ["attitude", "rates", "position", "actuator"])]
     level: Option<String>,
     /// MAVLink 2 signing key file: 32 raw bytes or 64 hex digits. Frames out are signed;
     /// unsigned or badly signed frames in are refused (and counted).
@@ -206,6 +210,7 @@ fn level(args: &FlyArgs) -> Level {
     match args.level.as_deref() {
         Some("actuator") => Level::Actuator,
         Some("position") => Level::Position,
+        Some("rates") => Level::Rates,
         _ => Level::Attitude,
     }
 }
@@ -220,11 +225,11 @@ pub fn run(args: &FlyArgs) -> Result<()> {
         )));
     }
     if matches!(choice, LinkChoice::Mavlink(_))
-        && level(args) == Level::Attitude
+        && matches!(level(args), Level::Attitude | Level::Rates)
         && args.track.controller_name() == "mpc"
     {
         return Err(bad_input(
-            "--controller mpc --level attitude: the whole-body MPC commands a body wrench and \
+            "--controller mpc --level attitude|rates: the whole-body MPC commands a body wrench and \
              arm joints, not an attitude (it has no attitude loop to hand the autopilot); fly \
              it with --level position (its base target) or --level actuator",
         ));

@@ -20,6 +20,9 @@
 //! T_max) clamped to [0, 1] alone, and the body-rate feed-forward (FRD), preceded by the
 //! group-2 arm message.
 //!
+//! **Rate level** — SET_ATTITUDE_TARGET with ATTITUDE_IGNORE (128): the body rates (FRD) and
+//! the attitude level's thrust fields (q identity, not read).
+//!
 //! **Position level** — SET_POSITION_TARGET_LOCAL_NED (id 84), MAV_FRAME_LOCAL_NED: x/y/z =
 //! `ned_from_world(p)`, yaw = π/2 − ψ (PX4's heading, clockwise from north), type_mask
 //! ignoring velocity (8/16/32), acceleration (64/128/256) and yaw rate (2048): PX4's
@@ -42,7 +45,7 @@ use mavlink::dialects::common::{
     SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA,
 };
 use nalgebra::Vector3;
-use platform::{Actuation, ActuatorCommand, PositionSetpoint, ThrustCurve, Vehicle};
+use platform::{Actuation, ActuatorCommand, PositionSetpoint, RateSetpoint, ThrustCurve, Vehicle};
 
 use crate::frames;
 
@@ -449,6 +452,29 @@ impl SetpointCodec {
         });
         let mut out = self.arm_messages(time_usec, &command.joint_targets);
         out.push(attitude);
+        Ok(out)
+    }
+
+    /// The rate-level messages of one tick: group 2 (when the arm channel is on), then
+    /// SET_ATTITUDE_TARGET with ATTITUDE_IGNORE, the body rates of `setpoint` (FRD) and its
+    /// body force as at the attitude level (`thrust_body` or the collective thrust); q is the
+    /// identity and not read.
+    pub fn rate_messages(
+        &self,
+        time_usec: u64,
+        command: &ActuatorCommand,
+        setpoint: &RateSetpoint,
+    ) -> Result<Vec<MavMessage>, SetpointError> {
+        let attitude = AttitudeSetpoint {
+            world_from_body: nalgebra::UnitQuaternion::identity(),
+            force_in_body_n: setpoint.force_in_body_n,
+            body_rates_radps: Some(setpoint.body_rates_radps),
+        };
+        let mut out = self.attitude_messages(time_usec, command, &attitude)?;
+        if let Some(MavMessage::SET_ATTITUDE_TARGET(a)) = out.last_mut() {
+            a.q = [1.0, 0.0, 0.0, 0.0];
+            a.type_mask |= AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE;
+        }
         Ok(out)
     }
 

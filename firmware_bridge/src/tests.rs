@@ -403,6 +403,51 @@ fn position_setpoint_is_local_ned_with_only_position_and_yaw_used() {
 }
 
 #[test]
+fn rate_setpoint_ignores_the_attitude_and_carries_frd_rates_and_the_thrust() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    // 69 N up (FLU +z) of 6 · 23 N → thrust_body z = −0.5 (FRD); rates FLU (0.1, 0.2, 0.3) →
+    // FRD (0.1, −0.2, −0.3); type_mask ATTITUDE_IGNORE (128) | THRUST_BODY_SET (32) = 160.
+    let sp = platform::RateSetpoint {
+        body_rates_radps: Vector3::new(0.1, 0.2, 0.3),
+        force_in_body_n: Vector3::new(0.0, 0.0, 69.0),
+    };
+    let msgs = codec
+        .rate_messages(0, &hover_command(&v, 0.0), &sp)
+        .unwrap();
+    assert_eq!(msgs.len(), 2);
+    let MavMessage::SET_ATTITUDE_TARGET(a) = &msgs[1] else {
+        panic!("{:?}", msgs[1])
+    };
+    assert_eq!(a.type_mask.bits(), 160);
+    assert_eq!(a.q, [1.0, 0.0, 0.0, 0.0]);
+    assert_eq!(
+        (a.body_roll_rate, a.body_pitch_rate, a.body_yaw_rate),
+        (0.1, -0.2, -0.3)
+    );
+    assert!((a.thrust_body[2] + 0.5).abs() < 1e-6 && (a.thrust - 0.5).abs() < 1e-6);
+    // The UA-Quad: collective thrust, ATTITUDE_IGNORE alone.
+    let ua = vehicle("ua-quad");
+    let msgs = SetpointCodec::new(&ua, 1, 1)
+        .unwrap()
+        .rate_messages(0, &hover_command(&ua, 0.0), &sp)
+        .unwrap();
+    let Some(MavMessage::SET_ATTITUDE_TARGET(a)) = msgs.last() else {
+        panic!()
+    };
+    assert_eq!(a.type_mask.bits(), 128);
+    // A non-finite rate is refused by name.
+    let nan = platform::RateSetpoint {
+        body_rates_radps: Vector3::new(0.0, f64::NAN, 0.0),
+        ..sp
+    };
+    let e = codec
+        .rate_messages(0, &hover_command(&v, 0.0), &nan)
+        .unwrap_err();
+    assert!(e.to_string().contains("body_rates_radps.y = NaN"), "{e}");
+}
+
+#[test]
 fn a_pose_gives_its_position_and_heading() {
     // Heading is body x projected on the ground: a target pitched and rolled keeps its yaw.
     let pose = nalgebra::Isometry3::from_parts(

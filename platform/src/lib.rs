@@ -42,7 +42,7 @@ pub use builtin::BUILTIN_IDS;
 pub use error::{DescriptionError, Problem};
 pub use link::{
     ActuatorCommand, AttitudeSetpoint, DisturbanceReport, Measurement, PositionSetpoint,
-    RotorReport,
+    RateSetpoint, RotorReport,
 };
 pub use mass::MassProperties;
 pub use model::{

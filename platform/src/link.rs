@@ -32,6 +32,26 @@ pub struct AttitudeSetpoint {
     pub body_rates_radps: Option<Vector3<f64>>,
 }
 
+/// Body rates and a body force: the rate level of the control cascade (what a vehicle's own
+/// rate loop and allocation can fly; the attitude law runs on the side that sends it).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RateSetpoint {
+    /// Desired body rates (FLU), rad/s.
+    pub body_rates_radps: Vector3<f64>,
+    /// Desired body force, body frame (FLU), N.
+    pub force_in_body_n: Vector3<f64>,
+}
+
+impl RateSetpoint {
+    /// Whether every value is finite.
+    pub fn is_finite(&self) -> bool {
+        self.body_rates_radps
+            .iter()
+            .chain(self.force_in_body_n.iter())
+            .all(|x| x.is_finite())
+    }
+}
+
 /// A base position and heading: the position level of the control cascade (what a vehicle's
 /// own position controller — PX4's in OFFBOARD — can fly). Roll and pitch are the position
 /// controller's to choose: a fully actuated vehicle's tilted target pose is flown level.

@@ -13,7 +13,7 @@
 //! which one they talk to.
 
 use estimator::{ImuSample, OdometryMeasurement};
-use platform::{ActuatorCommand, AttitudeSetpoint, Measurement, PositionSetpoint};
+use platform::{ActuatorCommand, AttitudeSetpoint, Measurement, PositionSetpoint, RateSetpoint};
 use sim_twin::{TaskSnapshot, Twin, TwinError};
 
 pub use crate::link_channels::LinkMessage;
@@ -33,6 +33,15 @@ pub enum Setpoint {
         /// The controller's cascade.
         attitude: AttitudeSetpoint,
     },
+    /// Body rates (the base controller's attitude setpoint through amstack's attitude law,
+    /// [`controllers::rate_setpoint`]) and body force, flown by the vehicle's own rate loop and
+    /// allocation; the joint targets of `command` (its rotor thrusts are not sent).
+    Rates {
+        /// The stack's command of the tick (joint targets: arm, gripper).
+        command: ActuatorCommand,
+        /// The body rates and force.
+        rates: RateSetpoint,
+    },
     /// The stack's base target (position and heading), flown by the vehicle's own position
     /// controller, attitude loop and allocation; the joint targets of `command` (its rotor
     /// thrusts are not sent).
@@ -50,6 +59,7 @@ impl Setpoint {
         match self {
             Self::Actuators(c)
             | Self::Attitude { command: c, .. }
+            | Self::Rates { command: c, .. }
             | Self::Position { command: c, .. } => c,
         }
     }
@@ -72,6 +82,7 @@ impl Setpoint {
                     && a.body_rates_radps
                         .is_none_or(|r| r.iter().all(|x| x.is_finite()))
             }
+            Self::Rates { rates, .. } => command_finite && rates.is_finite(),
             Self::Position { position, .. } => command_finite && position.is_finite(),
         }
     }
@@ -81,6 +92,7 @@ impl Setpoint {
         match self {
             Self::Actuators(_) => SetpointLevel::Actuators,
             Self::Attitude { .. } => SetpointLevel::Attitude,
+            Self::Rates { .. } => SetpointLevel::Rates,
             Self::Position { .. } => SetpointLevel::Position,
         }
     }
@@ -94,6 +106,8 @@ pub enum SetpointLevel {
     Actuators,
     /// [`Setpoint::Attitude`].
     Attitude,
+    /// [`Setpoint::Rates`].
+    Rates,
     /// [`Setpoint::Position`].
     Position,
 }
@@ -104,6 +118,7 @@ impl SetpointLevel {
         match self {
             Self::Actuators => "actuator",
             Self::Attitude => "attitude",
+            Self::Rates => "rates",
             Self::Position => "position",
         }
     }
@@ -247,7 +262,7 @@ impl Link for TwinLink {
                 self.latest = self.twin.step(command)?;
                 Ok(())
             }
-            Setpoint::Attitude { .. } | Setpoint::Position { .. } => {
+            Setpoint::Attitude { .. } | Setpoint::Rates { .. } | Setpoint::Position { .. } => {
                 Err(LinkError::Refused(format!(
                     "the twin in this process flies actuator setpoints, not {} ones",
                     setpoint.level().name()

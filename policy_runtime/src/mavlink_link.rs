@@ -15,7 +15,9 @@
 //! desired attitude and body rates, the body force the allocation produces:
 //! [`crate::TickRecord::setpoint`]). [`Level::Position`] sends a SET_POSITION_TARGET_LOCAL_NED
 //! of the stack's base target (position and heading): the autopilot's position controller
-//! flies. [`Level::Actuator`] sends the rotor thrusts, tilts, arm and gripper
+//! flies. [`Level::Rates`] sends the attitude level's cascade through amstack's attitude law as
+//! body rates (SET_ATTITUDE_TARGET with ATTITUDE_IGNORE): the autopilot's rate loop flies.
+//! [`Level::Actuator`] sends the rotor thrusts, tilts, arm and gripper
 //! (SET_ACTUATOR_CONTROL_TARGET groups 2, 1, 0): only to an autopilot that declares
 //! MAV_PROTOCOL_CAPABILITY_SET_ACTUATOR_TARGET in its AUTOPILOT_VERSION (current PX4 does not;
 //! the twin's autopilot does with `--allow-actuator-setpoints`), asked for at connection:
@@ -62,6 +64,9 @@ pub enum Level {
     /// Attitude + body force (the autopilot's own attitude loop and allocation):
     /// SET_ATTITUDE_TARGET. The default toward a real vehicle.
     Attitude,
+    /// Body rates + body force (amstack's attitude law, the autopilot's rate loop and
+    /// allocation): SET_ATTITUDE_TARGET with ATTITUDE_IGNORE.
+    Rates,
     /// Base position + heading (the autopilot's position controller, attitude loop and
     /// allocation): SET_POSITION_TARGET_LOCAL_NED.
     Position,
@@ -78,6 +83,7 @@ impl Level {
         match self {
             Self::Actuator => SetpointLevel::Actuators,
             Self::Attitude => SetpointLevel::Attitude,
+            Self::Rates => SetpointLevel::Rates,
             Self::Position => SetpointLevel::Position,
         }
     }
@@ -331,6 +337,9 @@ impl MavlinkLink {
             }
             (Level::Attitude, Setpoint::Attitude { command, attitude }) => {
                 self.codec.attitude_messages(t, command, attitude)
+            }
+            (Level::Rates, Setpoint::Rates { command, rates }) => {
+                self.codec.rate_messages(t, command, rates)
             }
             (Level::Position, Setpoint::Position { command, position }) => {
                 self.codec.position_messages(t, command, position)

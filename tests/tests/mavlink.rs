@@ -948,6 +948,35 @@ mod bridge {
     }
 
     #[test]
+    fn a_step_at_the_rate_level_is_flown_by_the_autopilots_rate_loop() {
+        // `--level rates`: the controller's attitude setpoint through amstack's attitude law
+        // (PX4's attitude P gains) as body rates, the autopilot's rate loop and allocation
+        // flying them (ATTITUDE_IGNORE). The same 1 m step as at the attitude level: the
+        // stack's position loop still flies it, so the base RMSE (scored after 2 s) is near
+        // the attitude level's; it holds z and barely tilts.
+        let _one = serial();
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let step = ["--trajectory", "step", "--duration", "4"];
+        let mut flags = step.to_vec();
+        flags.extend_from_slice(&["--level", "rates"]);
+        let (rates, stderr) = against_autopilot("--lockstep", &[], &flags, dir.path(), "rates");
+        assert!(stderr.contains("rates level"), "{stderr}");
+        let mut flags = step.to_vec();
+        flags.extend_from_slice(&["--level", "attitude"]);
+        let (attitude, _) = against_autopilot("--lockstep", &[], &flags, dir.path(), "attitude");
+        let (a, b) = (
+            number(&rates, "base_pos_rmse_m"),
+            number(&attitude, "base_pos_rmse_m"),
+        );
+        assert!(
+            (a - b).abs() < 0.02,
+            "base RMSE {a} m at rates, {b} m at attitude"
+        );
+        assert!(number(&rates, "base_z_rmse_m") < 0.05, "{rates}");
+        assert!(number(&rates, "tilt_use_rad") < 0.2, "{rates}");
+    }
+
+    #[test]
     fn the_estimator_flies_on_the_autopilots_imu_and_odometry() {
         // `--state-source estimator` over MAVLink: the EKF fuses the autopilot's HIGHRES_IMU
         // and ODOMETRY (not simulated sensors) and the controllers fly on its estimate. The

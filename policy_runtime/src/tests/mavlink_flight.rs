@@ -548,6 +548,20 @@ fn the_attitude_level_sends_the_controllers_own_cascade() {
         "{}",
         position.yaw_rad
     );
+    // The rate level: the same cascade through the attitude law, Ω_ff − K ⊙ e_R, with
+    // e_R = sin 0.3 x̂ (R = R_d · exp(0.3 x̂)).
+    let Setpoint::Rates { rates, .. } = record.setpoint(SetpointLevel::Rates).unwrap() else {
+        panic!("a rate setpoint");
+    };
+    let e_r = record.controller.attitude_error;
+    assert!(
+        (e_r - Vector3::new(0.3f64.sin(), 0.0, 0.0)).norm() < 1e-9,
+        "{e_r}"
+    );
+    let expected = target.body_rates_radps
+        - Vector3::from(controllers::PX4_ATTITUDE_P_PER_S).component_mul(&e_r);
+    assert!((rates.body_rates_radps - expected).norm() < 1e-12);
+    assert_eq!(rates.force_in_body_n, attitude.force_in_body_n);
     // A tick with no attitude loop behind it (the whole-body MPC's) is refused by name.
     record.attitude = None;
     record.controller.controller = "mpc";
@@ -557,6 +571,7 @@ fn the_attitude_level_sends_the_controllers_own_cascade() {
             .contains("mpc controller has no attitude loop"),
         "{e}"
     );
+    assert!(record.setpoint(SetpointLevel::Rates).is_err());
 }
 
 #[test]
