@@ -33,7 +33,7 @@ Links:
 Over MAVLink (docs/mavlink.md) the bridge is system 1, component 191. It waits for the
 autopilot's first ODOMETRY, asks for its AUTOPILOT_VERSION, streams the first setpoint,
 switches to OFFBOARD, arms, and then sends one setpoint per control tick and waits for the
-ODOMETRY that closes it. Levels — what a real PX4 accepts is attitude and position:
+ODOMETRY that closes it. Levels — a real PX4 accepts attitude, rates and position:
   --level attitude  (default) the controller's desired attitude, body rates and body force
                     (SET_ATTITUDE_TARGET: thrust_body on the fully actuated vehicles, the
                     collective thrust on the others); PX4's attitude/rate loops and
