@@ -117,6 +117,7 @@ def cmd_rates(args):
     version = m.recv_match(type="AUTOPILOT_VERSION", blocking=True, timeout=2)
     out["request_autopilot_version"] = res
     out["autopilot_version_received"] = version is not None
+    out["capabilities"] = None if version is None else version.capabilities
     res, _ = command(m, mavlink2.MAV_CMD_REQUEST_MESSAGE, 242)
     home = m.recv_match(type="HOME_POSITION", blocking=True, timeout=2)
     out["request_home_position"] = res

@@ -31,13 +31,26 @@ Links:
   mavlink:serial:DEVICE:BAUD  a serial port (mavlink:serial:/dev/ttyACM0:921600)
 
 Over MAVLink (docs/mavlink.md) the bridge is system 1, component 191. It waits for the
-autopilot's first ODOMETRY, streams the first setpoint, switches to OFFBOARD, arms, and then
-sends one setpoint per control tick and waits for the ODOMETRY that closes it. --level
-actuator sends rotor thrusts (SET_ACTUATOR_CONTROL_TARGET through the vehicle's thrust
-curve, our allocation flies); --level attitude sends the controller's desired attitude and
-body force (SET_ATTITUDE_TARGET, the autopilot's attitude loop and allocation fly). Arm and
-gripper go in group 2 at both levels. A refused or unanswered command (arming, offboard)
-stops the flight with the autopilot's answer, exit 1. At the end the bridge stops sending;
+autopilot's first ODOMETRY, asks for its AUTOPILOT_VERSION, streams the first setpoint,
+switches to OFFBOARD, arms, and then sends one setpoint per control tick and waits for the
+ODOMETRY that closes it. Levels — a real PX4 accepts attitude, rates and position:
+  --level attitude  (default) the controller's desired attitude, body rates and body force
+                    (SET_ATTITUDE_TARGET: thrust_body on the fully actuated vehicles, the
+                    collective thrust on the others); PX4's attitude/rate loops and
+                    allocation fly
+  --level rates     the attitude level through amstack's attitude law (PX4's attitude P
+                    gains) as body rates + the same thrust (SET_ATTITUDE_TARGET with
+                    ATTITUDE_IGNORE): PX4's rate loop and allocation fly
+  --level position  the stack's base target, position and heading (SET_POSITION_TARGET_
+                    LOCAL_NED): PX4's position controller flies, within its MPC_* limits
+  --level actuator  rotor thrusts through the vehicle's thrust curve (SET_ACTUATOR_CONTROL_
+                    TARGET): amstack's allocation flies. No PX4 takes it: only an autopilot
+                    whose AUTOPILOT_VERSION declares SET_ACTUATOR_TARGET (the twin's with
+                    --allow-actuator-setpoints); otherwise refused before arming, exit 2
+The arm and gripper go in group 2 at the actuator level, and at the others only to amstack's
+twin (which stands in for the arm's servo bus); to a PX4 nothing is sent for the arm: drive
+it on its own bus. A refused or unanswered command (arming, offboard) stops the flight with
+the autopilot's answer, exit 1. At the end the bridge stops sending;
 it never disarms (the autopilot's offboard-loss failsafe holds, then lands).
 With --signing-key every frame is signed and unsigned or badly signed frames are refused.
 With --mcap the log also holds /autopilot/state (mode, arming, status, the link's counters,
@@ -59,17 +72,22 @@ Example (lockstep SITL, the results equal the in-process run's):
   amstack twin serve --ipc sitl --platform fa-hexa --seed 3 &
   amstack fly --link ipc:sitl --platform fa-hexa --seed 3 --trajectory step --json r.json
 
-Example (the twin's autopilot over MAVLink, lockstep; the actuator level is the twin's SITL
-extension, which current PX4 does not accept):
+Example (the twin's autopilot over MAVLink, lockstep, as a PX4 is flown: attitude level):
+  amstack twin serve --mavlink udp:127.0.0.1:14540 --lockstep --platform fa-hexa &
+  amstack fly --link mavlink:udp:127.0.0.1:14540 --platform fa-hexa --trajectory step
+
+Example (the actuator level: the twin's SITL extension, which current PX4 does not accept):
   amstack twin serve --mavlink udp:127.0.0.1:14540 --lockstep --platform fa-hexa \\
       --allow-actuator-setpoints &
   amstack fly --link mavlink:udp:127.0.0.1:14540 --platform fa-hexa --level actuator --timing
 
-Example (a task over MAVLink; the same rollout as in process within f32 rounding):
+Example (a task over MAVLink at the attitude level, as against a PX4):
   amstack twin serve --mavlink udp:127.0.0.1:14540 --lockstep --task push-slider --seed 3 \\
-      --disturbances saturation --allow-actuator-setpoints &
+      --disturbances saturation &
   amstack fly --link mavlink:udp:127.0.0.1:14540 --task push-slider --trajectory scripted \\
-      --seed 3 --disturbances saturation --json task.json")]
+      --seed 3 --disturbances saturation --json task.json
+(With --allow-actuator-setpoints on the twin and --level actuator, the rollout is the in-process
+one within f32 rounding.)")]
 pub struct FlyArgs {
     /// Where the vehicle is: `twin` (in this process), `ipc:<service>` or
     /// `mavlink:<udp:HOST:PORT|udpin:HOST:PORT|tcp:HOST:PORT|serial:DEVICE:BAUD>`.
@@ -83,10 +101,13 @@ pub struct FlyArgs {
     /// (mavlink), ms.
     #[arg(long, value_name = "MS", default_value_t = 10_000)]
     connect_timeout_ms: u64,
-    /// MAVLink setpoint level: actuator (rotor thrusts, our allocation) or attitude
-    /// (attitude + body force, the autopilot's allocation).
-    #[arg(long, default_value = "actuator", value_parser = ["actuator", "attitude"])]
-    level: String,
+    /// MAVLink setpoint level: attitude (attitude + body force, the autopilot's attitude
+    /// loop and allocation), rates (body rates + body force from amstack's attitude law, the
+    /// autopilot's rate loop), position (base position + heading, the autopilot's position
+    /// controller) or actuator (rotor thrusts, our allocation: only to an autopilot that
+    /// declares it). [default: attitude]
+    #[arg(long, value_parser = ["attitude", "rates", "position", "actuator"])]
+    level: Option<String>,
     /// MAVLink 2 signing key file: 32 raw bytes or 64 hex digits. Frames out are signed;
     /// unsigned or badly signed frames in are refused (and counted).
     #[arg(long, value_name = "FILE")]
@@ -184,13 +205,33 @@ pub(crate) fn link_choice(link: &str) -> Result<LinkChoice> {
     }
 }
 
+/// The MAVLink level of the flags (attitude unless asked).
+fn level(args: &FlyArgs) -> Level {
+    match args.level.as_deref() {
+        Some("actuator") => Level::Actuator,
+        Some("position") => Level::Position,
+        Some("rates") => Level::Rates,
+        _ => Level::Attitude,
+    }
+}
+
 pub fn run(args: &FlyArgs) -> Result<()> {
     let choice = link_choice(&args.link)?;
-    if args.level == "attitude" && args.track.controller_name() == "mpc" {
+    if let (Some(l), LinkChoice::Twin | LinkChoice::Ipc(_)) = (&args.level, &choice) {
+        return Err(bad_input(format!(
+            "--level {l}: the level is for --link mavlink:…; the twin over --link {} flies \
+             the actuator level",
+            args.link
+        )));
+    }
+    if matches!(choice, LinkChoice::Mavlink(_))
+        && matches!(level(args), Level::Attitude | Level::Rates)
+        && args.track.controller_name() == "mpc"
+    {
         return Err(bad_input(
-            "--controller mpc --level attitude: the whole-body MPC commands a body wrench and \
+            "--controller mpc --level attitude|rates: the whole-body MPC commands a body wrench and \
              arm joints, not an attitude (it has no attitude loop to hand the autopilot); fly \
-             it with --level actuator",
+             it with --level position (its base target) or --level actuator",
         ));
     }
     if let Some(p) = &args.timing_json {
@@ -284,11 +325,7 @@ fn mavlink_link_config(args: &FlyArgs, address: &Address) -> Result<MavlinkLinkC
             require: !args.signing_optional,
         }),
     };
-    let level = if args.level == "attitude" {
-        Level::Attitude
-    } else {
-        Level::Actuator
-    };
+    let level = level(args);
     Ok(MavlinkLinkConfig {
         connect_timeout: Duration::from_millis(args.connect_timeout_ms),
         tick_timeout: Duration::from_millis(args.link_timeout_ms.unwrap_or(500).max(1)),
@@ -322,10 +359,11 @@ fn run_mavlink(args: &FlyArgs, address: &Address) -> Result<()> {
     let mut link = MavlinkLink::connect(&config.vehicle, link_config).map_err(link_error)?;
     let autopilot = link.bridge().autopilot();
     eprintln!(
-        "connected to the autopilot on {address}: {}, {}, {} level",
+        "connected to the autopilot on {address}: {}, {}, {} level; {}",
         autopilot.mode_name(),
         if autopilot.armed { "armed" } else { "disarmed" },
-        level.name()
+        level.name(),
+        arm_line(&link)
     );
     let mut figures = None;
     track::run_with(&args.track, &config, |config, progress| {
@@ -353,6 +391,16 @@ fn run_mavlink(args: &FlyArgs, address: &Address) -> Result<()> {
         report_timing(&t, args.timing_json.as_deref())?;
     }
     Ok(())
+}
+
+/// What happens to the arm's targets over this link, for the connection line.
+pub(crate) fn arm_line(link: &MavlinkLink) -> &'static str {
+    if link.arm_channel() {
+        "arm and gripper targets in SET_ACTUATOR_CONTROL_TARGET group 2"
+    } else {
+        "arm and gripper targets not sent (the autopilot is not amstack's twin: drive the arm \
+         on its own bus)"
+    }
 }
 
 /// Timing over MAVLink: the bridge knows the round trip (setpoint queued → its ODOMETRY

@@ -438,6 +438,26 @@ fn bench_refuses_unknown_names_and_impossible_combinations_listing_the_choices()
         &amstack(&["bench", "--link", "mavlink:udp:127.0.0.1:14540"]),
         &["--link mavlink:", "--trajectory scripted"],
     );
+    // The setpoint level is the MAVLink link's; the twin flies the actuator level.
+    assert_bad_input(
+        &amstack(&["fly", "--level", "position", "--trajectory", "hover"]),
+        &["--level position", "--link mavlink:", "--link twin"],
+    );
+    // The whole-body MPC has no attitude loop for the attitude (default) or rate level.
+    assert_bad_input(
+        &amstack(&[
+            "fly",
+            "--link",
+            "mavlink:udp:127.0.0.1:14540",
+            "--controller",
+            "mpc",
+            "--interface",
+            "ee",
+            "--level",
+            "rates",
+        ]),
+        &["--controller mpc", "--level position"],
+    );
 }
 
 #[test]

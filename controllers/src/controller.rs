@@ -2,7 +2,7 @@
 //! time-step guard, anti-windup from the allocator's feedback, and the status.
 
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
-use platform::{AttitudeSetpoint, GRAVITY_MPS2, RigidBodyState, Vehicle, Wrench};
+use platform::{AttitudeSetpoint, GRAVITY_MPS2, RateSetpoint, RigidBodyState, Vehicle, Wrench};
 use serde::Serialize;
 
 use crate::desired::{DesiredStateGenerator, is_finite_pose};
@@ -190,6 +190,32 @@ impl ControllerStatus {
             output: Wrench::ZERO,
             attitude_target: None,
         }
+    }
+}
+
+/// PX4's multicopter attitude P gains, body x, y, z (MC_ROLL_P, MC_PITCH_P, MC_YAW_P
+/// defaults), 1/s: the outer attitude law of the rate level, so that the rates amstack sends
+/// ask of PX4's rate loop what PX4's own attitude loop would.
+pub const PX4_ATTITUDE_P_PER_S: [f64; 3] = [6.5, 6.5, 2.8];
+
+/// The rate level of a cascade: the body rates that fly attitude setpoint `attitude` from an
+/// attitude error `e_R` (body, [`crate::attitude_error`]), with the body force unchanged:
+///
+/// ```text
+/// Ω_cmd = Ω_ff − K ⊙ e_R      (Ω_ff = RᵀR_dΩ_d, the setpoint's feed-forward; 0 without)
+/// ```
+///
+/// For small errors e_R ≈ θ, the rotation from R_d to R, and θ̇ ≈ Ω − Ω_ff, so a rate loop
+/// that tracks Ω_cmd gives θ̇ = −K ⊙ θ.
+pub fn rate_setpoint(
+    attitude: &AttitudeSetpoint,
+    attitude_error: &Vector3<f64>,
+    gains_per_s: [f64; 3],
+) -> RateSetpoint {
+    let feed_forward = attitude.body_rates_radps.unwrap_or_else(Vector3::zeros);
+    RateSetpoint {
+        body_rates_radps: feed_forward - Vector3::from(gains_per_s).component_mul(attitude_error),
+        force_in_body_n: attitude.force_in_body_n,
     }
 }
 

@@ -33,7 +33,7 @@ mod so3;
 pub use attitude::{AttitudeGains, AttitudeLaw};
 pub use controller::{
     AttitudeTarget, BaseController, BodyParams, ControllerStatus, DT_MAX_S, DT_MIN_S, InputHealth,
-    SATURATION_TOLERANCE,
+    PX4_ATTITUDE_P_PER_S, SATURATION_TOLERANCE, rate_setpoint,
 };
 pub use desired::{DesiredState, DesiredStateGenerator, is_finite_pose};
 pub use gains::{ConfigError, ControllerConfig, L1Config, Pid4Gains, Pid6Gains};

@@ -551,3 +551,46 @@ fn pid4_damps_the_centre_of_mass_velocity_not_the_base_origins() {
     pid.update(&sliding, &at, DT);
     assert!((pid.status().velocity_error_mps + sliding.velocity_in_world_mps).norm() < 1e-12);
 }
+
+#[test]
+fn the_rate_level_turns_an_attitude_error_into_rates_back_toward_the_target() {
+    // R = R_d · exp(0.3 x̂): e_R = sin 0.3 x̂ (body); with PX4's gains (6.5, 6.5, 2.8) 1/s and a
+    // feed-forward of (0.1, 0.2, 0.3) rad/s the rate is (0.1 − 6.5 sin 0.3, 0.2, 0.3), the force
+    // unchanged. Without feed-forward, the error term alone.
+    let r_d = UnitQuaternion::from_euler_angles(0.1, -0.2, 0.7);
+    let r = r_d * UnitQuaternion::from_scaled_axis(Vector3::x() * 0.3);
+    let e_r = attitude_error(
+        r.to_rotation_matrix().matrix(),
+        r_d.to_rotation_matrix().matrix(),
+    );
+    assert!(
+        (e_r - Vector3::new(0.3f64.sin(), 0.0, 0.0)).norm() < 1e-12,
+        "{e_r}"
+    );
+    let attitude = platform::AttitudeSetpoint {
+        world_from_body: r_d,
+        force_in_body_n: Vector3::new(1.0, 2.0, 60.0),
+        body_rates_radps: Some(Vector3::new(0.1, 0.2, 0.3)),
+    };
+    let rates = crate::rate_setpoint(&attitude, &e_r, crate::PX4_ATTITUDE_P_PER_S);
+    let expected = Vector3::new(0.1 - 6.5 * 0.3f64.sin(), 0.2, 0.3);
+    assert!(
+        (rates.body_rates_radps - expected).norm() < 1e-12,
+        "{rates:?}"
+    );
+    assert_eq!(rates.force_in_body_n, attitude.force_in_body_n);
+    let no_ff = platform::AttitudeSetpoint {
+        body_rates_radps: None,
+        ..attitude
+    };
+    let yawed = Vector3::new(0.0, 0.0, -0.1);
+    let rates = crate::rate_setpoint(&no_ff, &yawed, crate::PX4_ATTITUDE_P_PER_S);
+    assert!((rates.body_rates_radps - Vector3::new(0.0, 0.0, 0.28)).norm() < 1e-12);
+    // All zero: all zero.
+    let level = platform::AttitudeSetpoint {
+        force_in_body_n: Vector3::zeros(),
+        ..no_ff
+    };
+    let rates = crate::rate_setpoint(&level, &Vector3::zeros(), crate::PX4_ATTITUDE_P_PER_S);
+    assert_eq!(rates.body_rates_radps, Vector3::zeros());
+}

@@ -35,7 +35,7 @@ use crate::address::Address;
 use crate::capture::{Capture, CaptureQueue, CaptureStats, RawFrame};
 use crate::setpoint::SetpointError;
 use crate::task_array::TaskArray;
-use crate::telemetry::{AutopilotState, Telemetry, px4_mode};
+use crate::telemetry::{AutopilotState, AutopilotVersion, Telemetry, px4_mode};
 use crate::wire::{CounterSnapshot, Counters, Decoder, Encoder, Frame, Signing};
 
 /// MAV_COMP_ID_AUTOPILOT1.
@@ -453,6 +453,39 @@ impl Bridge {
                 0.0,
             ],
         )
+    }
+
+    /// Asks the autopilot what it declares (MAV_CMD_REQUEST_MESSAGE for AUTOPILOT_VERSION, as
+    /// PX4 answers it: COMMAND_ACK, then the message) and waits up to `timeout` after the
+    /// ack for the message.
+    pub fn request_autopilot_version(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<AutopilotVersion, BridgeError> {
+        const AUTOPILOT_VERSION_ID: f32 = 148.0;
+        self.shared
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .autopilot
+            .version = None;
+        self.command_long(
+            "requesting AUTOPILOT_VERSION",
+            MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            [AUTOPILOT_VERSION_ID, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        )?;
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(v) = self.autopilot().version {
+                return Ok(v);
+            }
+            if Instant::now() >= deadline {
+                return Err(BridgeError::NoTelemetry {
+                    what: "AUTOPILOT_VERSION (asked for with MAV_CMD_REQUEST_MESSAGE)".to_owned(),
+                    waited_ms: u64::try_from(timeout.as_millis()).unwrap_or(u64::MAX),
+                });
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
     }
 
     /// Waits up to `timeout` for a measurement newer than `after_s` (simulated or autopilot

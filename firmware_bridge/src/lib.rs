@@ -9,8 +9,9 @@
 //!   amstack's ENU-like Z-up world and FLU body (the twin's MAVLink autopilot uses it too).
 //! - [`setpoint`]: commands → SET_ACTUATOR_CONTROL_TARGET (actuator level: motors through
 //!   the vehicle's thrust curve, tilt servos, arm joints and gripper normalised over their
-//!   limits) or SET_ATTITUDE_TARGET (attitude level: attitude + `thrust_body`); a non-finite
-//!   value is refused, never sent.
+//!   limits), SET_ATTITUDE_TARGET (attitude level: attitude + `thrust_body`) or
+//!   SET_POSITION_TARGET_LOCAL_NED (position level: position + heading); a non-finite value
+//!   is refused, never sent.
 //! - [`telemetry`]: HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE, HIGHRES_IMU,
 //!   ATTITUDE_QUATERNION, LOCAL_POSITION_NED, ACTUATOR_OUTPUT_STATUS, DEBUG_FLOAT_ARRAY
 //!   "joints" and ODOMETRY (which closes a tick) → a [`platform::Measurement`] and the
@@ -40,7 +41,7 @@ pub use bridge::{Bridge, BridgeConfig, BridgeError};
 pub use capture::{CaptureStats, Direction, RawFrame};
 pub use setpoint::{ActuatorUpdate, AttitudeSetpoint, SetpointCodec, SetpointError};
 pub use task_array::TaskArray;
-pub use telemetry::{AutopilotState, Telemetry};
+pub use telemetry::{AutopilotState, AutopilotVersion, Telemetry};
 pub use wire::{CounterSnapshot, Signing, SigningKey};
 
 #[cfg(test)]

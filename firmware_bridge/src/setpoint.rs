@@ -14,8 +14,23 @@
 //! Controls are clamped to their range ([−1, 1], or [0, 1] for motors); unused controls are 0.
 //!
 //! **Attitude level** — SET_ATTITUDE_TARGET (id 82) with the desired attitude `ned_from_frd`,
-//! `thrust_body` = body force (FRD) / (rotor count · T_max) clamped to [−1, 1] per component,
-//! and the body-rate feed-forward (FRD), preceded by the group-2 arm message.
+//! `thrust_body` = body force (FRD) / (rotor count · T_max) clamped to [−1, 1] per component
+//! (type_mask THRUST_BODY_SET, for the vehicles that can push sideways: fully actuated and
+//! tilting), or for the under-actuated ones the collective `thrust` = F_z / (rotor count ·
+//! T_max) clamped to [0, 1] alone, and the body-rate feed-forward (FRD), preceded by the
+//! group-2 arm message.
+//!
+//! **Rate level** — SET_ATTITUDE_TARGET with ATTITUDE_IGNORE (128): the body rates (FRD) and
+//! the attitude level's thrust fields (q identity, not read).
+//!
+//! **Position level** — SET_POSITION_TARGET_LOCAL_NED (id 84), MAV_FRAME_LOCAL_NED: x/y/z =
+//! `ned_from_world(p)`, yaw = π/2 − ψ (PX4's heading, clockwise from north), type_mask
+//! ignoring velocity (8/16/32), acceleration (64/128/256) and yaw rate (2048): PX4's
+//! position controller flies to the point, preceded by the group-2 arm message.
+//!
+//! The group-2 arm message at the attitude and position levels is the arm's channel when the
+//! receiver is amstack's twin (which stands in for the arm's own servo bus); toward another
+//! autopilot the link leaves it out ([`SetpointCodec::with_arm_channel`]).
 //!
 //! A command holding a non-finite number is refused with an error naming the field: the
 //! bridge never sends one.
@@ -26,10 +41,11 @@
 //! use, is refused whole; values within range are clamped to their limits.
 
 use mavlink::dialects::common::{
-    AttitudeTargetTypemask, MavMessage, SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA,
+    AttitudeTargetTypemask, MavFrame, MavMessage, PositionTargetTypemask,
+    SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA,
 };
 use nalgebra::Vector3;
-use platform::{ActuatorCommand, ThrustCurve, Vehicle};
+use platform::{Actuation, ActuatorCommand, PositionSetpoint, RateSetpoint, ThrustCurve, Vehicle};
 
 use crate::frames;
 
@@ -122,6 +138,11 @@ pub struct SetpointCodec {
     tilts: Vec<Channel>,
     arm: Vec<Channel>,
     gripper: Option<Fingers>,
+    /// Whether the attitude level sends `thrust_body` (a vehicle that can push sideways) or
+    /// the collective thrust alone.
+    thrust_body: bool,
+    /// Whether the attitude and position levels send the group-2 arm message.
+    arm_channel: bool,
     target_system: u8,
     target_component: u8,
 }
@@ -214,9 +235,39 @@ impl SetpointCodec {
             tilts,
             arm,
             gripper,
+            thrust_body: vehicle.actuation != Actuation::UnderActuated,
+            arm_channel: true,
             target_system,
             target_component,
         })
+    }
+
+    /// Whether the attitude and position levels send the arm and gripper as group 2 (on by
+    /// default). amstack's twin takes group 2 as the arm's servo bus; a PX4 has no arm and no
+    /// SET_ACTUATOR_CONTROL_TARGET: toward it the link turns the channel off.
+    pub fn with_arm_channel(mut self, on: bool) -> Self {
+        self.arm_channel = on;
+        self
+    }
+
+    /// Whether the attitude and position levels send group 2.
+    pub fn arm_channel(&self) -> bool {
+        self.arm_channel
+    }
+
+    /// Whether the attitude level sends `thrust_body` (THRUST_BODY_SET) rather than the
+    /// collective thrust alone.
+    pub fn sends_thrust_body(&self) -> bool {
+        self.thrust_body
+    }
+
+    /// The group-2 message when the arm channel is on.
+    fn arm_messages(&self, time_usec: u64, joint_targets: &[f64]) -> Vec<MavMessage> {
+        if self.arm_channel {
+            vec![self.arm_group(time_usec, joint_targets)]
+        } else {
+            Vec::new()
+        }
     }
 
     /// Number of rotors.
@@ -359,6 +410,9 @@ impl SetpointCodec {
         // MAVLink carries f32; the narrowing is the protocol's.
         #[allow(clippy::cast_possible_truncation)]
         let thrust_body = force_frd.map(|f| f.clamp(-1.0, 1.0) as f32);
+        // Collective thrust: the z component's magnitude (all a vehicle whose rotors are
+        // parallel can give, and what receivers that ignore thrust_body read).
+        let thrust = (-thrust_body[2]).clamp(0.0, 1.0);
         let (rates, rate_mask) = match &setpoint.body_rates_radps {
             Some(r) => (frames::frd_from_flu(r), AttitudeTargetTypemask::empty()),
             None => (
@@ -369,8 +423,14 @@ impl SetpointCodec {
             ),
         };
         // PX4 reads thrust_body only with THRUST_BODY_SET (else the collective `thrust`).
-        let type_mask =
-            rate_mask | AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET;
+        let (type_mask, thrust_body) = if self.thrust_body {
+            (
+                rate_mask | AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET,
+                [thrust_body.x, thrust_body.y, thrust_body.z],
+            )
+        } else {
+            (rate_mask, [0.0; 3])
+        };
         let q = frames::quaternion_to_mavlink(&frames::ned_from_frd_attitude(
             &setpoint.world_from_body,
         ));
@@ -384,18 +444,85 @@ impl SetpointCodec {
             body_roll_rate: rates.x as f32,
             body_pitch_rate: rates.y as f32,
             body_yaw_rate: rates.z as f32,
-            // Collective thrust (the z component's magnitude, for receivers that ignore
-            // thrust_body).
-            thrust: (-thrust_body[2]).clamp(0.0, 1.0),
+            thrust,
             target_system: self.target_system,
             target_component: self.target_component,
             type_mask,
-            thrust_body: [thrust_body.x, thrust_body.y, thrust_body.z],
+            thrust_body,
         });
-        Ok(vec![
-            self.arm_group(time_usec, &command.joint_targets),
-            attitude,
-        ])
+        let mut out = self.arm_messages(time_usec, &command.joint_targets);
+        out.push(attitude);
+        Ok(out)
+    }
+
+    /// The rate-level messages of one tick: group 2 (when the arm channel is on), then
+    /// SET_ATTITUDE_TARGET with ATTITUDE_IGNORE, the body rates of `setpoint` (FRD) and its
+    /// body force as at the attitude level (`thrust_body` or the collective thrust); q is the
+    /// identity and not read.
+    pub fn rate_messages(
+        &self,
+        time_usec: u64,
+        command: &ActuatorCommand,
+        setpoint: &RateSetpoint,
+    ) -> Result<Vec<MavMessage>, SetpointError> {
+        let attitude = AttitudeSetpoint {
+            world_from_body: nalgebra::UnitQuaternion::identity(),
+            force_in_body_n: setpoint.force_in_body_n,
+            body_rates_radps: Some(setpoint.body_rates_radps),
+        };
+        let mut out = self.attitude_messages(time_usec, command, &attitude)?;
+        if let Some(MavMessage::SET_ATTITUDE_TARGET(a)) = out.last_mut() {
+            a.q = [1.0, 0.0, 0.0, 0.0];
+            a.type_mask |= AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE;
+        }
+        Ok(out)
+    }
+
+    /// The position-level messages of one tick: group 2 (arm and gripper from
+    /// `command.joint_targets`, when the arm channel is on; its rotor thrusts are ignored),
+    /// then SET_POSITION_TARGET_LOCAL_NED with the position and heading of `setpoint` and
+    /// every other field ignored by the type mask (PX4 flies to the point within its
+    /// MPC_* limits).
+    pub fn position_messages(
+        &self,
+        time_usec: u64,
+        command: &ActuatorCommand,
+        setpoint: &PositionSetpoint,
+    ) -> Result<Vec<MavMessage>, SetpointError> {
+        self.check_command(command, false)?;
+        for (i, name) in ["x", "y", "z"].iter().enumerate() {
+            check_finite(
+                || format!("position_in_world_m.{name}"),
+                setpoint.position_in_world_m[i],
+            )?;
+        }
+        check_finite(|| "yaw_rad".to_owned(), setpoint.yaw_rad)?;
+        let p = frames::ned_from_world(&setpoint.position_in_world_m);
+        let type_mask = PositionTargetTypemask::POSITION_TARGET_TYPEMASK_VX_IGNORE
+            | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_VY_IGNORE
+            | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_VZ_IGNORE
+            | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_AX_IGNORE
+            | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_AY_IGNORE
+            | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_AZ_IGNORE
+            | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE;
+        // time_boot_ms wraps after 49 days; the protocol's fields are 32 bits and f32.
+        #[allow(clippy::cast_possible_truncation)]
+        let position =
+            MavMessage::SET_POSITION_TARGET_LOCAL_NED(SET_POSITION_TARGET_LOCAL_NED_DATA {
+                time_boot_ms: (time_usec / 1000) as u32,
+                x: p.x as f32,
+                y: p.y as f32,
+                z: p.z as f32,
+                yaw: frames::ned_yaw_from_world_yaw(setpoint.yaw_rad) as f32,
+                type_mask,
+                target_system: self.target_system,
+                target_component: self.target_component,
+                coordinate_frame: MavFrame::MAV_FRAME_LOCAL_NED,
+                ..SET_POSITION_TARGET_LOCAL_NED_DATA::default()
+            });
+        let mut out = self.arm_messages(time_usec, &command.joint_targets);
+        out.push(position);
+        Ok(out)
     }
 
     /// Decodes one SET_ACTUATOR_CONTROL_TARGET (the receiver's side): group 0 → rotor thrusts

@@ -17,7 +17,9 @@
 //! Values that are not finite, or a quaternion far from unit length, are ignored (the
 //! field keeps its previous value) and counted in [`Telemetry::rejected_values`].
 
-use mavlink::dialects::common::{MavFrame, MavMessage, MavModeFlag, MavState};
+use mavlink::dialects::common::{
+    MavFrame, MavMessage, MavModeFlag, MavProtocolCapability, MavState,
+};
 use nalgebra::Vector3;
 use platform::{Measurement, RotorReport, Vehicle};
 
@@ -103,6 +105,44 @@ pub struct AutopilotState {
     pub imu_accel_in_body_mps2: Option<Vector3<f64>>,
     /// Last HIGHRES_IMU: angular rate, body FLU, rad/s.
     pub imu_gyro_in_body_radps: Option<Vector3<f64>>,
+    /// What the last AUTOPILOT_VERSION declared (None before one).
+    pub version: Option<AutopilotVersion>,
+}
+
+/// `flight_custom_version` of amstack's twin autopilot (`amstack twin serve --mavlink`), where
+/// a PX4 puts its git hash: how the bridge knows it talks to the twin, which stands in for
+/// the arm's servo bus (`docs/mavlink.md`).
+pub const TWIN_FLIGHT_CUSTOM_VERSION: [u8; 8] = *b"amstack\0";
+
+/// The AUTOPILOT_VERSION capability bit of SET_ACTUATOR_CONTROL_TARGET: 1024, which MAVLink
+/// defined as MAV_PROTOCOL_CAPABILITY_SET_ACTUATOR_TARGET and, since the message was retired,
+/// lists as MAV_PROTOCOL_CAPABILITY_RESERVED3 (the mavlink crate's name). PX4 set it while it
+/// accepted the message and no longer does; the twin's autopilot sets it with
+/// `--allow-actuator-setpoints`.
+pub const CAPABILITY_SET_ACTUATOR_TARGET: MavProtocolCapability =
+    MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_RESERVED3;
+
+/// What an autopilot declares in AUTOPILOT_VERSION.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AutopilotVersion {
+    /// MAV_PROTOCOL_CAPABILITY bits.
+    pub capabilities: MavProtocolCapability,
+    /// `flight_custom_version` (PX4: the first bytes of its git hash).
+    pub flight_custom_version: [u8; 8],
+}
+
+impl AutopilotVersion {
+    /// Whether it declares [`CAPABILITY_SET_ACTUATOR_TARGET`]: it takes
+    /// SET_ACTUATOR_CONTROL_TARGET (current PX4 does not; the twin's autopilot with
+    /// `--allow-actuator-setpoints` does).
+    pub fn accepts_actuator_setpoints(&self) -> bool {
+        self.capabilities.contains(CAPABILITY_SET_ACTUATOR_TARGET)
+    }
+
+    /// Whether the autopilot is amstack's twin ([`TWIN_FLIGHT_CUSTOM_VERSION`]).
+    pub fn is_amstack_twin(&self) -> bool {
+        self.flight_custom_version == TWIN_FLIGHT_CUSTOM_VERSION
+    }
 }
 
 impl AutopilotState {
@@ -184,6 +224,12 @@ impl Telemetry {
             MavMessage::SYS_STATUS(s) => {
                 self.autopilot.battery_voltage_v =
                     (s.voltage_battery != u16::MAX).then(|| f64::from(s.voltage_battery) / 1000.0);
+            }
+            MavMessage::AUTOPILOT_VERSION(v) => {
+                self.autopilot.version = Some(AutopilotVersion {
+                    capabilities: v.capabilities,
+                    flight_custom_version: v.flight_custom_version,
+                });
             }
             MavMessage::EXTENDED_SYS_STATE(s) => {
                 self.autopilot.landed_state = Some(format!("{:?}", s.landed_state));

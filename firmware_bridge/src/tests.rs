@@ -7,9 +7,10 @@ use std::net::UdpSocket;
 use std::time::Duration;
 
 use mavlink::dialects::common::{
-    ACTUATOR_OUTPUT_STATUS_DATA, AttitudeTargetTypemask, COMMAND_ACK_DATA, DEBUG_FLOAT_ARRAY_DATA,
-    HEARTBEAT_DATA, MavAutopilot, MavCmd, MavFrame, MavMessage, MavModeFlag, MavResult, MavState,
-    MavType, ODOMETRY_DATA, SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA,
+    ACTUATOR_OUTPUT_STATUS_DATA, AUTOPILOT_VERSION_DATA, AttitudeTargetTypemask, COMMAND_ACK_DATA,
+    DEBUG_FLOAT_ARRAY_DATA, HEARTBEAT_DATA, MavAutopilot, MavCmd, MavFrame, MavMessage,
+    MavModeFlag, MavProtocolCapability, MavResult, MavState, MavType, ODOMETRY_DATA,
+    PositionTargetTypemask, SET_ACTUATOR_CONTROL_TARGET_DATA, SET_ATTITUDE_TARGET_DATA,
 };
 use mavlink::{MavHeader, MavlinkReader, MavlinkVersion, SigningConfig, SigningData};
 use nalgebra::{UnitQuaternion, Vector3};
@@ -19,7 +20,9 @@ use crate::address::Address;
 use crate::bridge::{Bridge, BridgeConfig, BridgeError};
 use crate::capture::{Direction, RawFrame};
 use crate::setpoint::{ActuatorUpdate, AttitudeSetpoint, SetpointCodec, SetpointError};
-use crate::telemetry::{Telemetry, px4_mode};
+use crate::telemetry::{
+    CAPABILITY_SET_ACTUATOR_TARGET, TWIN_FLIGHT_CUSTOM_VERSION, Telemetry, px4_mode,
+};
 use crate::wire::{CounterSnapshot, Counters, Decoder, Encoder, Signing, SigningKey};
 
 fn vehicle(id: &str) -> Vehicle {
@@ -276,6 +279,184 @@ fn attitude_setpoint_is_ned_frd_with_thrust_over_total_max() {
     };
     assert_eq!(a.thrust_body[2], -1.0);
     assert!(!a.type_mask.is_empty());
+}
+
+#[test]
+fn an_under_actuated_vehicle_sends_the_collective_thrust_alone() {
+    // The UA-Quad cannot push sideways: no THRUST_BODY_SET, thrust_body zero, and the
+    // collective thrust F_z / (4 · T_max); a fully actuated vehicle sends thrust_body.
+    let v = vehicle("ua-quad");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    assert!(!codec.sends_thrust_body());
+    assert!(
+        SetpointCodec::new(&vehicle("fa-hexa"), 1, 1)
+            .unwrap()
+            .sends_thrust_body()
+    );
+    assert!(
+        SetpointCodec::new(&vehicle("omni-hexa"), 1, 1)
+            .unwrap()
+            .sends_thrust_body()
+    );
+    let total = 4.0 * v.rotors.thrust_max_n;
+    let sp = AttitudeSetpoint {
+        world_from_body: UnitQuaternion::identity(),
+        force_in_body_n: Vector3::new(0.0, 0.0, 0.3 * total),
+        body_rates_radps: None,
+    };
+    let msgs = codec
+        .attitude_messages(0, &hover_command(&v, 0.0), &sp)
+        .unwrap();
+    let Some(MavMessage::SET_ATTITUDE_TARGET(a)) = msgs.last() else {
+        panic!("{msgs:?}")
+    };
+    assert!((a.thrust - 0.3).abs() < 1e-6, "{}", a.thrust);
+    assert_eq!(a.thrust_body, [0.0; 3]);
+    assert!(
+        !a.type_mask
+            .contains(AttitudeTargetTypemask::ATTITUDE_TARGET_TYPEMASK_THRUST_BODY_SET)
+    );
+    // Read back as PX4 reads it: the collective thrust along body up.
+    let back = codec.decode_attitude(a).unwrap();
+    assert!((back.force_in_body_n - sp.force_in_body_n).norm() < 1e-3);
+}
+
+#[test]
+fn position_setpoint_is_local_ned_with_only_position_and_yaw_used() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    let c = hover_command(&v, 0.0);
+    // World (1, 2, 3) m, z up → NED (2, 1, −3); heading north (amstack yaw π/2) → PX4 yaw 0,
+    // heading west (π) → −π/2.
+    let sp = platform::PositionSetpoint {
+        position_in_world_m: Vector3::new(1.0, 2.0, 3.0),
+        yaw_rad: std::f64::consts::FRAC_PI_2,
+    };
+    let msgs = codec.position_messages(7_000_000, &c, &sp).unwrap();
+    assert_eq!(msgs.len(), 2);
+    assert!(matches!(&msgs[0], MavMessage::SET_ACTUATOR_CONTROL_TARGET(d) if d.group_mlx == 2));
+    let MavMessage::SET_POSITION_TARGET_LOCAL_NED(p) = &msgs[1] else {
+        panic!("{:?}", msgs[1])
+    };
+    assert_eq!((p.x, p.y, p.z), (2.0, 1.0, -3.0));
+    assert!(p.yaw.abs() < 1e-7, "{}", p.yaw);
+    assert_eq!(p.coordinate_frame, MavFrame::MAV_FRAME_LOCAL_NED);
+    assert_eq!((p.target_system, p.target_component), (1, 1));
+    assert_eq!(p.time_boot_ms, 7_000);
+    // PX4's bits: 8/16/32 velocity, 64/128/256 acceleration, 2048 yaw rate ignored; position
+    // (1/2/4), yaw (1024) and FORCE_SET (512) clear: 8+16+32+64+128+256+2048 = 2552.
+    assert_eq!(p.type_mask.bits(), 2552);
+    assert!(
+        !p.type_mask
+            .contains(PositionTargetTypemask::POSITION_TARGET_TYPEMASK_YAW_IGNORE)
+    );
+    let west = platform::PositionSetpoint {
+        yaw_rad: std::f64::consts::PI,
+        ..sp
+    };
+    let msgs = codec.position_messages(0, &c, &west).unwrap();
+    let MavMessage::SET_POSITION_TARGET_LOCAL_NED(p) = &msgs[1] else {
+        panic!()
+    };
+    assert!((f64::from(p.yaw) + std::f64::consts::FRAC_PI_2).abs() < 1e-6);
+    // Without the arm channel (a PX4), the position target alone.
+    let px4 = codec.clone().with_arm_channel(false);
+    let msgs = px4.position_messages(0, &c, &sp).unwrap();
+    assert_eq!(msgs.len(), 1);
+    assert!(matches!(
+        msgs[0],
+        MavMessage::SET_POSITION_TARGET_LOCAL_NED(_)
+    ));
+    let msgs = px4
+        .attitude_messages(
+            0,
+            &c,
+            &AttitudeSetpoint {
+                world_from_body: UnitQuaternion::identity(),
+                force_in_body_n: Vector3::z() * 60.0,
+                body_rates_radps: None,
+            },
+        )
+        .unwrap();
+    assert_eq!(msgs.len(), 1);
+    // A non-finite position is refused by name; nothing is sent.
+    let nan = platform::PositionSetpoint {
+        position_in_world_m: Vector3::new(0.0, f64::NAN, 1.0),
+        ..sp
+    };
+    let e = codec.position_messages(0, &c, &nan).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "refusing to send a non-finite setpoint: position_in_world_m.y = NaN"
+    );
+    let e = codec
+        .position_messages(
+            0,
+            &c,
+            &platform::PositionSetpoint {
+                yaw_rad: f64::INFINITY,
+                ..sp
+            },
+        )
+        .unwrap_err();
+    assert!(e.to_string().contains("yaw_rad = inf"), "{e}");
+}
+
+#[test]
+fn rate_setpoint_ignores_the_attitude_and_carries_frd_rates_and_the_thrust() {
+    let v = vehicle("fa-hexa");
+    let codec = SetpointCodec::new(&v, 1, 1).unwrap();
+    // 69 N up (FLU +z) of 6 · 23 N → thrust_body z = −0.5 (FRD); rates FLU (0.1, 0.2, 0.3) →
+    // FRD (0.1, −0.2, −0.3); type_mask ATTITUDE_IGNORE (128) | THRUST_BODY_SET (32) = 160.
+    let sp = platform::RateSetpoint {
+        body_rates_radps: Vector3::new(0.1, 0.2, 0.3),
+        force_in_body_n: Vector3::new(0.0, 0.0, 69.0),
+    };
+    let msgs = codec
+        .rate_messages(0, &hover_command(&v, 0.0), &sp)
+        .unwrap();
+    assert_eq!(msgs.len(), 2);
+    let MavMessage::SET_ATTITUDE_TARGET(a) = &msgs[1] else {
+        panic!("{:?}", msgs[1])
+    };
+    assert_eq!(a.type_mask.bits(), 160);
+    assert_eq!(a.q, [1.0, 0.0, 0.0, 0.0]);
+    assert_eq!(
+        (a.body_roll_rate, a.body_pitch_rate, a.body_yaw_rate),
+        (0.1, -0.2, -0.3)
+    );
+    assert!((a.thrust_body[2] + 0.5).abs() < 1e-6 && (a.thrust - 0.5).abs() < 1e-6);
+    // The UA-Quad: collective thrust, ATTITUDE_IGNORE alone.
+    let ua = vehicle("ua-quad");
+    let msgs = SetpointCodec::new(&ua, 1, 1)
+        .unwrap()
+        .rate_messages(0, &hover_command(&ua, 0.0), &sp)
+        .unwrap();
+    let Some(MavMessage::SET_ATTITUDE_TARGET(a)) = msgs.last() else {
+        panic!()
+    };
+    assert_eq!(a.type_mask.bits(), 128);
+    // A non-finite rate is refused by name.
+    let nan = platform::RateSetpoint {
+        body_rates_radps: Vector3::new(0.0, f64::NAN, 0.0),
+        ..sp
+    };
+    let e = codec
+        .rate_messages(0, &hover_command(&v, 0.0), &nan)
+        .unwrap_err();
+    assert!(e.to_string().contains("body_rates_radps.y = NaN"), "{e}");
+}
+
+#[test]
+fn a_pose_gives_its_position_and_heading() {
+    // Heading is body x projected on the ground: a target pitched and rolled keeps its yaw.
+    let pose = nalgebra::Isometry3::from_parts(
+        nalgebra::Translation3::new(0.5, -1.0, 2.0),
+        UnitQuaternion::from_euler_angles(0.2, -0.3, 1.1),
+    );
+    let sp = platform::PositionSetpoint::of_pose(&pose);
+    assert_eq!(sp.position_in_world_m, Vector3::new(0.5, -1.0, 2.0));
+    assert!((sp.yaw_rad - 1.1).abs() < 1e-12, "{}", sp.yaw_rad);
 }
 
 #[test]
@@ -1019,6 +1200,78 @@ fn a_refused_arming_names_the_result() {
         "arming refused by the autopilot: MAV_RESULT_DENIED (MAV_CMD_COMPONENT_ARM_DISARM)"
     );
     assert_eq!(script.join().unwrap().len(), 1, "no retry after an answer");
+}
+
+fn autopilot_version(capabilities: MavProtocolCapability, custom: [u8; 8]) -> MavMessage {
+    MavMessage::AUTOPILOT_VERSION(AUTOPILOT_VERSION_DATA {
+        capabilities,
+        flight_custom_version: custom,
+        ..AUTOPILOT_VERSION_DATA::default()
+    })
+}
+
+#[test]
+fn the_autopilot_version_is_asked_for_and_read() {
+    let v = vehicle("fa-hexa");
+    // PX4 (current): attitude and position targets, no actuator target; a git hash.
+    let px4 = MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+        | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED;
+    for (capabilities, custom, actuator, twin) in [
+        (px4, *b"\x12\x34\x56\x78\x9a\0\0\0", false, false),
+        (
+            px4 | CAPABILITY_SET_ACTUATOR_TARGET,
+            TWIN_FLIGHT_CUSTOM_VERSION,
+            true,
+            true,
+        ),
+    ] {
+        let peer = Peer::new();
+        let mut bridge = Bridge::connect(fast_config(peer.address()), &v).unwrap();
+        let script = with_peer(peer, move |peer| {
+            // The request: MAV_CMD_REQUEST_MESSAGE for id 148; ACK, then the message.
+            let deadline = std::time::Instant::now() + Duration::from_secs(5);
+            while std::time::Instant::now() < deadline {
+                if let Some(MavMessage::COMMAND_LONG(c)) = peer.recv(Duration::from_millis(50)) {
+                    peer.ack(c.command, MavResult::MAV_RESULT_ACCEPTED);
+                    peer.send(&autopilot_version(capabilities, custom));
+                    return Some((c.command, c.param1));
+                }
+            }
+            None
+        });
+        let got = bridge
+            .request_autopilot_version(Duration::from_secs(2))
+            .unwrap();
+        assert_eq!(
+            script.join().unwrap(),
+            Some((MavCmd::MAV_CMD_REQUEST_MESSAGE, 148.0))
+        );
+        assert_eq!(got.capabilities, capabilities);
+        assert_eq!(got.accepts_actuator_setpoints(), actuator);
+        assert_eq!(got.is_amstack_twin(), twin);
+        assert_eq!(bridge.autopilot().version, Some(got));
+    }
+    // An autopilot that acknowledges and never sends it: an error naming the message.
+    let peer = Peer::new();
+    let mut bridge = Bridge::connect(fast_config(peer.address()), &v).unwrap();
+    let script = with_peer(peer, |peer| {
+        let deadline = std::time::Instant::now() + Duration::from_secs(5);
+        while std::time::Instant::now() < deadline {
+            if let Some(MavMessage::COMMAND_LONG(c)) = peer.recv(Duration::from_millis(50)) {
+                peer.ack(c.command, MavResult::MAV_RESULT_ACCEPTED);
+                return;
+            }
+        }
+    });
+    let e = bridge
+        .request_autopilot_version(Duration::from_millis(200))
+        .unwrap_err();
+    script.join().unwrap();
+    assert_eq!(
+        e.to_string(),
+        "no AUTOPILOT_VERSION (asked for with MAV_CMD_REQUEST_MESSAGE) from the autopilot within 200 ms"
+    );
 }
 
 #[test]

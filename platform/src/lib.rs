@@ -40,7 +40,10 @@ mod tests;
 pub use actuation::Actuation;
 pub use builtin::BUILTIN_IDS;
 pub use error::{DescriptionError, Problem};
-pub use link::{ActuatorCommand, AttitudeSetpoint, DisturbanceReport, Measurement, RotorReport};
+pub use link::{
+    ActuatorCommand, AttitudeSetpoint, DisturbanceReport, Measurement, PositionSetpoint,
+    RateSetpoint, RotorReport,
+};
 pub use mass::MassProperties;
 pub use model::{
     Geometry, Inertial, Joint, JointId, JointKind, JointLimits, KinematicModel, Link, LinkId,

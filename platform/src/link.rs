@@ -32,6 +32,54 @@ pub struct AttitudeSetpoint {
     pub body_rates_radps: Option<Vector3<f64>>,
 }
 
+/// Body rates and a body force: the rate level of the control cascade (what a vehicle's own
+/// rate loop and allocation can fly; the attitude law runs on the side that sends it).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RateSetpoint {
+    /// Desired body rates (FLU), rad/s.
+    pub body_rates_radps: Vector3<f64>,
+    /// Desired body force, body frame (FLU), N.
+    pub force_in_body_n: Vector3<f64>,
+}
+
+impl RateSetpoint {
+    /// Whether every value is finite.
+    pub fn is_finite(&self) -> bool {
+        self.body_rates_radps
+            .iter()
+            .chain(self.force_in_body_n.iter())
+            .all(|x| x.is_finite())
+    }
+}
+
+/// A base position and heading: the position level of the control cascade (what a vehicle's
+/// own position controller — PX4's in OFFBOARD — can fly). Roll and pitch are the position
+/// controller's to choose: a fully actuated vehicle's tilted target pose is flown level.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PositionSetpoint {
+    /// Target base origin, world (ENU-like, z up), m.
+    pub position_in_world_m: Vector3<f64>,
+    /// Target heading: rotation about world z, counter-clockwise from +x (east), rad.
+    pub yaw_rad: f64,
+}
+
+impl PositionSetpoint {
+    /// The position and heading of a target base pose (its yaw: the heading of body x
+    /// projected on the ground plane, `atan2(R₁₀, R₀₀)`).
+    pub fn of_pose(world_from_base: &Isometry3<f64>) -> Self {
+        let r = world_from_base.rotation.to_rotation_matrix();
+        Self {
+            position_in_world_m: world_from_base.translation.vector,
+            yaw_rad: r[(1, 0)].atan2(r[(0, 0)]),
+        }
+    }
+
+    /// Whether every value is finite.
+    pub fn is_finite(&self) -> bool {
+        self.yaw_rad.is_finite() && self.position_in_world_m.iter().all(|x| x.is_finite())
+    }
+}
+
 /// One rotor over the last control period.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
 pub struct RotorReport {

@@ -377,9 +377,10 @@ impl Link for IpcLink {
 
     fn send(&mut self, setpoint: &Setpoint) -> Result<(), LinkError> {
         let Setpoint::Actuators(command) = setpoint else {
-            return Err(LinkError::Refused(
-                "the twin over iceoryx2 flies actuator setpoints, not attitude ones".to_owned(),
-            ));
+            return Err(LinkError::Refused(format!(
+                "the twin over iceoryx2 flies actuator setpoints, not {} ones",
+                setpoint.level().name()
+            )));
         };
         let msg = CommandMsg::from_command(command, self.session, self.latest.tick)
             .map_err(IpcLinkError::from)?;

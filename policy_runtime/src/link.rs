@@ -13,7 +13,7 @@
 //! which one they talk to.
 
 use estimator::{ImuSample, OdometryMeasurement};
-use platform::{ActuatorCommand, AttitudeSetpoint, Measurement};
+use platform::{ActuatorCommand, AttitudeSetpoint, Measurement, PositionSetpoint, RateSetpoint};
 use sim_twin::{TaskSnapshot, Twin, TwinError};
 
 pub use crate::link_channels::LinkMessage;
@@ -33,13 +33,34 @@ pub enum Setpoint {
         /// The controller's cascade.
         attitude: AttitudeSetpoint,
     },
+    /// Body rates (the base controller's attitude setpoint through amstack's attitude law,
+    /// [`controllers::rate_setpoint`]) and body force, flown by the vehicle's own rate loop and
+    /// allocation; the joint targets of `command` (its rotor thrusts are not sent).
+    Rates {
+        /// The stack's command of the tick (joint targets: arm, gripper).
+        command: ActuatorCommand,
+        /// The body rates and force.
+        rates: RateSetpoint,
+    },
+    /// The stack's base target (position and heading), flown by the vehicle's own position
+    /// controller, attitude loop and allocation; the joint targets of `command` (its rotor
+    /// thrusts are not sent).
+    Position {
+        /// The stack's command of the tick (joint targets: arm, gripper).
+        command: ActuatorCommand,
+        /// The base target's position and heading.
+        position: PositionSetpoint,
+    },
 }
 
 impl Setpoint {
     /// The stack's actuator command of the tick.
     pub fn command(&self) -> &ActuatorCommand {
         match self {
-            Self::Actuators(c) | Self::Attitude { command: c, .. } => c,
+            Self::Actuators(c)
+            | Self::Attitude { command: c, .. }
+            | Self::Rates { command: c, .. }
+            | Self::Position { command: c, .. } => c,
         }
     }
 
@@ -61,6 +82,18 @@ impl Setpoint {
                     && a.body_rates_radps
                         .is_none_or(|r| r.iter().all(|x| x.is_finite()))
             }
+            Self::Rates { rates, .. } => command_finite && rates.is_finite(),
+            Self::Position { position, .. } => command_finite && position.is_finite(),
+        }
+    }
+
+    /// The level of this setpoint.
+    pub fn level(&self) -> SetpointLevel {
+        match self {
+            Self::Actuators(_) => SetpointLevel::Actuators,
+            Self::Attitude { .. } => SetpointLevel::Attitude,
+            Self::Rates { .. } => SetpointLevel::Rates,
+            Self::Position { .. } => SetpointLevel::Position,
         }
     }
 }
@@ -73,6 +106,22 @@ pub enum SetpointLevel {
     Actuators,
     /// [`Setpoint::Attitude`].
     Attitude,
+    /// [`Setpoint::Rates`].
+    Rates,
+    /// [`Setpoint::Position`].
+    Position,
+}
+
+impl SetpointLevel {
+    /// The command-line name (`actuator`, `attitude`, `position`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Actuators => "actuator",
+            Self::Attitude => "attitude",
+            Self::Rates => "rates",
+            Self::Position => "position",
+        }
+    }
 }
 
 /// What can go wrong on a link, by category; the detail is the transport's own words.
@@ -213,9 +262,12 @@ impl Link for TwinLink {
                 self.latest = self.twin.step(command)?;
                 Ok(())
             }
-            Setpoint::Attitude { .. } => Err(LinkError::Refused(
-                "the twin in this process flies actuator setpoints, not attitude ones".to_owned(),
-            )),
+            Setpoint::Attitude { .. } | Setpoint::Rates { .. } | Setpoint::Position { .. } => {
+                Err(LinkError::Refused(format!(
+                    "the twin in this process flies actuator setpoints, not {} ones",
+                    setpoint.level().name()
+                )))
+            }
         }
     }
 

@@ -10,10 +10,25 @@
 //! (in lockstep, the one closing this tick; in real time, the next step), up to
 //! `tick_timeout`; a timeout is an error naming ODOMETRY and the tick.
 //!
-//! Levels: [`Level::Actuator`] sends the rotor thrusts, tilts, arm and gripper
-//! (SET_ACTUATOR_CONTROL_TARGET groups 2, 1, 0). [`Level::Attitude`] sends the arm and gripper
-//! and a SET_ATTITUDE_TARGET of the base controller's cascade (its desired attitude and body
-//! rates, the body force the allocation produces: [`crate::TickRecord::setpoint`]).
+//! Levels (what a real PX4 accepts: attitude and position; `docs/mavlink.md`):
+//! [`Level::Attitude`] sends a SET_ATTITUDE_TARGET of the base controller's cascade (its
+//! desired attitude and body rates, the body force the allocation produces:
+//! [`crate::TickRecord::setpoint`]). [`Level::Position`] sends a SET_POSITION_TARGET_LOCAL_NED
+//! of the stack's base target (position and heading): the autopilot's position controller
+//! flies. [`Level::Rates`] sends the attitude level's cascade through amstack's attitude law as
+//! body rates (SET_ATTITUDE_TARGET with ATTITUDE_IGNORE): the autopilot's rate loop flies.
+//! [`Level::Actuator`] sends the rotor thrusts, tilts, arm and gripper
+//! (SET_ACTUATOR_CONTROL_TARGET groups 2, 1, 0): only to an autopilot that declares
+//! MAV_PROTOCOL_CAPABILITY_SET_ACTUATOR_TARGET in its AUTOPILOT_VERSION (current PX4 does not;
+//! the twin's autopilot does with `--allow-actuator-setpoints`), asked for at connection:
+//! otherwise the flight is refused before anything is armed.
+//!
+//! The arm and gripper: at the actuator level in group 2. At the attitude and position levels
+//! group 2 goes before each setpoint only when the autopilot is amstack's twin (its
+//! AUTOPILOT_VERSION says so), which stands in for the arm's own servo bus; a PX4 has no arm
+//! output and no SET_ACTUATOR_CONTROL_TARGET, so toward it nothing is sent for the arm
+//! ([`MavlinkLink::arm_channel`]): on a real vehicle the companion drives the arm on its own
+//! bus.
 //!
 //! With a task scene ([`MavlinkLink::with_scene_model`]) the link reports the scene's state
 //! the twin's autopilot sends (`mavlink_scene`), checked at connection against the scene
@@ -31,7 +46,7 @@ use std::time::{Duration, Instant};
 
 use estimator::ImuSample;
 use firmware_bridge::{
-    Bridge, BridgeConfig, BridgeError, CounterSnapshot, RawFrame, SetpointCodec,
+    AutopilotVersion, Bridge, BridgeConfig, BridgeError, CounterSnapshot, RawFrame, SetpointCodec,
 };
 use platform::{ActuatorCommand, Measurement, Vehicle};
 use sim_twin::TaskSnapshot;
@@ -43,19 +58,33 @@ use crate::mavlink_scene::{check_scene, snapshot_from_wire};
 /// Which setpoints the flight stack sends.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Level {
-    /// Rotor thrusts (our allocation flies the vehicle): SET_ACTUATOR_CONTROL_TARGET.
+    /// Rotor thrusts (our allocation flies the vehicle): SET_ACTUATOR_CONTROL_TARGET. Only
+    /// toward an autopilot that declares the capability (not PX4).
     Actuator,
     /// Attitude + body force (the autopilot's own attitude loop and allocation):
-    /// SET_ATTITUDE_TARGET.
+    /// SET_ATTITUDE_TARGET. The default toward a real vehicle.
     Attitude,
+    /// Body rates + body force (amstack's attitude law, the autopilot's rate loop and
+    /// allocation): SET_ATTITUDE_TARGET with ATTITUDE_IGNORE.
+    Rates,
+    /// Base position + heading (the autopilot's position controller, attitude loop and
+    /// allocation): SET_POSITION_TARGET_LOCAL_NED.
+    Position,
 }
 
 impl Level {
     /// The command-line name.
     pub fn name(self) -> &'static str {
+        self.setpoint_level().name()
+    }
+
+    /// The flight loop's setpoint of this level.
+    pub fn setpoint_level(self) -> SetpointLevel {
         match self {
-            Self::Actuator => "actuator",
-            Self::Attitude => "attitude",
+            Self::Actuator => SetpointLevel::Actuators,
+            Self::Attitude => SetpointLevel::Attitude,
+            Self::Rates => SetpointLevel::Rates,
+            Self::Position => SetpointLevel::Position,
         }
     }
 }
@@ -77,6 +106,9 @@ pub struct MavlinkLinkConfig {
     pub stream_period: Duration,
     /// Record per-tick send → telemetry round trips ([`MavlinkLink::round_trips_ns`]).
     pub record_timing: bool,
+    /// How long to wait for AUTOPILOT_VERSION after the autopilot acknowledged the request
+    /// (default 1 s).
+    pub version_timeout: Duration,
 }
 
 impl MavlinkLinkConfig {
@@ -90,6 +122,7 @@ impl MavlinkLinkConfig {
             stream_count: 6,
             stream_period: Duration::from_millis(50),
             record_timing: false,
+            version_timeout: Duration::from_secs(1),
         }
     }
 }
@@ -126,6 +159,14 @@ pub enum MavlinkLinkError {
     /// The autopilot serves another task scene than the flight's.
     #[error("{0}")]
     Scene(String),
+    /// The actuator level was asked of an autopilot that does not declare it.
+    #[error(
+        "the actuator level needs an autopilot that declares MAV_PROTOCOL_CAPABILITY_SET_ACTUATOR_TARGET in its AUTOPILOT_VERSION; {why} (current PX4 takes no actuator setpoints over MAVLink; amstack's twin takes them with `twin serve --allow-actuator-setpoints`): fly the attitude or the position level"
+    )]
+    NoActuatorLevel {
+        /// What the autopilot said (`this one does not`, or why it said nothing).
+        why: String,
+    },
 }
 
 impl From<MavlinkLinkError> for LinkError {
@@ -134,9 +175,9 @@ impl From<MavlinkLinkError> for LinkError {
         match e {
             MavlinkLinkError::Bridge(b) => b.into(),
             MavlinkLinkError::Dropped { .. } => LinkError::Failed(text),
-            MavlinkLinkError::WrongLevel { .. } | MavlinkLinkError::Scene(_) => {
-                LinkError::Refused(text)
-            }
+            MavlinkLinkError::WrongLevel { .. }
+            | MavlinkLinkError::Scene(_)
+            | MavlinkLinkError::NoActuatorLevel { .. } => LinkError::Refused(text),
         }
     }
 }
@@ -181,10 +222,15 @@ pub struct MavlinkLink {
     scene_model: Option<TaskSnapshot>,
     /// Whether the autopilot sends the task's state.
     scene_observed: bool,
+    /// What the autopilot declared at connection (None: it did not answer the request).
+    version: Option<AutopilotVersion>,
 }
 
 impl MavlinkLink {
-    /// Connects to the autopilot and waits for its first ODOMETRY.
+    /// Connects to the autopilot, waits for its first ODOMETRY and asks what it declares
+    /// (AUTOPILOT_VERSION): the actuator level is refused ([`LinkError::Refused`]) unless it
+    /// declares MAV_PROTOCOL_CAPABILITY_SET_ACTUATOR_TARGET; the arm channel of the other
+    /// levels is on only toward amstack's twin.
     pub fn connect(vehicle: &Vehicle, config: MavlinkLinkConfig) -> Result<Self, LinkError> {
         let codec = SetpointCodec::new(
             vehicle,
@@ -193,12 +239,28 @@ impl MavlinkLink {
         )
         .map_err(BridgeError::from)?;
         let opened_at = Instant::now();
-        let bridge = Bridge::connect(config.bridge.clone(), vehicle)?;
+        let mut bridge = Bridge::connect(config.bridge.clone(), vehicle)?;
         let latest = bridge.next_measurement(
             None,
             config.connect_timeout,
             "ODOMETRY (the vehicle's state at start)",
         )?;
+        let version = bridge.request_autopilot_version(config.version_timeout);
+        if config.level == Level::Actuator {
+            let why = match &version {
+                Ok(v) if v.accepts_actuator_setpoints() => None,
+                Ok(_) => Some("this one does not".to_owned()),
+                Err(e) => Some(format!("this one did not say ({e})")),
+            };
+            if let Some(why) = why {
+                return Err(MavlinkLinkError::NoActuatorLevel { why }.into());
+            }
+        }
+        // A PX4 that does not answer flies without the arm channel, as any PX4 does.
+        let version = version.ok();
+        let arm_channel =
+            config.level == Level::Actuator || version.is_some_and(|v| v.is_amstack_twin());
+        let codec = codec.with_arm_channel(arm_channel);
         Ok(Self {
             config,
             bridge,
@@ -215,7 +277,19 @@ impl MavlinkLink {
             raw: Vec::new(),
             scene_model: None,
             scene_observed: false,
+            version,
         })
+    }
+
+    /// What the autopilot declared at connection (None: it did not answer).
+    pub fn autopilot_version(&self) -> Option<AutopilotVersion> {
+        self.version
+    }
+
+    /// Whether the arm and gripper targets are sent (group 2): at the actuator level, and
+    /// toward amstack's twin at the others. Toward a PX4 the arm is not the autopilot's.
+    pub fn arm_channel(&self) -> bool {
+        self.codec.arm_channel()
     }
 
     /// The flight's task scene, built here from the task and the seed (`None`: no task).
@@ -264,13 +338,16 @@ impl MavlinkLink {
             (Level::Attitude, Setpoint::Attitude { command, attitude }) => {
                 self.codec.attitude_messages(t, command, attitude)
             }
+            (Level::Rates, Setpoint::Rates { command, rates }) => {
+                self.codec.rate_messages(t, command, rates)
+            }
+            (Level::Position, Setpoint::Position { command, position }) => {
+                self.codec.position_messages(t, command, position)
+            }
             (level, _) => {
                 return Err(MavlinkLinkError::WrongLevel {
                     link: level.name(),
-                    setpoint: match setpoint {
-                        Setpoint::Actuators(_) => "actuator",
-                        Setpoint::Attitude { .. } => "attitude",
-                    },
+                    setpoint: setpoint.level().name(),
                 }
                 .into());
             }
@@ -382,10 +459,7 @@ impl Link for MavlinkLink {
     }
 
     fn level(&self) -> SetpointLevel {
-        match self.config.level {
-            Level::Actuator => SetpointLevel::Actuators,
-            Level::Attitude => SetpointLevel::Attitude,
-        }
+        self.config.level.setpoint_level()
     }
 
     fn task(&self) -> Option<TaskSnapshot> {

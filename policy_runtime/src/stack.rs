@@ -8,7 +8,10 @@ use controllers::{
     BaseController, BodyParams, ControllerConfig, ControllerStatus, InputHealth, Pid6Gains, build,
 };
 use nalgebra::Isometry3;
-use platform::{ActuatorCommand, AttitudeSetpoint, Measurement, RigidBodyState, Vehicle, Wrench};
+use platform::{
+    ActuatorCommand, AttitudeSetpoint, Measurement, PositionSetpoint, RigidBodyState, Vehicle,
+    Wrench,
+};
 use serde::Serialize;
 use sim_twin::{TiltThrust, TwinConfig};
 
@@ -161,19 +164,42 @@ pub struct TickRecord {
 
 impl TickRecord {
     /// The tick's setpoint at `level`. The attitude level needs the cascade of a base
-    /// controller: a tick flown otherwise (the whole-body MPC) is refused with why.
+    /// controller: a tick flown otherwise (the whole-body MPC) is refused with why. The
+    /// position level is the base target handed to the controller (the IK's, the MPC's, or
+    /// the action's base pose): its position and heading. The rate level is the attitude
+    /// level through amstack's attitude law ([`controllers::rate_setpoint`] with PX4's
+    /// attitude gains [`controllers::PX4_ATTITUDE_P_PER_S`]).
     pub fn setpoint(&self, level: SetpointLevel) -> Result<Setpoint, StackError> {
+        let no_attitude_loop = || {
+            StackError(format!(
+                "the {} controller has no attitude loop: its tick cannot be flown at the {} level (fly it at the position or the actuator level)",
+                self.controller.controller,
+                level.name()
+            ))
+        };
         match level {
+            SetpointLevel::Rates => match self.attitude {
+                Some(attitude) => Ok(Setpoint::Rates {
+                    command: self.command.clone(),
+                    rates: controllers::rate_setpoint(
+                        &attitude,
+                        &self.controller.attitude_error,
+                        controllers::PX4_ATTITUDE_P_PER_S,
+                    ),
+                }),
+                None => Err(no_attitude_loop()),
+            },
             SetpointLevel::Actuators => Ok(Setpoint::Actuators(self.command.clone())),
+            SetpointLevel::Position => Ok(Setpoint::Position {
+                command: self.command.clone(),
+                position: PositionSetpoint::of_pose(&self.base_target),
+            }),
             SetpointLevel::Attitude => match self.attitude {
                 Some(attitude) => Ok(Setpoint::Attitude {
                     command: self.command.clone(),
                     attitude,
                 }),
-                None => Err(StackError(format!(
-                    "the {} controller has no attitude loop: its tick cannot be flown at the attitude level (fly it at the actuator level)",
-                    self.controller.controller
-                ))),
+                None => Err(no_attitude_loop()),
             },
         }
     }

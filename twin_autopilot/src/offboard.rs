@@ -459,4 +459,35 @@ mod tests {
         };
         assert!(position_target(&force, &Vector3::zeros(), 0.0).is_err());
     }
+
+    #[test]
+    fn the_bridges_position_setpoint_reads_back_as_sent() {
+        // What the flight stack's bridge sends at the position level is read here as the same
+        // world position and heading, and nothing else.
+        let vehicle = platform::Vehicle::builtin("fa-hexa").unwrap();
+        let codec = firmware_bridge::SetpointCodec::new(&vehicle, 1, 1).unwrap();
+        let sent = platform::PositionSetpoint {
+            position_in_world_m: Vector3::new(0.4, -0.7, 1.3),
+            yaw_rad: -2.0,
+        };
+        let command = platform::ActuatorCommand {
+            rotor_thrusts_n: Vec::new(),
+            joint_targets: vehicle.initial_configuration(),
+            direct_wrench_in_body: None,
+        };
+        let messages = codec.position_messages(0, &command, &sent).unwrap();
+        let Some(mavlink::dialects::common::MavMessage::SET_POSITION_TARGET_LOCAL_NED(s)) =
+            messages.last()
+        else {
+            panic!("{messages:?}");
+        };
+        let t = position_target(s, &Vector3::new(5.0, 5.0, 5.0), 1.0).unwrap();
+        for (got, want) in t.position_m.iter().zip(sent.position_in_world_m.iter()) {
+            assert!((got.unwrap() - want).abs() < 1e-6, "{:?}", t.position_m);
+        }
+        assert!((t.yaw_rad.unwrap() - sent.yaw_rad).abs() < 1e-6);
+        assert_eq!(t.velocity_mps, None);
+        assert_eq!(t.acceleration_mps2, None);
+        assert_eq!(t.yaw_rate_radps, None);
+    }
 }

@@ -961,7 +961,9 @@ impl Autopilot {
             ALTITUDE_ID => telemetry::altitude(m, &self.home_m),
             MISSION_CURRENT_ID => self.mission_current(),
             HOME_POSITION_ID => telemetry::home_position(m, &self.home_m),
-            AUTOPILOT_VERSION_ID => telemetry::autopilot_version(),
+            AUTOPILOT_VERSION_ID => {
+                telemetry::autopilot_version(self.config.allow_actuator_setpoints)
+            }
             id => {
                 let per_step = telemetry::per_step(m, &self.imu);
                 return per_step.into_iter().find(|msg| msg.message_id() == id);

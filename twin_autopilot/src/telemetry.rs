@@ -401,10 +401,18 @@ pub fn home_position(m: &Measurement, home_m: &Vector3<f64>) -> MavMessage {
 /// COMMAND_INT, the parameter protocol with PX4's bytewise encoding, the mission protocol
 /// with MISSION_INT (MISSION_ITEM is accepted on upload too, but downloads answer with
 /// MISSION_ITEM_INT: MISSION_FLOAT is not claimed), SET_ATTITUDE_TARGET and
-/// SET_POSITION_TARGET_LOCAL_NED. Not: SET_POSITION_TARGET_GLOBAL_INT, FTP, fences, rally
-/// points, terrain, flight termination.
-pub fn capabilities() -> MavProtocolCapability {
-    MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
+/// SET_POSITION_TARGET_LOCAL_NED; and SET_ACTUATOR_CONTROL_TARGET (motors, tilt servos) only
+/// when `actuator_setpoints` (`--allow-actuator-setpoints`, the SITL extension: current PX4
+/// no longer sets this bit). Not: SET_POSITION_TARGET_GLOBAL_INT, FTP, fences, rally points,
+/// terrain, flight termination.
+pub fn capabilities(actuator_setpoints: bool) -> MavProtocolCapability {
+    let actuator = if actuator_setpoints {
+        firmware_bridge::telemetry::CAPABILITY_SET_ACTUATOR_TARGET
+    } else {
+        MavProtocolCapability::empty()
+    };
+    actuator
+        | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
         | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT
         | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
         | MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MISSION_INT
@@ -413,8 +421,11 @@ pub fn capabilities() -> MavProtocolCapability {
 }
 
 /// AUTOPILOT_VERSION: amstack's version as the flight software version
-/// (major << 24 | minor << 16 | patch << 8 | 0xFF for a release, as PX4).
-pub fn autopilot_version() -> MavMessage {
+/// (major << 24 | minor << 16 | patch << 8 | 0xFF for a release, as PX4), the
+/// [`capabilities`] (with the actuator extension when `actuator_setpoints`), and
+/// `flight_custom_version` `firmware_bridge::telemetry::TWIN_FLIGHT_CUSTOM_VERSION` (how the
+/// bridge knows it talks to the twin).
+pub fn autopilot_version(actuator_setpoints: bool) -> MavMessage {
     let part = |s: &str| s.parse::<u32>().unwrap_or(0) & 0xFF;
     let mut parts = env!("CARGO_PKG_VERSION").split('.');
     let (major, minor, patch) = (
@@ -423,10 +434,10 @@ pub fn autopilot_version() -> MavMessage {
         parts.next().map_or(0, part),
     );
     MavMessage::AUTOPILOT_VERSION(AUTOPILOT_VERSION_DATA {
-        capabilities: capabilities(),
+        capabilities: capabilities(actuator_setpoints),
         uid: 0x616D_7374_6163_6B00, // "amstack\0"
         flight_sw_version: (major << 24) | (minor << 16) | (patch << 8) | 0xFF,
-        flight_custom_version: *b"amstack\0",
+        flight_custom_version: firmware_bridge::telemetry::TWIN_FLIGHT_CUSTOM_VERSION,
         ..Default::default()
     })
 }

@@ -57,6 +57,8 @@ struct Autopilot {
     disarm_after: Option<u64>,
     /// The base at the last telemetry (the IMU's period start).
     previous_base: platform::RigidBodyState,
+    /// Whether AUTOPILOT_VERSION declares SET_ACTUATOR_TARGET.
+    actuator_extension: bool,
 }
 
 impl Autopilot {
@@ -120,6 +122,13 @@ impl Autopilot {
                     self.armed = c.param1 == 1.0;
                     self.ack(c.command, MavResult::MAV_RESULT_ACCEPTED);
                 }
+                // AUTOPILOT_VERSION, as the twin's autopilot answers it (with or without the
+                // actuator extension).
+                MavCmd::MAV_CMD_REQUEST_MESSAGE if c.param1 == 148.0 => {
+                    self.ack(c.command, MavResult::MAV_RESULT_ACCEPTED);
+                    let version = telemetry::autopilot_version(self.actuator_extension);
+                    self.send(&version);
+                }
                 other => self.ack(other, MavResult::MAV_RESULT_UNSUPPORTED),
             },
             MavMessage::SET_ACTUATOR_CONTROL_TARGET(s) => {
@@ -149,6 +158,16 @@ impl Autopilot {
 }
 
 fn fixture(vehicle: &Vehicle, config: &TwinConfig, disarm_after: Option<u64>) -> Fixture {
+    fixture_declaring(vehicle, config, disarm_after, true)
+}
+
+/// The fixture, its AUTOPILOT_VERSION declaring the actuator extension or not.
+fn fixture_declaring(
+    vehicle: &Vehicle,
+    config: &TwinConfig,
+    disarm_after: Option<u64>,
+    actuator_extension: bool,
+) -> Fixture {
     let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
     socket
         .set_read_timeout(Some(Duration::from_millis(100)))
@@ -172,6 +191,7 @@ fn fixture(vehicle: &Vehicle, config: &TwinConfig, disarm_after: Option<u64>) ->
         steps: 0,
         disarm_after,
         previous_base: platform::RigidBodyState::default(),
+        actuator_extension,
     };
     let flag = stop.clone();
     let thread = std::thread::spawn(move || {
@@ -512,6 +532,36 @@ fn the_attitude_level_sends_the_controllers_own_cascade() {
         attitude.force_in_body_n,
         record.wrench.force - record.unallocated.force
     );
+    // The position level: the base target handed to the controller, position and heading.
+    let Setpoint::Position { position, command } =
+        record.setpoint(SetpointLevel::Position).unwrap()
+    else {
+        panic!("a position setpoint");
+    };
+    assert_eq!(command, record.command);
+    assert_eq!(
+        position.position_in_world_m,
+        record.base_target.translation.vector
+    );
+    assert!(
+        (position.yaw_rad - 0.7).abs() < 1e-12,
+        "{}",
+        position.yaw_rad
+    );
+    // The rate level: the same cascade through the attitude law, Ω_ff − K ⊙ e_R, with
+    // e_R = sin 0.3 x̂ (R = R_d · exp(0.3 x̂)).
+    let Setpoint::Rates { rates, .. } = record.setpoint(SetpointLevel::Rates).unwrap() else {
+        panic!("a rate setpoint");
+    };
+    let e_r = record.controller.attitude_error;
+    assert!(
+        (e_r - Vector3::new(0.3f64.sin(), 0.0, 0.0)).norm() < 1e-9,
+        "{e_r}"
+    );
+    let expected = target.body_rates_radps
+        - Vector3::from(controllers::PX4_ATTITUDE_P_PER_S).component_mul(&e_r);
+    assert!((rates.body_rates_radps - expected).norm() < 1e-12);
+    assert_eq!(rates.force_in_body_n, attitude.force_in_body_n);
     // A tick with no attitude loop behind it (the whole-body MPC's) is refused by name.
     record.attitude = None;
     record.controller.controller = "mpc";
@@ -521,4 +571,41 @@ fn the_attitude_level_sends_the_controllers_own_cascade() {
             .contains("mpc controller has no attitude loop"),
         "{e}"
     );
+    assert!(record.setpoint(SetpointLevel::Rates).is_err());
+}
+
+#[test]
+fn the_actuator_level_needs_an_autopilot_that_declares_it() {
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let config = track_config(&vehicle, Trajectory::Hover, 1.0);
+    for declared in [false, true] {
+        let fixture = fixture_declaring(&vehicle, &config.twin, None, declared);
+        let address = Address::Udp {
+            host: "127.0.0.1".into(),
+            port: fixture.port,
+        };
+        let link = MavlinkLink::connect(
+            &vehicle,
+            MavlinkLinkConfig::new(BridgeConfig::new(address), Level::Actuator),
+        );
+        match (declared, link) {
+            (true, Ok(link)) => {
+                let version = link.autopilot_version().unwrap();
+                assert!(version.accepts_actuator_setpoints());
+                // The fixture answers as the twin's autopilot: the arm channel is on.
+                assert!(version.is_amstack_twin());
+                assert!(link.arm_channel());
+            }
+            (false, Err(crate::LinkError::Refused(e))) => assert!(
+                e.starts_with(
+                    "the actuator level needs an autopilot that declares \
+                     MAV_PROTOCOL_CAPABILITY_SET_ACTUATOR_TARGET in its AUTOPILOT_VERSION; this \
+                     one does not"
+                ),
+                "{e}"
+            ),
+            (d, other) => panic!("declared {d}: {other:?}"),
+        }
+        drop(fixture);
+    }
 }
