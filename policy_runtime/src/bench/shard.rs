@@ -112,6 +112,9 @@ mod tests {
     fn a_shard_outside_its_run_is_refused() {
         assert!(Shard::new(3, 3).is_err_and(|e| e.to_string().contains("0 to 2")));
         assert!(Shard::new(0, 0).is_err());
-        assert_eq!(Shard::new(2, 3).map(|s| s.to_string()), Ok("2/3".to_owned()));
+        assert_eq!(
+            Shard::new(2, 3).map(|s| s.to_string()),
+            Ok("2/3".to_owned())
+        );
     }
 }
