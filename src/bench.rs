@@ -121,7 +121,7 @@ pub struct Args {
 }
 
 /// Controllers valid on a vehicle, and whether each takes the joint interface.
-fn controllers_for(vehicle: &platform::Vehicle) -> Vec<&'static str> {
+pub(crate) fn controllers_for(vehicle: &platform::Vehicle) -> Vec<&'static str> {
     if vehicle.ee_link == vehicle.base_link {
         vec!["pid", "l1"]
     } else if vehicle.id == "fa-hexa" {

@@ -250,3 +250,148 @@ fn bad_shard_specs_and_missing_array_indices_are_bad_input() {
         &["nowhere: cannot read it"],
     );
 }
+
+/// A sweep of 2 cells: the oracle under PID and L1 on one task.
+const SWEEP: &str = r#"
+[grid]
+platforms = ["ee-only"]
+controllers = ["pid", "l1"]
+tasks = ["press-button"]
+rollouts = 2
+seeds = 5
+"#;
+
+#[test]
+fn a_sweep_runs_each_cell_as_bench_would_and_resumes() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let file = dir.path().join("sweep.toml");
+    let written = std::fs::write(&file, SWEEP);
+    assert!(written.is_ok(), "{written:?}");
+    let out = dir.path().join("out");
+    let sweep = || amstack(&["sweep", &s(&file), "--out", &s(&out), "--jobs", "2"], &[]);
+    let first = sweep();
+    ok(&first);
+    let cells = [
+        "ee-only_pid_ee_none_press-button_r2_s5",
+        "ee-only_l1_ee_none_press-button_r2_s5",
+    ];
+    // Each cell holds what `amstack bench` writes for the same flags.
+    let direct = dir.path().join("direct");
+    ok(&amstack(
+        &[
+            "bench",
+            "--controller",
+            "l1",
+            "--task",
+            "press-button",
+            "--rollouts",
+            "2",
+            "--seed",
+            "5",
+            "--out",
+            &s(&direct),
+        ],
+        &[],
+    ));
+    let cell = out.join("cells").join(cells[1]);
+    assert_eq!(
+        comparable(&read_json(&cell.join("results.json")), &cell),
+        comparable(&read_json(&direct.join("results.json")), &direct)
+    );
+    assert_eq!(files(&cell).len(), files(&direct).len());
+    // The summary: one CSV row per cell and task, the JSON naming each cell's results.
+    let csv = std::fs::read_to_string(out.join("summary.csv")).unwrap_or_default();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 3, "{csv}");
+    assert!(lines[0].starts_with("cell,platform,controller,interface,disturbances,seed"));
+    assert!(
+        lines[2].starts_with(&format!(
+            "{},ee-only,l1,ee,none,5,script,press-button,2,",
+            cells[1]
+        )),
+        "{csv}"
+    );
+    let summary = read_json(&out.join("summary.json"));
+    assert_eq!(summary["cells"][0]["name"], cells[0]);
+    assert_eq!(summary["cells"][0]["status"], "completed");
+    // Resuming: nothing to run, nothing rewritten.
+    let before = files(&out.join("cells"));
+    let again = sweep();
+    ok(&again);
+    assert!(
+        stderr(&again).contains("2 cell(s), 0 to run (2 completed before)"),
+        "{}",
+        stderr(&again)
+    );
+    assert!(
+        files(&out.join("cells")) == before,
+        "a completed cell is not run again"
+    );
+    // A cell cut short runs again.
+    let results = out.join("cells").join(cells[0]).join("results.json");
+    let mut cut = read_json(&results);
+    cut["status"] = serde_json::json!("interrupted");
+    assert!(std::fs::write(&results, cut.to_string()).is_ok());
+    let third = sweep();
+    ok(&third);
+    assert!(stderr(&third).contains("1 to run"), "{}", stderr(&third));
+    assert_eq!(read_json(&results)["status"], "completed");
+}
+
+#[test]
+fn a_bad_sweep_file_is_refused_on_one_line_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let check = |text: &str, needles: &[&str]| {
+        let file = dir.path().join("bad.toml");
+        assert!(std::fs::write(&file, text).is_ok());
+        let out = s(&dir.path().join("out"));
+        assert_bad_input(&amstack(&["sweep", &s(&file), "--out", &out], &[]), needles);
+        assert!(
+            !dir.path().join("out").exists(),
+            "nothing written for {text}"
+        );
+    };
+    check(
+        "[grid]\nplatfroms = [\"ee-only\"]\n",
+        &["grid.platfroms: unknown field"],
+    );
+    check(
+        "[grid]\nrollouts = [\"many\"]\n",
+        &["grid.rollouts", "many"],
+    );
+    check(
+        "[grid]\nplatforms = [\"fa-hexa\"]\ncontrollers = [\"pid\"]\n",
+        &[
+            "grid cell 1",
+            "controller pid is not available on fa-hexa",
+            "skip_unavailable",
+        ],
+    );
+    check(
+        "[[run]]\nplatform = \"ee-only\"\ndisturbances = \"gusts\"\n",
+        &["run[0]", "--disturbances", "gusts"],
+    );
+    check(
+        "[[run]]\ntask = \"press-button\"\n[[run]]\ntask = \"press-button\"\n",
+        &["run[1]", "already in the sweep"],
+    );
+    check("[grid\n", &["bad.toml line 1"]);
+    check("", &["no cells"]);
+    // Unavailable grid cells may be left out on request.
+    let file = dir.path().join("skip.toml");
+    let text = "[grid]\nplatforms = [\"ee-only\", \"fa-hexa\"]\ncontrollers = [\"pid\"]\ntasks = [\"press-button\"]\nrollouts = 1\nskip_unavailable = true\n";
+    assert!(std::fs::write(&file, text).is_ok());
+    let out = amstack(&["sweep", &s(&file), "--out", "unused", "--dry-run"], &[]);
+    ok(&out);
+    let plan = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert_eq!(plan.lines().count(), 1, "{plan}");
+    assert!(
+        plan.contains("--platform ee-only --controller pid"),
+        "{plan}"
+    );
+    assert!(
+        stderr(&out).contains("skipped grid cell 2"),
+        "{}",
+        stderr(&out)
+    );
+}
