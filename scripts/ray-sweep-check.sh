@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Opt-in end-to-end check of `amstack sweep --engine ray` (Ray is a ~200 MB install, so this is
 # not part of `cargo test`): starts a local Ray cluster -- a head and one worker node, two
-# processes trees on 127.0.0.1 only, one CPU each -- runs a sweep of 2 cells x 2 shards through
+# process trees on 127.0.0.1 only (a network namespace of loopback only), one CPU each -- runs a sweep of 2 cells x 2 shards through
 # it with one task's worker killed once (Ray must retry that shard), runs the same sweep with
 # the local engine, and checks that every cell's results (less `timing`), config.json and
 # MCAP logs are the same, byte for byte. Prints both wall times.
@@ -12,6 +12,14 @@
 # Usage: bash scripts/ray-sweep-check.sh      (exit 0: equal; 1: a difference or a failure)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+# Ray 2.60 binds some of its ports on every interface even with --node-ip-address=127.0.0.1.
+# To keep the cluster on 127.0.0.1 only, the whole check runs in a network namespace of its own
+# whose only interface is the loopback (root, or unprivileged user namespaces, needed).
+if [[ -z "${AMSTACK_RAY_NETNS:-}" ]]; then
+    exec unshare --net --map-root-user env AMSTACK_RAY_NETNS=1 bash "$0" "$@"
+fi
+ip link set lo up
 
 say() { echo "ray-sweep-check: $*" >&2; }
 
@@ -76,6 +84,12 @@ for _ in $(seq 60); do
 done
 grep -q "Ray runtime started" "$WORK/worker.log" || { say "the worker did not start:"; tail "$WORK/worker.log" >&2; exit 1; }
 
+# The namespace has the loopback only, so whatever Ray listens on is reachable on 127.0.0.1 only.
+LINKS="$(ip -o link show | awk -F': ' '{print $2}' | tr '\n' ' ')"
+[[ "$LINKS" == "lo " ]] || { say "the namespace has other interfaces: $LINKS"; exit 1; }
+PIDS="$(pgrep -d'|' -g "$HEAD_PID,$WORKER_PID" || true)"
+LISTEN="$(ss -ltnpH 2>/dev/null | grep -E "pid=($PIDS)," | awk '{print $4}' | sort -u | wc -l)"
+say "network namespace with interfaces: $LINKS; the cluster listens on $LISTEN TCP ports there"
 say "sweep through Ray (2 cells x 2 shards; the first attempt of pid:1 kills its worker)"
 T0=$(date +%s.%N)
 "$AMSTACK" sweep sweep.toml --out out --engine "ray:127.0.0.1:$PORT" --shards 2 \

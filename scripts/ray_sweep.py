@@ -64,7 +64,8 @@ def run_shard(amstack, bench, index, count, kill_marker):
                 path = os.path.join(root, name)
                 with open(path, "rb") as f:
                     files[os.path.relpath(path, out)] = f.read()
-        return {"node": ray.util.get_node_ip_address(), "pid": os.getpid(), "files": files}
+        return {"node": ray.get_runtime_context().get_node_id()[:8], "pid": os.getpid(),
+                "files": files}
 
 
 def main():
@@ -112,7 +113,7 @@ def main():
                 f.write(data)
         finished += 1
         say(f"[{finished}/{total}] cell {cell['name']} shard {index}/{count} done on "
-            f"{result['node']} (worker pid {result['pid']})")
+            f"node {result['node']} (worker pid {result['pid']})")
         done_per_cell[cell["name"]] = done_per_cell.get(cell["name"], 0) + 1
         if done_per_cell[cell["name"]] == count:
             parts = [os.path.join(plan["parts"], cell["name"], str(i)) for i in range(count)]
