@@ -293,7 +293,7 @@ pub(crate) fn rollout_json(r: &RolloutResult) -> Value {
 
 fn task_json(t: &TaskResult) -> Value {
     let per_rollout: Vec<Value> = t.rollouts.iter().map(rollout_json).collect();
-    task_json_of(&t.summary, &t.criteria, per_rollout)
+    task_json_of(&t.summary, &t.criteria, &per_rollout)
 }
 
 /// A task's results from its summary and its rollouts' JSON (`amstack bench merge` builds
@@ -301,7 +301,7 @@ fn task_json(t: &TaskResult) -> Value {
 pub(crate) fn task_json_of(
     s: &policy_runtime::metrics::RunSummary,
     criteria_names: &[String],
-    per_rollout: Vec<Value>,
+    per_rollout: &[Value],
 ) -> Value {
     let criteria: serde_json::Map<String, Value> = criteria_names
         .iter()
@@ -352,7 +352,7 @@ pub(crate) fn results_json(
         "seed": config.seed,
         "config": config_json(args, config)?,
         "tasks": tasks,
-        "timing": timing_json(&config.link.name(), report.wall_time_s, json!(config.jobs), report.env_steps, rollouts),
+        "timing": timing_json(&config.link.name(), report.wall_time_s, &json!(config.jobs), report.env_steps, rollouts),
     }))
 }
 
@@ -360,7 +360,7 @@ pub(crate) fn results_json(
 pub(crate) fn timing_json(
     link: &str,
     wall_time_s: f64,
-    jobs: Value,
+    jobs: &Value,
     env_steps: u64,
     rollouts: usize,
 ) -> Value {
@@ -514,7 +514,7 @@ pub fn run(args: &Args) -> Result<()> {
     );
     if let Some(shard) = shard {
         let part =
-            crate::bench_shard::part_json(config_json(args, &config)?, &config, shard, &report)?;
+            crate::bench_shard::part_json(&config_json(args, &config)?, &config, shard, &report)?;
         crate::bench_shard::write_part(args.out.as_deref(), args.json.as_deref(), &part)?;
         if report.interrupted {
             return Err(anyhow::Error::new(Interrupted));

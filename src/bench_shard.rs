@@ -118,7 +118,7 @@ pub(crate) fn parse_shard(spec: &str, env: &dyn Fn(&str) -> Option<String>) -> R
 
 /// The part of `shard` of the run configured as `config_value` (the results' `config`).
 pub(crate) fn part_json(
-    config_value: Value,
+    config_value: &Value,
     config: &BenchConfig,
     shard: Shard,
     report: &BenchReport,
@@ -154,7 +154,7 @@ pub(crate) fn part_json(
         "timing": timing_json(
             &config.link.name(),
             report.wall_time_s,
-            json!(config.jobs),
+            &json!(config.jobs),
             report.env_steps,
             rollouts.len(),
         ),
@@ -452,7 +452,7 @@ fn merge(args: &MergeArgs) -> Result<()> {
             .collect();
         tasks_json.insert(
             task.name().to_owned(),
-            task_json_of(&summarize_run(&summaries), &criteria, per_rollout),
+            task_json_of(&summarize_run(&summaries), &criteria, &per_rollout),
         );
     }
     let wall_time_s: f64 = parts
@@ -466,7 +466,7 @@ fn merge(args: &MergeArgs) -> Result<()> {
     let mut timing = timing_json(
         first.doc["timing"]["link"].as_str().unwrap_or("twin"),
         wall_time_s,
-        Value::Null,
+        &Value::Null,
         env_steps,
         held.len(),
     );
