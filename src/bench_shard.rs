@@ -18,7 +18,9 @@ use policy_runtime::metrics::{RolloutSummary, format_or_na, summarize_run};
 use serde_json::{Value, json};
 use sim_twin::TaskId;
 
-use crate::bench::{RESULTS_SCHEMA, check_out_dir, rollout_json, task_json_of, timing_json};
+use crate::bench_results::{
+    RESULTS_SCHEMA, check_out_dir, rollout_json, task_json_of, timing_json,
+};
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_bytes, write_json};
 

@@ -4,6 +4,7 @@
 //! Exit codes: 0 success, 2 bad input (one line on stderr naming what was wrong), 1 failure.
 
 mod bench;
+mod bench_results;
 mod bench_shard;
 mod cli_error;
 mod compare;

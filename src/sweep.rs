@@ -569,7 +569,7 @@ fn run_local(
         ]);
         let args = bench_args(&flags)?;
         let config = crate::bench::config(&args)?;
-        crate::bench::check_out_dir(&dir)?;
+        crate::bench_results::check_out_dir(&dir)?;
         bar.set_message(format!("cell {}/{}: {}", n + 1, todo.len(), cell.name));
         let on_done = |_: &RolloutResult| bar.inc(1);
         let report = run_bench(&config, &on_done, stop)?;
