@@ -25,6 +25,7 @@ import argparse
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -52,6 +53,7 @@ def run_shard(amstack, bench, index, count, kill_marker):
             time.sleep(0.5)
             proc.kill()
             proc.wait()
+            shutil.rmtree(tmp, ignore_errors=True)  # a real dead worker would leave it
             os.kill(os.getpid(), signal.SIGKILL)
         stdout, stderr = proc.communicate()
         if proc.returncode != 0:
