@@ -1,7 +1,7 @@
 //! `amstack bench`: the benchmark — tasks × rollouts of the scripted policies on one
 //! platform and controller, scored as the paper's tables.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -12,22 +12,22 @@ use controllers::{ControllerKind, profile};
 use indicatif::{ProgressBar, ProgressStyle};
 use policy_runtime::Interface;
 use policy_runtime::bench::{
-    BenchConfig, BenchError, BenchLink, BenchReport, EpisodeLength, RolloutResult, TaskResult,
-    run_bench,
+    BenchConfig, BenchError, BenchLink, BenchReport, EpisodeLength, RolloutResult, Shard,
+    TaskResult, run_bench_shard,
 };
 use policy_runtime::metrics::{Spread, format_or_na};
 use policy_runtime::{IpcLinkConfig, LinkError};
 use serde_json::{Value, json};
 use sim_twin::TaskId;
 
+use crate::bench_results::{
+    RESULTS_SCHEMA, check_out_dir, rollout_json, task_json_of, timing_json,
+};
 use crate::cli_error::bad_input;
 use crate::fly::{LinkChoice, link_choice};
 use crate::output::{check_writable, write_json};
 use crate::twin_flags::TwinFlags;
 use crate::vehicles::find_vehicle;
-
-/// Version of the results JSON layout.
-const RESULTS_SCHEMA: u32 = 1;
 
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
@@ -50,11 +50,22 @@ one rollout at a time, with the same results bit for bit:
   amstack twin serve --ipc bench --platform ee-only --flight-chooses-episode &
   amstack bench --link ipc:bench --task press-button --rollouts 5
 
+Shards: --shard I/N runs only shard I (0-based) of N of the run's rollouts -- rollout number
+k = task position x rollouts + index, shard I holds k mod N = I -- and writes a partial result
+(part.json and its logs under --out); `amstack bench merge PART... --out DIR` checks the parts
+are of one run, complete and non-overlapping and writes what the unsharded run writes.
+--shard env/N takes I from SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX (array jobs).
+  amstack bench --task all --rollouts 30 --shard 0/3 --out part0   (and 1/3, 2/3)
+  amstack bench merge part0 part1 part2 --out run
+
 Examples:
   amstack bench --task press-button --rollouts 5
   amstack bench --platform fa-hexa --controller ik-pid --rollouts 30 --out runs/fa-ikpid
   amstack bench --platform fa-hexa --interface joint --task push-slider --json slider.json")]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct Args {
+    #[command(subcommand)]
+    action: Option<crate::bench_shard::BenchAction>,
     /// Task name, or `all`.
     #[arg(long, default_value = "all")]
     task: String,
@@ -102,10 +113,15 @@ pub struct Args {
     /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
     #[arg(long = "vehicle", value_name = "FILE.toml")]
     vehicles: Vec<PathBuf>,
+    /// Run only shard I (0-based) of N of the rollouts and write a partial result
+    /// (--out DIR/part.json, or --json); `env/N` reads I from SLURM_ARRAY_TASK_ID or
+    /// JOB_COMPLETION_INDEX. Merge the parts with `amstack bench merge`.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<String>,
 }
 
 /// Controllers valid on a vehicle, and whether each takes the joint interface.
-fn controllers_for(vehicle: &platform::Vehicle) -> Vec<&'static str> {
+pub(crate) fn controllers_for(vehicle: &platform::Vehicle) -> Vec<&'static str> {
     if vehicle.ee_link == vehicle.base_link {
         vec!["pid", "l1"]
     } else if vehicle.id == "fa-hexa" {
@@ -229,7 +245,7 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
 }
 
 /// The run's configuration as recorded in the results (everything that decides them).
-fn config_json(args: &Args, config: &BenchConfig) -> Result<Value> {
+pub(crate) fn config_json(args: &Args, config: &BenchConfig) -> Result<Value> {
     Ok(json!({
         "platform": config.vehicle.id,
         "controller": config.controller_name,
@@ -247,64 +263,9 @@ fn config_json(args: &Args, config: &BenchConfig) -> Result<Value> {
     }))
 }
 
-fn spread_json(s: &Spread) -> Value {
-    json!({ "mean": s.mean, "std": s.std, "stderr": s.stderr, "count": s.count })
-}
-
-fn rollout_json(r: &RolloutResult) -> Value {
-    let s = &r.summary;
-    let mut value = json!({
-        "index": r.index,
-        "seed": r.seed,
-        "success": r.success,
-        "termination": r.termination,
-        "executed_steps": r.executed_steps,
-        "subtask_completion": s.subtask_completion,
-        "criteria": r.criteria.iter().map(|(n, v)| (n.clone(), Value::Bool(*v))).collect::<serde_json::Map<_, _>>(),
-        "ee_pos_error_m": s.ee_pos_error_m,
-        "base_pos_error_m": s.base_pos_error_m,
-        "norm_ee_error": s.norm_ee_error,
-        "norm_base_error": s.norm_base_error,
-        "tilt_use_rad": s.tilt_use_rad,
-        "saturation_rate": s.saturation_rate,
-        "mcap": r.mcap,
-    });
-    if let (Some(e), Some(object)) = (&r.estimator, value.as_object_mut()) {
-        object.insert("estimator".to_owned(), json!(e));
-    }
-    value
-}
-
 fn task_json(t: &TaskResult) -> Value {
-    let s = &t.summary;
-    let criteria: serde_json::Map<String, Value> = t
-        .criteria
-        .iter()
-        .enumerate()
-        .map(|(i, name)| {
-            let reached = t.rollouts.iter().filter(|r| r.criteria[i].1).count();
-            let rate = (!t.rollouts.is_empty()).then(|| reached as f64 / t.rollouts.len() as f64);
-            (name.clone(), json!(rate))
-        })
-        .collect();
-    json!({
-        "rollouts": s.rollouts,
-        "successes": s.successes,
-        "success_rate": s.success_rate,
-        "subtask_completion": s.subtask_completion,
-        "criteria_rates": criteria,
-        "norm_ee_error": s.norm_ee_error.mean,
-        "norm_base_error": s.norm_base_error.mean,
-        "tilt_use_rad": s.tilt_use_rad.mean,
-        "saturation_rate": s.saturation_rate.mean,
-        "spread_over_successes": {
-            "norm_ee_error": spread_json(&s.norm_ee_error),
-            "norm_base_error": spread_json(&s.norm_base_error),
-            "tilt_use_rad": spread_json(&s.tilt_use_rad),
-            "saturation_rate": spread_json(&s.saturation_rate),
-        },
-        "per_rollout": t.rollouts.iter().map(rollout_json).collect::<Vec<_>>(),
-    })
+    let per_rollout: Vec<Value> = t.rollouts.iter().map(rollout_json).collect();
+    task_json_of(&t.summary, &t.criteria, &per_rollout)
 }
 
 /// The results document (README "Results JSON").
@@ -319,22 +280,13 @@ pub(crate) fn results_json(
         .map(|t| (t.task.name().to_owned(), task_json(t)))
         .collect();
     let rollouts: usize = report.tasks.iter().map(|t| t.rollouts.len()).sum();
-    let seconds_per_rollout = report.wall_time_s / rollouts.max(1) as f64;
     Ok(json!({
         "schema": RESULTS_SCHEMA,
         "status": if report.interrupted { "interrupted" } else { "completed" },
         "seed": config.seed,
         "config": config_json(args, config)?,
         "tasks": tasks,
-        "timing": {
-            "link": config.link.name(),
-            "wall_time_s": report.wall_time_s,
-            "jobs": config.jobs,
-            "env_steps": report.env_steps,
-            "env_steps_per_second": report.steps_per_second(),
-            "seconds_per_rollout": seconds_per_rollout,
-            "rollouts_per_minute": 60.0 / seconds_per_rollout.max(1e-9),
-        },
+        "timing": timing_json(&config.link.name(), report.wall_time_s, &json!(config.jobs), report.env_steps, rollouts),
     }))
 }
 
@@ -373,21 +325,32 @@ pub(crate) fn table(report: &BenchReport) -> Table {
     table
 }
 
-fn check_out_dir(dir: &Path) -> Result<()> {
-    std::fs::create_dir_all(dir)
-        .map_err(|e| bad_input(format!("--out {}: cannot create it: {e}", dir.display())))?;
-    check_writable("--out", &dir.join("results.json"))
-}
-
 pub fn run(args: &Args) -> Result<()> {
+    if let Some(action) = &args.action {
+        return crate::bench_shard::run_action(action);
+    }
     if let Some(p) = &args.json {
         check_writable("--json", p)?;
     }
     let config = config(args)?;
+    let shard = match &args.shard {
+        Some(spec) => Some(crate::bench_shard::parse_shard(spec, &|v| {
+            std::env::var(v).ok()
+        })?),
+        None => None,
+    };
+    if shard.is_some() && args.out.is_none() && args.json.is_none() {
+        return Err(bad_input(
+            "--shard: name where the partial result goes (--out DIR, or --json FILE)",
+        ));
+    }
     if let Some(dir) = &args.out {
         check_out_dir(dir)?;
     }
-    let total = config.tasks.len() * config.rollouts;
+    let total = shard
+        .unwrap_or(Shard::WHOLE)
+        .rollouts(&config.tasks, config.rollouts)
+        .len();
     eprintln!(
         "bench: {} task(s) x {} rollouts on {} ({}, {} interface), seed {}, {} thread(s), disturbances: {}, link: {}",
         config.tasks.len(),
@@ -420,10 +383,13 @@ pub fn run(args: &Args) -> Result<()> {
         ));
         bar.inc(1);
     };
-    let report = run_bench(&config, &on_done, &stop).map_err(|e| match e {
-        BenchError::Link(LinkError::Refused(_)) => bad_input(e.to_string()),
-        e => anyhow::Error::new(e),
-    })?;
+    let report =
+        run_bench_shard(&config, shard.unwrap_or(Shard::WHOLE), &on_done, &stop).map_err(|e| {
+            match e {
+                BenchError::Link(LinkError::Refused(_)) => bad_input(e.to_string()),
+                e => anyhow::Error::new(e),
+            }
+        })?;
     bar.finish_and_clear();
     println!("{}", table(&report));
     let estimates: Vec<_> = report
@@ -454,6 +420,15 @@ pub fn run(args: &Args) -> Result<()> {
         report.steps_per_second(),
         config.jobs
     );
+    if let Some(shard) = shard {
+        let part =
+            crate::bench_shard::part_json(&config_json(args, &config)?, &config, shard, &report)?;
+        crate::bench_shard::write_part(args.out.as_deref(), args.json.as_deref(), &part)?;
+        if report.interrupted {
+            return Err(anyhow::Error::new(Interrupted));
+        }
+        return Ok(());
+    }
     let results = results_json(args, &config, &report)?;
     if let Some(dir) = &args.out {
         write_json(&dir.join("results.json"), &results)?;

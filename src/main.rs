@@ -4,6 +4,8 @@
 //! Exit codes: 0 success, 2 bad input (one line on stderr naming what was wrong), 1 failure.
 
 mod bench;
+mod bench_results;
+mod bench_shard;
 mod cli_error;
 mod compare;
 mod fly;
@@ -14,6 +16,7 @@ mod plot;
 mod px4_hil;
 mod render_frame;
 mod replay;
+mod sweep;
 mod track;
 mod twin_flags;
 mod twin_serve;
@@ -72,6 +75,10 @@ enum Command {
     /// PX4's control-allocation parameters of a vehicle (CA_ROTOR*, THR_MDL_FAC,
     /// MPC_THR_HOVER, output functions of its HIL channels) as an airframe-file snippet.
     Px4Airframe(px4_hil::AirframeArgs),
+    /// A grid of benchmark runs from a sweep file (platforms x controllers x interfaces x
+    /// disturbances x tasks x rollouts x seeds): locally on all cores or as shards on a Ray
+    /// cluster; one results folder per cell and a summary table (terminal, JSON, CSV).
+    Sweep(Box<sweep::Args>),
 }
 
 fn main() -> ExitCode {
@@ -108,6 +115,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(&args),
         Command::Px4Airframe(args) => px4_hil::run_airframe(&args),
         Command::Render(args) => render_frame::run(&args),
+        Command::Sweep(args) => sweep::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

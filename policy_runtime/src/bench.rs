@@ -28,6 +28,7 @@ use serde::Serialize;
 use sim_twin::{TaskId, TwinConfig, TwinError};
 
 pub use self::episode::BenchLink;
+pub use self::shard::{ASSIGNMENT as SHARD_ASSIGNMENT, Shard, ShardError};
 use crate::flight::{
     ActionNoise, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask, TaskCriteria,
 };
@@ -39,6 +40,7 @@ use crate::stack::{FlightStack, Interface, StackError};
 use crate::state_source::{EstimateError, EstimatorSummary, StateSource};
 
 mod episode;
+mod shard;
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -355,19 +357,29 @@ pub fn run_bench(
     on_done: &(dyn Fn(&RolloutResult) + Sync),
     stop: &AtomicBool,
 ) -> Result<BenchReport, BenchError> {
+    run_bench_shard(config, Shard::WHOLE, on_done, stop)
+}
+
+/// Runs the rollouts of `shard` of the run (all of them for [`Shard::WHOLE`]) as
+/// [`run_bench`] does; each task's result holds the shard's rollouts of that task.
+pub fn run_bench_shard(
+    config: &BenchConfig,
+    shard: Shard,
+    on_done: &(dyn Fn(&RolloutResult) + Sync),
+    stop: &AtomicBool,
+) -> Result<BenchReport, BenchError> {
     let started = Instant::now();
+    let jobs: Vec<(TaskId, usize)> = shard.rollouts(&config.tasks, config.rollouts);
     if let Some(dir) = &config.mcap_dir {
         for task in &config.tasks {
+            if !jobs.iter().any(|(t, _)| t == task) {
+                continue;
+            }
             let path = dir.join(task.name());
             std::fs::create_dir_all(&path)
                 .map_err(|source| RecordError::Create { path, source })?;
         }
     }
-    let jobs: Vec<(TaskId, usize)> = config
-        .tasks
-        .iter()
-        .flat_map(|t| (0..config.rollouts).map(move |i| (*t, i)))
-        .collect();
     let results: Mutex<Vec<Option<Result<RolloutResult, BenchError>>>> =
         Mutex::new((0..jobs.len()).map(|_| None).collect());
     let next = AtomicUsize::new(0);

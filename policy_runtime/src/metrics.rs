@@ -18,7 +18,7 @@
 //! statistics skip non-finite samples and report a count, the reference's rules.
 
 use nalgebra::{Isometry3, UnitQuaternion};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// What one control tick asked for and achieved.
 #[derive(Debug, Clone, PartialEq)]
@@ -48,7 +48,7 @@ pub fn tilt_rad(orientation: &UnitQuaternion<f64>) -> f64 {
 
 /// Order statistics of the finite samples of one metric (numpy's linear-interpolation
 /// percentiles). `None` fields when there is no finite sample.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
 pub struct Stats {
     /// Mean.
     pub mean: Option<f64>,
@@ -97,7 +97,7 @@ impl Stats {
 }
 
 /// One rollout's metrics.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RolloutSummary {
     /// The task's success criterion was met.
     pub success: bool,
