@@ -17,6 +17,7 @@ mod px4_hil;
 mod render_frame;
 mod replay;
 mod sweep;
+mod experiment;
 mod track;
 mod twin_flags;
 mod twin_serve;
@@ -79,6 +80,9 @@ enum Command {
     /// disturbances x tasks x rollouts x seeds): locally on all cores or as shards on a Ray
     /// cluster; one results folder per cell and a summary table (terminal, JSON, CSV).
     Sweep(Box<sweep::Args>),
+    /// The paper's experiments as one command each (`embodiment`): tables (terminal, JSON)
+    /// and PNG plots in an output folder.
+    Experiment(Box<experiment::Args>),
 }
 
 fn main() -> ExitCode {
@@ -116,6 +120,7 @@ fn main() -> ExitCode {
         Command::Px4Airframe(args) => px4_hil::run_airframe(&args),
         Command::Render(args) => render_frame::run(&args),
         Command::Sweep(args) => sweep::run(&args),
+        Command::Experiment(args) => experiment::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

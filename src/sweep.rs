@@ -155,7 +155,7 @@ enum BenchCommand {
     Bench(Box<crate::bench::Args>),
 }
 
-fn bench_args(flags: &[String]) -> Result<crate::bench::Args> {
+pub(crate) fn bench_args(flags: &[String]) -> Result<crate::bench::Args> {
     let line = BenchLine::try_parse_from(
         ["amstack", "bench"]
             .into_iter()

@@ -1,0 +1,434 @@
+//! `amstack experiment <name>`: the paper's experiments as one command each, writing a table
+//! (terminal + JSON) and PNG plots into an output folder.
+//!
+//! - `embodiment` — the paper's embodiment comparison: Push Slider and Open Door on the
+//!   UA-Quad, UA-Hexa, FA-Hexa and Omni-Hexa (IK-PID, EE interface), success, normalised EE
+//!   and base error, tilt use (rad, as the paper prints it) and saturation rate over the
+//!   successful rollouts; and Rotate Valve's base orientation, desired against actual, on the
+//!   UA-Hexa and the FA-Hexa (`valve-base-orientation.png`). The orderings the paper reads
+//!   off its table are checked on the measured figures and printed.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{Context, Result};
+use comfy_table::{Table, presets};
+use indicatif::{ProgressBar, ProgressStyle};
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+use policy_runtime::bench::{BenchReport, run_bench};
+use policy_runtime::metrics::RunSummary;
+use policy_runtime::validation::read_flight_log;
+use serde::Serialize;
+use serde_json::{Value, json};
+
+use crate::cli_error::bad_input;
+use crate::output::write_json;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    which: Which,
+}
+
+#[derive(Debug, clap::Subcommand)]
+enum Which {
+    /// The embodiment comparison: Push Slider and Open Door on the four multirotors, and
+    /// Rotate Valve's base orientation on the UA-Hexa vs the FA-Hexa.
+    #[command(after_help = "\
+Writes into --out: embodiment.json (every cell's run summary and the orderings), the table on
+the terminal, valve-base-orientation.png, and the rollouts' MCAP logs of the valve runs
+(valve/<platform>/rotate-valve/rollout-000.mcap). Errors and tilt are over successful
+rollouts (the reference's N/A rule); tilt use in rad as the paper prints it.
+
+Example:
+  amstack experiment embodiment --rollouts 30 --out embodiment/")]
+    Embodiment(EmbodimentArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct EmbodimentArgs {
+    /// Rollouts per vehicle and task.
+    #[arg(long, default_value_t = 30)]
+    rollouts: usize,
+    /// Run seed (rollout i is seeded seed + i, as in `bench`).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads [default: all cores].
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Disturbances, as `bench --disturbances` [default: bench's].
+    #[arg(long, value_name = "LIST")]
+    disturbances: Option<String>,
+    /// Output folder (created; an existing one must be empty).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+}
+
+/// The vehicles of the comparison, in the paper's order.
+const VEHICLES: [&str; 4] = ["ua-quad", "ua-hexa", "fa-hexa", "omni-hexa"];
+const TASKS: [&str; 2] = ["push-slider", "open-door"];
+
+pub fn run(args: &Args) -> Result<()> {
+    match &args.which {
+        Which::Embodiment(a) => embodiment(a),
+    }
+}
+
+/// One vehicle × task cell.
+#[derive(Debug, Serialize)]
+struct Cell {
+    platform: String,
+    task: String,
+    summary: RunSummary,
+}
+
+fn bench_flags(a: &EmbodimentArgs, platform: &str, task: &str, rollouts: usize) -> Vec<String> {
+    let mut flags: Vec<String> = [
+        "--platform",
+        platform,
+        "--task",
+        task,
+        "--rollouts",
+        &rollouts.to_string(),
+        "--seed",
+        &a.seed.to_string(),
+    ]
+    .iter()
+    .map(|s| (*s).to_owned())
+    .collect();
+    if let Some(j) = a.jobs {
+        flags.extend(["--jobs".to_owned(), j.to_string()]);
+    }
+    if let Some(d) = &a.disturbances {
+        flags.extend(["--disturbances".to_owned(), d.clone()]);
+    }
+    flags
+}
+
+fn run_cell(flags: &[String], mcap_dir: Option<PathBuf>, bar: &ProgressBar) -> Result<BenchReport> {
+    let args = crate::sweep::bench_args(flags)?;
+    let mut config = crate::bench::config(&args)?;
+    config.mcap_dir = mcap_dir;
+    let stop = AtomicBool::new(false);
+    let report = run_bench(&config, &|_| bar.inc(1), &stop)?;
+    Ok(report)
+}
+
+fn prepare_out(out: &Path) -> Result<()> {
+    if out.exists() {
+        let empty = std::fs::read_dir(out)
+            .with_context(|| format!("--out {}", out.display()))?
+            .next()
+            .is_none();
+        if !empty {
+            return Err(bad_input(format!(
+                "--out {}: the folder is not empty (choose another)",
+                out.display()
+            )));
+        }
+    }
+    std::fs::create_dir_all(out).map_err(|e| bad_input(format!("--out {}: {e}", out.display())))
+}
+
+fn embodiment(a: &EmbodimentArgs) -> Result<()> {
+    if a.rollouts == 0 {
+        return Err(bad_input("--rollouts: at least 1"));
+    }
+    prepare_out(&a.out)?;
+    let total = (VEHICLES.len() * TASKS.len() * a.rollouts + 2) as u64;
+    let bar = ProgressBar::new(total);
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} rollouts, {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let mut cells = Vec::new();
+    for platform in VEHICLES {
+        for task in TASKS {
+            bar.set_prefix(format!("{platform} {task}"));
+            let report = run_cell(&bench_flags(a, platform, task, a.rollouts), None, &bar)?;
+            let summary = report
+                .tasks
+                .into_iter()
+                .next()
+                .map(|t| t.summary)
+                .context("the benchmark returned no task")?;
+            cells.push(Cell {
+                platform: platform.to_owned(),
+                task: task.to_owned(),
+                summary,
+            });
+        }
+    }
+    // Rotate Valve's base orientation: one rollout each, logged.
+    let mut valve = Vec::new();
+    for platform in ["ua-hexa", "fa-hexa"] {
+        bar.set_prefix(format!("{platform} rotate-valve"));
+        let dir = a.out.join("valve").join(platform);
+        let flags = bench_flags(a, platform, "rotate-valve", 1);
+        let report = run_cell(&flags, Some(dir.clone()), &bar)?;
+        let success = report.tasks.first().is_some_and(|t| t.summary.successes > 0);
+        let log = policy_runtime::bench::rollout_log_path(
+            &dir,
+            sim_twin::TaskId::RotateValve,
+            0,
+        );
+        valve.push((platform, success, base_orientation(&log)?));
+    }
+    bar.finish_and_clear();
+
+    let table = table(&cells);
+    println!("{table}");
+    let orderings = orderings(&cells, &valve);
+    for (claim, holds) in &orderings {
+        println!("{} {claim}", if *holds { "holds:  " } else { "differs:" });
+    }
+    let plot = a.out.join("valve-base-orientation.png");
+    draw_valve(&plot, &valve).map_err(|e| anyhow::anyhow!("{}: {e}", plot.display()))?;
+    let document = json!({
+        "experiment": "embodiment",
+        "rollouts": a.rollouts,
+        "seed": a.seed,
+        "disturbances": a.disturbances,
+        "cells": cells,
+        "valve": valve.iter().map(|(p, success, s)| json!({
+            "platform": p,
+            "success": success,
+            "max_tilt_deviation_rad": s.max_tilt_deviation(),
+            "max_yaw_deviation_rad": s.max_yaw_deviation(),
+        })).collect::<Vec<Value>>(),
+        "orderings": orderings.iter().map(|(c, h)| json!({"claim": c, "holds": h})).collect::<Vec<Value>>(),
+    });
+    let json_path = a.out.join("embodiment.json");
+    write_json(&json_path, &document)?;
+    eprintln!("wrote {}, {}", json_path.display(), plot.display());
+    Ok(())
+}
+
+fn table(cells: &[Cell]) -> Table {
+    let mut t = Table::new();
+    t.load_style(presets::ASCII_MARKDOWN).set_header([
+        "platform",
+        "task",
+        "SR (%)",
+        "norm. EE error",
+        "norm. base error",
+        "tilt use (rad)",
+        "saturation (%)",
+    ]);
+    let f = |x: Option<f64>, scale: f64, d: usize| {
+        x.map_or_else(|| "N/A".to_owned(), |v| format!("{:.d$}", v * scale))
+    };
+    for c in cells {
+        let s = &c.summary;
+        t.add_row([
+            c.platform.clone(),
+            c.task.clone(),
+            format!("{:.1}", 100.0 * s.success_rate),
+            f(s.norm_ee_error.mean, 1.0, 4),
+            f(s.norm_base_error.mean, 1.0, 4),
+            f(s.tilt_use_rad.mean, 1.0, 3),
+            f(s.saturation_rate.mean, 100.0, 2),
+        ]);
+    }
+    t
+}
+
+/// A metric's mean over a vehicle's cells (None where a cell has no successful rollout).
+fn mean_of(cells: &[Cell], platform: &str, pick: impl Fn(&RunSummary) -> Option<f64>) -> Option<f64> {
+    let v: Vec<f64> = cells
+        .iter()
+        .filter(|c| c.platform == platform)
+        .map(|c| pick(&c.summary))
+        .collect::<Option<Vec<f64>>>()?;
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// The paper's reading of its table, checked on the measured figures: (claim, holds).
+fn orderings(cells: &[Cell], valve: &[(&str, bool, BaseOrientation)]) -> Vec<(String, bool)> {
+    let lowest = |pick: &dyn Fn(&RunSummary) -> Option<f64>, who: &str, highest: bool| {
+        let values: Vec<(&str, Option<f64>)> =
+            VEHICLES.iter().map(|v| (*v, mean_of(cells, v, pick))).collect();
+        let Some(mine) = values.iter().find(|(v, _)| *v == who).and_then(|(_, x)| *x) else {
+            return false;
+        };
+        values
+            .iter()
+            .filter(|(v, _)| *v != who)
+            .all(|(_, x)| x.is_none_or(|x| if highest { mine >= x } else { mine <= x }))
+    };
+    let tilt = |s: &RunSummary| s.tilt_use_rad.mean;
+    let ee = |s: &RunSummary| s.norm_ee_error.mean;
+    let base = |s: &RunSummary| s.norm_base_error.mean;
+    let sat = |s: &RunSummary| s.saturation_rate.mean;
+    let fa_tilt = mean_of(cells, "fa-hexa", tilt);
+    let ua_tilt_more = ["ua-quad", "ua-hexa"].iter().all(|v| {
+        matches!((mean_of(cells, v, tilt), fa_tilt), (Some(u), Some(f)) if u > f)
+    });
+    let valve_claim = match valve {
+        [(_, _, ua), (_, _, fa)] => ua.max_tilt_deviation() > 2.0 * fa.max_tilt_deviation(),
+        _ => false,
+    };
+    vec![
+        ("the FA-Hexa has the lowest tilt use".to_owned(), lowest(&tilt, "fa-hexa", false)),
+        ("the FA-Hexa has the lowest EE error".to_owned(), lowest(&ee, "fa-hexa", false)),
+        ("the FA-Hexa has the lowest base error".to_owned(), lowest(&base, "fa-hexa", false)),
+        ("the Omni-Hexa has the lowest saturation".to_owned(), lowest(&sat, "omni-hexa", false)),
+        ("the Omni-Hexa has the largest tilt use".to_owned(), lowest(&tilt, "omni-hexa", true)),
+        ("the under-actuated vehicles tilt more than the FA-Hexa".to_owned(), ua_tilt_more),
+        (
+            "in Rotate Valve the UA-Hexa's base orientation departs from its target (> 2x the FA-Hexa's)"
+                .to_owned(),
+            valve_claim,
+        ),
+    ]
+}
+
+/// Base roll, pitch, yaw over a rollout: desired (`/base/reference`) and actual (`/base/state`).
+#[derive(Debug, Default)]
+struct BaseOrientation {
+    times_s: Vec<f64>,
+    desired_rpy: Vec<[f64; 3]>,
+    actual_rpy: Vec<[f64; 3]>,
+}
+
+impl BaseOrientation {
+    fn max_tilt_deviation(&self) -> f64 {
+        self.desired_rpy
+            .iter()
+            .zip(&self.actual_rpy)
+            .map(|(d, a)| (a[0] - d[0]).abs().max((a[1] - d[1]).abs()))
+            .fold(0.0, f64::max)
+    }
+
+    fn max_yaw_deviation(&self) -> f64 {
+        self.desired_rpy
+            .iter()
+            .zip(&self.actual_rpy)
+            .map(|(d, a)| wrap(a[2] - d[2]).abs())
+            .fold(0.0, f64::max)
+    }
+}
+
+fn wrap(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI) - std::f64::consts::PI
+}
+
+fn rpy(w: f64, x: f64, y: f64, z: f64) -> [f64; 3] {
+    let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+    let (r, p, yaw) = q.euler_angles();
+    [r, p, yaw]
+}
+
+fn base_orientation(log: &Path) -> Result<BaseOrientation> {
+    let file = read_flight_log(log, false)?;
+    let num = |v: &Value, path: &[&str]| -> Option<f64> {
+        path.iter().try_fold(v, |v, k| v.get(k))?.as_f64()
+    };
+    let mut desired = Vec::new();
+    let mut actual = Vec::new();
+    for m in &file.recording.messages {
+        let t = m.log_time_ns as f64 / 1e9;
+        match m.topic.as_str() {
+            "/base/reference" => {
+                let v: Value = serde_json::from_slice(&m.data)?;
+                let o = |k: &str| num(&v, &["pose", "orientation", k]);
+                if let (Some(w), Some(x), Some(y), Some(z)) = (o("w"), o("x"), o("y"), o("z")) {
+                    desired.push((t, rpy(w, x, y, z)));
+                }
+            }
+            "/base/state" => {
+                let v: Value = serde_json::from_slice(&m.data)?;
+                let q: Vec<f64> = v
+                    .get("orientation_wxyz")
+                    .and_then(Value::as_array)
+                    .map(|a| a.iter().filter_map(Value::as_f64).collect())
+                    .unwrap_or_default();
+                if let [w, x, y, z] = q[..] {
+                    actual.push((t, rpy(w, x, y, z)));
+                }
+            }
+            _ => {}
+        }
+    }
+    // One of each per tick, in order: pair them.
+    let mut out = BaseOrientation::default();
+    for ((t, d), (_, a)) in desired.into_iter().zip(actual) {
+        out.times_s.push(t);
+        out.desired_rpy.push(d);
+        out.actual_rpy.push(a);
+    }
+    if out.times_s.is_empty() {
+        return Err(anyhow::anyhow!(
+            "{}: no /base/reference and /base/state messages",
+            log.display()
+        ));
+    }
+    Ok(out)
+}
+
+static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+
+fn draw_valve(
+    path: &Path,
+    runs: &[(&str, bool, BaseOrientation)],
+) -> Result<(), Box<dyn std::error::Error>> {
+    let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    let root = BitMapBackend::new(path, (1400, 420 * runs.len().max(1) as u32)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let colors = [RGBColor(214, 39, 40), RGBColor(44, 160, 44), RGBColor(31, 119, 180)];
+    for (area, (platform, success, s)) in root.split_evenly((runs.len().max(1), 1)).iter().zip(runs) {
+        let t1 = s.times_s.last().copied().unwrap_or(1.0).max(1e-3);
+        let deg = |x: f64| x.to_degrees();
+        let all = s.desired_rpy.iter().chain(&s.actual_rpy).flat_map(|r| r.iter().copied());
+        let (lo, hi) = all.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
+            (l.min(deg(x)), h.max(deg(x)))
+        });
+        let pad = ((hi - lo) * 0.05).max(0.5);
+        let mut chart = ChartBuilder::on(area)
+            .caption(
+                format!(
+                    "Rotate Valve, {platform}: base orientation, desired (dashed) vs actual ({})",
+                    if *success { "success" } else { "failed" }
+                ),
+                ("sans-serif", 22),
+            )
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..t1, (lo - pad)..(hi + pad))?;
+        chart
+            .configure_mesh()
+            .x_desc("time (s)")
+            .y_desc("angle (deg)")
+            .label_style(("sans-serif", 15))
+            .draw()?;
+        for (i, name) in ["roll", "pitch", "yaw"].iter().enumerate() {
+            let c = colors[i];
+            chart
+                .draw_series(LineSeries::new(
+                    s.times_s.iter().zip(&s.actual_rpy).map(|(t, r)| (*t, deg(r[i]))),
+                    c.stroke_width(2),
+                ))?
+                .label(format!("{name} actual"))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
+            chart
+                .draw_series(DashedLineSeries::new(
+                    s.times_s.iter().zip(&s.desired_rpy).map(|(t, r)| (*t, deg(r[i]))),
+                    8,
+                    5,
+                    c.stroke_width(1),
+                ))?
+                .label(format!("{name} desired"))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(1)));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .draw()?;
+    }
+    root.present()?;
+    Ok(())
+}
