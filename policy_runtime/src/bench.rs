@@ -149,6 +149,9 @@ pub enum BenchError {
     /// The state estimator could not start or diverged.
     #[error(transparent)]
     Estimate(#[from] EstimateError),
+    /// The cameras could not be rendered.
+    #[error("{0}")]
+    Cameras(String),
 }
 
 impl BenchError {
@@ -162,6 +165,9 @@ impl BenchError {
                 task,
                 message: e.to_string(),
             },
+            // Cameras over a link that cannot render them: the user's choice of link.
+            e @ FlightError::CamerasNeedTwin(_) => Self::Link(LinkError::Refused(e.to_string())),
+            e @ FlightError::Cameras(_) => Self::Cameras(e.to_string()),
         }
     }
 }
@@ -294,6 +300,7 @@ pub fn run_rollout_logged(
                 interface: Some(config.interface),
                 action_noise,
                 stop: Some(stop),
+                cameras: None,
             },
         )
     };

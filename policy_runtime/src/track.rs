@@ -132,6 +132,9 @@ pub enum TrackError {
         /// Simulated time reached, s.
         at_s: f64,
     },
+    /// The cameras could not be rendered.
+    #[error("{0}")]
+    Cameras(String),
     /// The flight stack produced a non-finite setpoint (nothing was sent).
     #[error("the flight stack produced a non-finite setpoint at t = {at_s:.3} s; it was not sent")]
     NonFinite {
@@ -148,6 +151,9 @@ impl From<FlightError> for TrackError {
             FlightError::Estimate(e) => Self::Estimate(e),
             FlightError::Stack(e) => Self::Stack(e),
             FlightError::Source(e) => Self::Config(e.to_string()),
+            // Cameras over a link that cannot render them: the user's choice of link.
+            e @ FlightError::CamerasNeedTwin(_) => Self::Link(LinkError::Refused(e.to_string())),
+            e @ FlightError::Cameras(_) => Self::Cameras(e.to_string()),
         }
     }
 }
@@ -251,6 +257,7 @@ pub fn run_track_with_link(
                 interface: Some(config.interface),
                 action_noise,
                 stop: None,
+                cameras: None,
             },
         )
     };

@@ -74,6 +74,7 @@ fn fly_scripted(task: TaskId, vehicle: &str, seed: u64, watch: impl FnMut(&Stepp
             interface: Some(Interface::Ee),
             action_noise: None,
             stop: None,
+            cameras: None,
         },
     )
     .unwrap_or_else(|e| panic!("{e}"));

@@ -14,6 +14,7 @@ use platform::Measurement;
 use sim_twin::TaskSnapshot;
 
 use super::FlightError;
+use super::cameras::{FrameUse, Frames};
 use crate::flight_log::{FlightLog, TaskState, rotors_saturated};
 use crate::link::LinkMessage;
 use crate::metrics::{CriteriaLatch, TrackingRecord};
@@ -44,6 +45,9 @@ pub struct Decided<'a> {
     pub record: &'a TickRecord,
     /// The end-effector reference of the tick.
     pub ee_reference: &'a Isometry3<f64>,
+    /// The camera images of observation k (the state `measurement` was taken in), when the
+    /// source or an observer asked for them at [`FrameUse::Decided`].
+    pub frames: Option<&'a Frames>,
 }
 
 /// Tick `k` after the link applied it.
@@ -65,6 +69,10 @@ pub struct Stepped<'a> {
     /// The task's state with its latched criteria, filled by [`TaskCriteria`] for the
     /// observers after it (the log).
     pub task_state: Option<TaskState>,
+    /// The camera images of observation k (the state at the tick's start, before this
+    /// step), whenever they were rendered for anyone at tick k. The images after this step
+    /// are those of observation k+1 (the next tick's).
+    pub frames: Option<&'a Frames>,
 }
 
 /// Why an observer stops a flight.
@@ -87,6 +95,13 @@ pub enum Flow {
 
 /// A consumer of a flight's ticks. Every method has a default that does nothing.
 pub trait Observer {
+    /// When this observer needs the camera images of observation `k`; asked before every
+    /// tick of a flight with cameras. Default: never (nothing is rendered for it).
+    fn wants_frames(&self, k: u64) -> FrameUse {
+        let _ = k;
+        FrameUse::None
+    }
+
     /// The start measurement and the link's first messages.
     fn start(&mut self, start: &Start<'_>) -> Result<(), FlightError> {
         let _ = start;
