@@ -29,7 +29,8 @@ use sim_twin::{TaskId, TwinConfig, TwinError};
 
 pub use self::episode::BenchLink;
 use crate::flight::{
-    ActionNoise, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask, TaskCriteria,
+    ActionNoise, BenchMetrics, CameraConfig, End, FlightError, FlightSpec, Observer, ScriptedTask,
+    TaskCriteria,
 };
 use crate::flight_log::FlightLog;
 use crate::link::LinkError;
@@ -70,6 +71,8 @@ pub struct BenchConfig {
     pub link: BenchLink,
     /// Where the controllers' base state comes from (the measurement, or the estimator).
     pub state_source: StateSource,
+    /// The cameras rendered in each rollout (the in-process twin only), if any.
+    pub cameras: Option<CameraConfig>,
 }
 
 pub use crate::flight::EpisodeLength;
@@ -257,6 +260,14 @@ pub fn run_rollout_logged(
     };
     let criteria_names = task.criteria_names();
     let mut criteria = TaskCriteria::new(criteria_names.len(), true);
+    // The cameras first: a machine that cannot render leaves no log behind.
+    let mut rig = match &config.cameras {
+        Some(c) => Some(
+            c.rig(vehicle)
+                .map_err(|e| BenchError::Cameras(e.to_string()))?,
+        ),
+        None => None,
+    };
     let mut log = match log_path {
         None => None,
         Some(path) => {
@@ -267,7 +278,8 @@ pub fn run_rollout_logged(
                 .with_controller_config(&config.controller)?;
             Some(
                 FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
-                    .with_rotor_limits(twin_config.disturbances.saturation),
+                    .with_rotor_limits(twin_config.disturbances.saturation)
+                    .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
             )
         }
     };
@@ -300,7 +312,7 @@ pub fn run_rollout_logged(
                 interface: Some(config.interface),
                 action_noise,
                 stop: Some(stop),
-                cameras: None,
+                cameras: rig.as_mut(),
             },
         )
     };

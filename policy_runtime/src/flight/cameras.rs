@@ -127,6 +127,25 @@ pub fn select_cameras(vehicle: &Vehicle, names: &[&str]) -> Result<Vec<CameraSpe
     Ok(specs)
 }
 
+/// The cameras of a run (`--cameras`, `--visual-dr`, `--camera-log-every`): what each of its
+/// flights builds its [`CameraRig`] from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraConfig {
+    /// The cameras, in order ([`select_cameras`]).
+    pub cameras: Vec<CameraSpec>,
+    /// Visual domain randomisation (drawn per flight from its seed).
+    pub visual_dr: VisualDr,
+    /// The flight log holds the images of every this many-th observation (0: none).
+    pub log_every: u64,
+}
+
+impl CameraConfig {
+    /// A rig of these cameras on `vehicle`.
+    pub fn rig(&self, vehicle: &Vehicle) -> Result<CameraRig, RenderError> {
+        CameraRig::new(vehicle, &self.cameras, self.visual_dr)
+    }
+}
+
 /// The cameras of a flight: a renderer of the vehicle's cameras, reused from flight to flight
 /// (build it once per worker: opening the adapter is the slow part), and the images of the
 /// last observation rendered.

@@ -35,7 +35,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use platform::Measurement;
 
 pub use self::cameras::{
-    CAMERA_ALIASES, CameraFrame, CameraRig, FrameUse, Frames, full_camera_name, select_cameras,
+    CAMERA_ALIASES, CameraConfig, CameraFrame, CameraRig, FrameUse, Frames, full_camera_name,
+    select_cameras,
 };
 pub use self::noise::ActionNoise;
 pub use self::observer::{

@@ -134,6 +134,15 @@ pub trait Observer {
 }
 
 impl Observer for FlightLog {
+    fn wants_frames(&self, k: u64) -> FrameUse {
+        let every = self.camera_log_every();
+        if every > 0 && k.is_multiple_of(every) {
+            FrameUse::Stepped
+        } else {
+            FrameUse::None
+        }
+    }
+
     fn start(&mut self, start: &Start<'_>) -> Result<(), FlightError> {
         Ok(self.link_messages(start.link_messages)?)
     }
@@ -146,6 +155,13 @@ impl Observer for FlightLog {
     }
 
     fn stepped(&mut self, step: &mut Stepped<'_>) -> Result<Flow, FlightError> {
+        // The images of observation k (time t_k) before the outcome of its step (t_k+1).
+        if let Some(frames) = step.frames {
+            let every = self.camera_log_every();
+            if every > 0 && frames.k.is_multiple_of(every) {
+                self.cameras(frames)?;
+            }
+        }
         self.outcome(step.measurement)?;
         self.link_messages(step.link_messages)?;
         if let Some(state) = &step.task_state {
