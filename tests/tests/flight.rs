@@ -458,6 +458,8 @@ fn rollout_camera_images_decode_at_their_size_and_repeat_with_the_seed() {
             link: policy_runtime::bench::BenchLink::InProcess,
             state_source: StateSource::Truth,
         };
+        std::fs::create_dir_all(dir.path().join(name).join(TaskId::PressButton.name()))
+            .unwrap_or_else(|e| panic!("{e}"));
         let stop = std::sync::atomic::AtomicBool::new(false);
         policy_runtime::bench::run_rollout(&config, TaskId::PressButton, 0, &stop)
             .unwrap_or_else(|e| panic!("{e}"))
