@@ -765,15 +765,28 @@ fn cameras_are_refused_on_one_line_for_unknown_names_other_links_and_no_adapter(
     let out_arg = out_dir.to_string_lossy().into_owned();
     let bench = |extra: &[&str]| {
         let mut args = vec![
-            "bench", "--platform", "fa-hexa", "--task", "press-button", "--rollouts", "1",
-            "--out", &out_arg,
+            "bench",
+            "--platform",
+            "fa-hexa",
+            "--task",
+            "press-button",
+            "--rollouts",
+            "1",
+            "--out",
+            &out_arg,
         ];
         args.extend_from_slice(extra);
         amstack(&args)
     };
     assert_bad_input(
         &bench(&["--cameras", "ee,wrist"]),
-        &["--cameras ee,wrist", "wrist", "ee_camera", "base_camera", "scene"],
+        &[
+            "--cameras ee,wrist",
+            "wrist",
+            "ee_camera",
+            "base_camera",
+            "scene",
+        ],
     );
     assert_bad_input(
         &bench(&["--cameras", "ee", "--link", "ipc:nowhere"]),
@@ -786,8 +799,19 @@ fn cameras_are_refused_on_one_line_for_unknown_names_other_links_and_no_adapter(
     assert!(!out_dir.exists(), "nothing written on bad input");
     #[cfg(target_os = "linux")]
     for args in [
-        vec!["bench", "--platform", "fa-hexa", "--task", "press-button", "--rollouts", "1",
-             "--cameras", "ee", "--out", &out_arg],
+        vec![
+            "bench",
+            "--platform",
+            "fa-hexa",
+            "--task",
+            "press-button",
+            "--rollouts",
+            "1",
+            "--cameras",
+            "ee",
+            "--out",
+            &out_arg,
+        ],
         vec!["track", "--cameras", "ee,base"],
     ] {
         // No Metal backend on Linux: a machine where rendering is impossible.
@@ -796,7 +820,59 @@ fn cameras_are_refused_on_one_line_for_unknown_names_other_links_and_no_adapter(
             .env("WGPU_BACKEND", "metal")
             .output()
             .unwrap_or_else(|e| panic!("cannot start amstack: {e}"));
-        assert_bad_input(&out, &["--cameras", "no graphics adapter", "mesa-vulkan-drivers"]);
+        assert_bad_input(
+            &out,
+            &["--cameras", "no graphics adapter", "mesa-vulkan-drivers"],
+        );
         assert!(!out_dir.exists(), "nothing written without an adapter");
     }
+}
+
+/// `render --time T` flies the task's scripted policy T seconds through the flight loop, then
+/// renders: the frame is at t = T, and the EE camera has moved from its pose at reset.
+#[test]
+fn render_at_a_time_shows_the_flown_state() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+    let frame = |time: &str| {
+        let png = dir.path().join(format!("ee-{time}.png"));
+        let json = dir.path().join(format!("ee-{time}.json"));
+        let out = amstack(&[
+            "render",
+            "--platform",
+            "fa-hexa",
+            "--task",
+            "press-button",
+            "--camera",
+            "ee",
+            "--time",
+            time,
+            "--out",
+            &png.to_string_lossy(),
+            "--json",
+            &json.to_string_lossy(),
+        ]);
+        (out, json)
+    };
+    let (out, json) = frame("2");
+    if out.status.code() == Some(2) && stderr(&out).contains("no graphics adapter") {
+        eprintln!("SKIPPED: {}", stderr(&out).trim());
+        return;
+    }
+    assert!(out.status.success(), "{}", stderr(&out));
+    let read = |path: &Path| -> serde_json::Value {
+        let text = std::fs::read_to_string(path).unwrap_or_default();
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"))
+    };
+    let at_2 = read(&json);
+    assert!(
+        (at_2["time_s"].as_f64().unwrap_or(f64::NAN) - 2.0).abs() < 1e-9,
+        "{at_2}"
+    );
+    let (out, json) = frame("0");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let at_0 = read(&json);
+    assert_eq!(at_0["time_s"].as_f64(), Some(0.0));
+    let p = |v: &serde_json::Value| v["world_from_camera"]["position_m"].clone();
+    assert_ne!(p(&at_0), p(&at_2), "the EE camera moved with the flight");
+    assert_bad_input(&frame("nan").0, &["--time NaN", "[0, 600]"]);
 }
