@@ -876,3 +876,82 @@ fn render_at_a_time_shows_the_flown_state() {
     assert_ne!(p(&at_0), p(&at_2), "the EE camera moved with the flight");
     assert_bad_input(&frame("nan").0, &["--time NaN", "[0, 600]"]);
 }
+
+/// The venv's python (scripts/setup-python.sh, which also installs imageio-ffmpeg).
+fn venv_python() -> PathBuf {
+    let out = Command::new("bash")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/setup-python.sh"))
+        .output()
+        .unwrap_or_else(|e| panic!("setup-python.sh: {e}"));
+    assert!(out.status.success(), "setup-python.sh: {}", stderr(&out));
+    PathBuf::from(stdout(&out).lines().last().unwrap_or_default().trim())
+}
+
+/// `track --video`: an MP4 of the scene camera with the EE camera beside it, one frame every
+/// 4th step at 30 fps, encoded by ffmpeg (the one imageio-ffmpeg ships, through
+/// AMSTACK_FFMPEG) and read back by imageio-ffmpeg; without an encoder, exit 2 on one line.
+#[test]
+fn track_video_holds_a_frame_every_fourth_step_side_by_side() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+    let mp4 = dir.path().join("flight.mp4");
+    let mp4_arg = mp4.to_string_lossy().into_owned();
+    let args = [
+        "track",
+        "--platform",
+        "fa-hexa",
+        "--duration",
+        "1",
+        "--settle",
+        "0.5",
+        "--cameras",
+        "ee",
+        "--video",
+        &mp4_arg,
+    ];
+    let out = Command::new(env!("CARGO_BIN_EXE_amstack"))
+        .args(args)
+        .env("AMSTACK_FFMPEG", "/nonexistent/ffmpeg")
+        .output()
+        .unwrap_or_else(|e| panic!("cannot start amstack: {e}"));
+    assert_bad_input(
+        &out,
+        &["--video", "/nonexistent/ffmpeg", "apt-get install ffmpeg"],
+    );
+    assert!(!mp4.exists());
+
+    let python = venv_python();
+    let ffmpeg = Command::new(&python)
+        .args([
+            "-c",
+            "import imageio_ffmpeg as f; print(f.get_ffmpeg_exe())",
+        ])
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    let ffmpeg = stdout(&ffmpeg).trim().to_owned();
+    let out = Command::new(env!("CARGO_BIN_EXE_amstack"))
+        .args(args)
+        .env("AMSTACK_FFMPEG", &ffmpeg)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot start amstack: {e}"));
+    if out.status.code() == Some(2) && stderr(&out).contains("no graphics adapter") {
+        eprintln!("SKIPPED: {}", stderr(&out).trim());
+        return;
+    }
+    assert!(out.status.success(), "{}", stderr(&out));
+    let probe = Command::new(&python)
+        .args([
+            "-c",
+            "import imageio_ffmpeg as f, json, sys; r = f.read_frames(sys.argv[1]); \
+             meta = next(r); n = sum(1 for _ in r); \
+             print(json.dumps({'size': meta['size'], 'fps': meta['fps'], 'frames': n}))",
+            &mp4_arg,
+        ])
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    let v: serde_json::Value = serde_json::from_str(stdout(&probe).trim())
+        .unwrap_or_else(|e| panic!("{e}: {} {}", stdout(&probe), stderr(&probe)));
+    // 1 s at 120 Hz = 120 steps: observations 0, 4, …, 116; scene 1280×720 + EE 384×384.
+    assert_eq!(v["frames"], 30, "{v}");
+    assert_eq!(v["size"], serde_json::json!([1664, 720]), "{v}");
+    assert_eq!(v["fps"].as_f64(), Some(30.0), "{v}");
+}

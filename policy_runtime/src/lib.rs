@@ -40,6 +40,7 @@ pub mod task_policies;
 pub mod track;
 pub mod trajectory;
 pub mod validation;
+pub mod video;
 
 pub use ipc_link::{IpcLink, IpcLinkConfig, IpcLinkError};
 pub use link::{Link, LinkError, Setpoint, SetpointLevel, TwinLink, VehicleSensors};

@@ -443,6 +443,7 @@ fn rollout_camera_images_decode_at_their_size_and_repeat_with_the_seed() {
                 cameras: cameras.clone(),
                 visual_dr: render::VisualDr::On,
                 log_every: EVERY,
+                video: None,
             }),
             controller: profile(&v, ControllerKind::Pid).unwrap_or_else(|e| panic!("{e}")),
             controller_name: "test".to_owned(),

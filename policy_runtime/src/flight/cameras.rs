@@ -137,6 +137,8 @@ pub struct CameraConfig {
     pub visual_dr: VisualDr,
     /// The flight log holds the images of every this many-th observation (0: none).
     pub log_every: u64,
+    /// A video of each flight, if any.
+    pub video: Option<crate::video::VideoConfig>,
 }
 
 impl CameraConfig {
