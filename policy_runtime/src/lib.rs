@@ -24,6 +24,7 @@
 //! compare two logs), [`scripted`] (the scripted demonstrations' interpolation).
 
 pub mod bench;
+pub mod cameras;
 pub mod flight;
 pub mod flight_log;
 pub mod ipc_link;

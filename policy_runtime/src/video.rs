@@ -9,7 +9,9 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};
 
-use crate::flight::{FlightError, Flow, FrameUse, Frames, Observer, Stepped};
+pub use crate::cameras::VideoConfig;
+use crate::cameras::{FrameUse, Frames};
+use crate::flight::{FlightError, Flow, Observer, Stepped};
 use crate::record::RecordError;
 
 /// The environment variable naming the ffmpeg program to use instead of `ffmpeg` on the PATH.
@@ -41,20 +43,6 @@ pub fn ffmpeg_program() -> Result<PathBuf, String> {
             program.display()
         )),
     }
-}
-
-/// A video of a run: which cameras, how often, which encoder, where.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct VideoConfig {
-    /// The ffmpeg program ([`ffmpeg_program`]).
-    pub program: PathBuf,
-    /// The MP4 (`track`), or the directory of one MP4 per rollout (`bench`:
-    /// `<task>/rollout-NNN.mp4`).
-    pub path: PathBuf,
-    /// The cameras side by side, by name (`scene_camera`, then `ee_camera`).
-    pub cameras: Vec<String>,
-    /// One frame every this many observations (4 at 120 Hz: the reference's 30 fps).
-    pub every: u64,
 }
 
 impl VideoConfig {
