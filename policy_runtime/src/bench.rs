@@ -28,9 +28,9 @@ use serde::Serialize;
 use sim_twin::{TaskId, TwinConfig, TwinError};
 
 pub use self::episode::BenchLink;
+use crate::cameras::{CameraConfig, CameraRig};
 use crate::flight::{
-    ActionNoise, BenchMetrics, CameraConfig, End, FlightError, FlightSpec, Observer, ScriptedTask,
-    TaskCriteria,
+    ActionNoise, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask, TaskCriteria,
 };
 use crate::flight_log::FlightLog;
 use crate::link::LinkError;
@@ -265,10 +265,7 @@ pub fn run_rollout_logged(
     let mut criteria = TaskCriteria::new(criteria_names.len(), true);
     // The cameras first: a machine that cannot render leaves no log behind.
     let mut rig = match &config.cameras {
-        Some(c) => Some(
-            c.rig(vehicle)
-                .map_err(|e| BenchError::Cameras(e.to_string()))?,
-        ),
+        Some(c) => Some(worker_rig(c, vehicle)?),
         None => None,
     };
     let mut log = match log_path {
@@ -330,7 +327,7 @@ pub fn run_rollout_logged(
                 interface: Some(config.interface),
                 action_noise,
                 stop: Some(stop),
-                cameras: rig.as_mut(),
+                cameras: rig.as_mut().and_then(WorkerRig::rig),
             },
         )
     };
@@ -373,6 +370,49 @@ pub fn run_rollout_logged(
         estimator: flown.estimator,
         video,
     })
+}
+
+thread_local! {
+    /// The camera rig of this worker thread, kept from rollout to rollout (opening the adapter
+    /// is the slow part), with the cameras and vehicle it was built for.
+    static WORKER_RIG: std::cell::RefCell<Option<(CameraConfig, String, CameraRig)>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// This worker's rig for `cameras` on `vehicle` (built on its first rollout, or when the
+/// configuration changed), lent to one rollout.
+struct WorkerRig(Option<(CameraConfig, String, CameraRig)>);
+
+impl WorkerRig {
+    fn rig(&mut self) -> Option<&mut CameraRig> {
+        self.0.as_mut().map(|(_, _, rig)| rig)
+    }
+}
+
+impl Drop for WorkerRig {
+    fn drop(&mut self) {
+        let kept = self.0.take();
+        // At thread exit the slot is gone: the rig is dropped with it.
+        let _ = WORKER_RIG.try_with(|slot| *slot.borrow_mut() = kept);
+    }
+}
+
+fn worker_rig(cameras: &CameraConfig, vehicle: &Vehicle) -> Result<WorkerRig, BenchError> {
+    let kept = WORKER_RIG
+        .try_with(|slot| slot.borrow_mut().take())
+        .ok()
+        .flatten()
+        .filter(|(c, id, _)| c == cameras && *id == vehicle.id);
+    let entry = match kept {
+        Some(entry) => entry,
+        None => {
+            let rig = cameras
+                .rig(vehicle)
+                .map_err(|e| BenchError::Cameras(e.to_string()))?;
+            (cameras.clone(), vehicle.id.clone(), rig)
+        }
+    };
+    Ok(WorkerRig(Some(entry)))
 }
 
 /// Where rollout `index` of `task` writes its video under `dir`.
