@@ -4,7 +4,10 @@
 #   back the files our recorder writes with code that is not ours;
 # - `pymavlink`, the ground station of scripts/mavlink_gcs.py, used by tests/tests/mavlink.rs
 #   to talk to the twin's autopilot (`amstack twin serve --mavlink`) with a MAVLink
-#   implementation that is not ours.
+#   implementation that is not ours;
+# - `imageio-ffmpeg`, whose wheel ships a static ffmpeg program: the video encoder of the
+#   tests of `--video` (AMSTACK_FFMPEG) on a machine without Debian's ffmpeg, and the
+#   independent reader that counts an MP4's frames.
 #
 #   AMSTACK_VENV   where the venv lives (default: $HOME/.cache/amstack-venv)
 #   PYTHON         the interpreter that creates it (default: python3; needs its venv module)
@@ -18,8 +21,10 @@ set -euo pipefail
 # ships a manylinux wheel too and needs lxml and fastcrc (wheels).
 MCAP_VERSION="1.6.0"
 PYMAVLINK_VERSION="2.4.50"
+IMAGEIO_FFMPEG_VERSION="0.8.1"
 PINNED=("mcap==${MCAP_VERSION}" "lz4==4.4.5" "zstandard==0.25.0"
-        "pymavlink==${PYMAVLINK_VERSION}" "lxml==6.1.3" "fastcrc==0.5.0")
+        "pymavlink==${PYMAVLINK_VERSION}" "lxml==6.1.3" "fastcrc==0.5.0"
+        "imageio-ffmpeg==${IMAGEIO_FFMPEG_VERSION}")
 
 VENV="${AMSTACK_VENV:-$HOME/.cache/amstack-venv}"
 PYTHON="${PYTHON:-python3}"
@@ -39,10 +44,11 @@ installed_version() {
 }
 
 installed() {
-    echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink)"
+    echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink)," \
+         "imageio-ffmpeg $(installed_version imageio-ffmpeg)"
 }
 
-WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}"
+WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, imageio-ffmpeg ${IMAGEIO_FFMPEG_VERSION}"
 if [[ -x "$VPY" && "$(installed)" == "$WANTED" ]]; then
     say "venv $VENV already has $WANTED: nothing to do"
     echo "$VPY"

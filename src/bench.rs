@@ -104,6 +104,13 @@ pub struct Args {
     twin: TwinFlags,
     #[command(flatten)]
     state: crate::track::StateFlags,
+    #[command(flatten)]
+    cameras: crate::camera_flags::CameraFlags,
+    /// Write one MP4 per rollout into DIR (`<task>/rollout-NNN.mp4`): the scene camera (with
+    /// the EE camera beside it when --cameras names ee), 30 fps from every 4th step. Needs the
+    /// ffmpeg program (apt-get install ffmpeg, or AMSTACK_FFMPEG=PATH).
+    #[arg(long, value_name = "DIR")]
+    video: Option<PathBuf>,
     /// Output directory: results.json, config.json and one MCAP log per rollout.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -227,7 +234,15 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         (BenchLink::Ipc(_), _) => 1,
         _ => jobs,
     };
+    if (args.cameras.any() || args.video.is_some()) && !matches!(link, BenchLink::InProcess) {
+        return Err(bad_input(format!(
+            "--cameras/--video with --link {}: the cameras are rendered from the twin in this process; run with --link twin",
+            args.link
+        )));
+    }
+    let cameras = args.cameras.config(&vehicle, args.video.as_deref())?;
     Ok(BenchConfig {
+        cameras,
         link,
         episode,
         vehicle,

@@ -39,6 +39,9 @@ pub(crate) fn rollout_json(r: &RolloutResult) -> Value {
     if let (Some(e), Some(object)) = (&r.estimator, value.as_object_mut()) {
         object.insert("estimator".to_owned(), json!(e));
     }
+    if let (Some(v), Some(object)) = (&r.video, value.as_object_mut()) {
+        object.insert("video".to_owned(), json!(v));
+    }
     value
 }
 

@@ -6,6 +6,7 @@
 mod bench;
 mod bench_results;
 mod bench_shard;
+mod camera_flags;
 mod cli_error;
 mod compare;
 mod fly;

@@ -71,6 +71,13 @@ pub struct Args {
     scene: SceneFlag,
     #[command(flatten)]
     state: StateFlags,
+    #[command(flatten)]
+    cameras: crate::camera_flags::CameraFlags,
+    /// Write an MP4 of the flight: the scene camera (with the EE camera beside it when
+    /// --cameras names ee), 30 fps from every 4th step. Needs the ffmpeg program (apt-get
+    /// install ffmpeg, or AMSTACK_FFMPEG=PATH).
+    #[arg(long, value_name = "FILE.mp4")]
+    video: Option<PathBuf>,
     /// Write the scores as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -262,7 +269,12 @@ fn config(args: &Args) -> Result<TrackConfig> {
     } else {
         Interface::BaseJoint
     };
+    if let Some(p) = &args.video {
+        check_writable("--video", p)?;
+    }
+    let cameras = args.cameras.config(&vehicle, args.video.as_deref())?;
     Ok(TrackConfig {
+        cameras,
         vehicle,
         controller,
         trajectory,
@@ -394,10 +406,18 @@ pub(crate) fn run_with(
     if let Some(path) = &result.mcap {
         eprintln!("wrote {}", path.display());
     }
+    if let Some(path) = &args.video {
+        eprintln!("wrote {}", path.display());
+    }
     Ok(())
 }
 
 impl Args {
+    /// Whether the flight renders cameras (`--cameras`).
+    pub(crate) fn wants_cameras(&self) -> bool {
+        self.cameras.any() || self.video.is_some()
+    }
+
     /// Whether the flight writes an MCAP log (`--mcap`).
     pub(crate) fn logs_mcap(&self) -> bool {
         self.mcap.is_some()
@@ -463,7 +483,17 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
         args.controller
     );
     let link_name = link.name();
+    if (args.cameras.any() || args.video.is_some()) && !matches!(link, BenchLink::InProcess) {
+        return Err(bad_input(format!(
+            "--cameras over {link_name}: the cameras are rendered from the twin in this process; fly with --link twin"
+        )));
+    }
+    if let Some(p) = &args.video {
+        check_writable("--video", p)?;
+    }
+    let cameras = args.cameras.config(&vehicle, args.video.as_deref())?;
     let config = BenchConfig {
+        cameras,
         vehicle,
         controller,
         controller_name,

@@ -29,6 +29,7 @@ use sim_twin::{TaskId, TwinConfig, TwinError};
 
 pub use self::episode::BenchLink;
 pub use self::shard::{ASSIGNMENT as SHARD_ASSIGNMENT, Shard, ShardError};
+use crate::cameras::{CameraConfig, CameraRig};
 use crate::flight::{
     ActionNoise, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask, TaskCriteria,
 };
@@ -72,6 +73,8 @@ pub struct BenchConfig {
     pub link: BenchLink,
     /// Where the controllers' base state comes from (the measurement, or the estimator).
     pub state_source: StateSource,
+    /// The cameras rendered in each rollout (the in-process twin only), if any.
+    pub cameras: Option<CameraConfig>,
 }
 
 pub use crate::flight::EpisodeLength;
@@ -122,6 +125,9 @@ pub struct RolloutResult {
     /// The estimator's figures (with `--state-source estimator`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub estimator: Option<EstimatorSummary>,
+    /// The rollout's video (with `--video`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub video: Option<PathBuf>,
 }
 
 /// A rollout that could not run at all.
@@ -151,6 +157,9 @@ pub enum BenchError {
     /// The state estimator could not start or diverged.
     #[error(transparent)]
     Estimate(#[from] EstimateError),
+    /// The cameras could not be rendered.
+    #[error("{0}")]
+    Cameras(String),
 }
 
 impl BenchError {
@@ -164,6 +173,9 @@ impl BenchError {
                 task,
                 message: e.to_string(),
             },
+            // Cameras over a link that cannot render them: the user's choice of link.
+            e @ FlightError::CamerasNeedTwin(_) => Self::Link(LinkError::Refused(e.to_string())),
+            e @ FlightError::Cameras(_) => Self::Cameras(e.to_string()),
         }
     }
 }
@@ -253,6 +265,11 @@ pub fn run_rollout_logged(
     };
     let criteria_names = task.criteria_names();
     let mut criteria = TaskCriteria::new(criteria_names.len(), true);
+    // The cameras first: a machine that cannot render leaves no log behind.
+    let mut rig = match &config.cameras {
+        Some(c) => Some(worker_rig(c, vehicle)?),
+        None => None,
+    };
     let mut log = match log_path {
         None => None,
         Some(path) => {
@@ -263,9 +280,22 @@ pub fn run_rollout_logged(
                 .with_controller_config(&config.controller)?;
             Some(
                 FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
-                    .with_rotor_limits(twin_config.disturbances.saturation),
+                    .with_rotor_limits(twin_config.disturbances.saturation)
+                    .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
             )
         }
+    };
+    let mut video = match config.cameras.as_ref().and_then(|c| c.video.as_ref()) {
+        Some(v) => {
+            let path = rollout_video_path(&v.path, task, index);
+            if let Some(dir) = path.parent() {
+                std::fs::create_dir_all(dir).map_err(|e| {
+                    BenchError::Cameras(format!("cannot create {}: {e}", dir.display()))
+                })?;
+            }
+            Some(v.writer(path))
+        }
+        None => None,
     };
     let limits_n = (!vehicle.rotors.is_empty())
         .then_some((vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n));
@@ -281,6 +311,9 @@ pub fn run_rollout_logged(
             observers.push(log);
         }
         observers.push(&mut metrics);
+        if let Some(v) = &mut video {
+            observers.push(v);
+        }
         crate::flight::run(
             link.as_mut(),
             &mut stack,
@@ -296,12 +329,17 @@ pub fn run_rollout_logged(
                 interface: Some(config.interface),
                 action_noise,
                 stop: Some(stop),
+                cameras: rig.as_mut().and_then(WorkerRig::rig),
             },
         )
     };
     let observed = link.task_observed();
     let mcap = match log {
         Some(log) => Some(log.finish()?.path),
+        None => None,
+    };
+    let video = match video {
+        Some(v) => v.finish()?.map(|s| s.path),
         None => None,
     };
     let flown = flown.map_err(|e| BenchError::of_flight(e, task))?;
@@ -332,7 +370,57 @@ pub fn run_rollout_logged(
         wall_time_s: started.elapsed().as_secs_f64(),
         mcap,
         estimator: flown.estimator,
+        video,
     })
+}
+
+thread_local! {
+    /// The camera rig of this worker thread, kept from rollout to rollout (opening the adapter
+    /// is the slow part), with the cameras and vehicle it was built for.
+    static WORKER_RIG: std::cell::RefCell<Option<(CameraConfig, String, CameraRig)>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// This worker's rig for `cameras` on `vehicle` (built on its first rollout, or when the
+/// configuration changed), lent to one rollout.
+struct WorkerRig(Option<(CameraConfig, String, CameraRig)>);
+
+impl WorkerRig {
+    fn rig(&mut self) -> Option<&mut CameraRig> {
+        self.0.as_mut().map(|(_, _, rig)| rig)
+    }
+}
+
+impl Drop for WorkerRig {
+    fn drop(&mut self) {
+        let kept = self.0.take();
+        // At thread exit the slot is gone: the rig is dropped with it.
+        let _ = WORKER_RIG.try_with(|slot| *slot.borrow_mut() = kept);
+    }
+}
+
+fn worker_rig(cameras: &CameraConfig, vehicle: &Vehicle) -> Result<WorkerRig, BenchError> {
+    let kept = WORKER_RIG
+        .try_with(|slot| slot.borrow_mut().take())
+        .ok()
+        .flatten()
+        .filter(|(c, id, _)| c == cameras && *id == vehicle.id);
+    let entry = match kept {
+        Some(entry) => entry,
+        None => {
+            let rig = cameras
+                .rig(vehicle)
+                .map_err(|e| BenchError::Cameras(e.to_string()))?;
+            (cameras.clone(), vehicle.id.clone(), rig)
+        }
+    };
+    Ok(WorkerRig(Some(entry)))
+}
+
+/// Where rollout `index` of `task` writes its video under `dir`.
+pub fn rollout_video_path(dir: &Path, task: TaskId, index: usize) -> PathBuf {
+    dir.join(task.name())
+        .join(format!("rollout-{index:03}.mp4"))
 }
 
 /// The arm reach the errors are normalised by: the vehicle's, or ‖p_ee − p_base‖ at the
