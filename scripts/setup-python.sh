@@ -4,7 +4,9 @@
 #   back the files our recorder writes with code that is not ours;
 # - `pymavlink`, the ground station of scripts/mavlink_gcs.py, used by tests/tests/mavlink.rs
 #   to talk to the twin's autopilot (`amstack twin serve --mavlink`) with a MAVLink
-#   implementation that is not ours.
+#   implementation that is not ours;
+# - `pyarrow` and `numpy`, the independent reader of the LeRobot datasets `amstack record`
+#   writes (scripts/dataset_check.py, run by tests/tests/dataset.rs).
 #
 #   AMSTACK_VENV   where the venv lives (default: $HOME/.cache/amstack-venv)
 #   PYTHON         the interpreter that creates it (default: python3; needs its venv module)
@@ -15,11 +17,14 @@ set -euo pipefail
 
 # Pinned: the reader must not change under the tests. mcap 1.6.0 needs lz4 and zstandard to
 # decompress chunks; both ship manylinux wheels, so nothing is compiled. pymavlink 2.4.50
-# ships a manylinux wheel too and needs lxml and fastcrc (wheels).
+# ships a manylinux wheel too and needs lxml and fastcrc (wheels). numpy stays below 2: the
+# policies' openpi-client (same venv) requires numpy < 2, and pyarrow 21 runs on it (26 does not).
 MCAP_VERSION="1.6.0"
 PYMAVLINK_VERSION="2.4.50"
+PYARROW_VERSION="21.0.0"
 PINNED=("mcap==${MCAP_VERSION}" "lz4==4.4.5" "zstandard==0.25.0"
-        "pymavlink==${PYMAVLINK_VERSION}" "lxml==6.1.3" "fastcrc==0.5.0")
+        "pymavlink==${PYMAVLINK_VERSION}" "lxml==6.1.3" "fastcrc==0.5.0"
+        "pyarrow==${PYARROW_VERSION}" "numpy==1.26.4")
 
 VENV="${AMSTACK_VENV:-$HOME/.cache/amstack-venv}"
 PYTHON="${PYTHON:-python3}"
@@ -39,10 +44,10 @@ installed_version() {
 }
 
 installed() {
-    echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink)"
+    echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink), pyarrow $(installed_version pyarrow)"
 }
 
-WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}"
+WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, pyarrow ${PYARROW_VERSION}"
 if [[ -x "$VPY" && "$(installed)" == "$WANTED" ]]; then
     say "venv $VENV already has $WANTED: nothing to do"
     echo "$VPY"

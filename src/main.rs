@@ -6,12 +6,14 @@
 mod bench;
 mod cli_error;
 mod compare;
+mod dataset_cmd;
 mod fly;
 mod mpc_bench;
 mod output;
 mod platforms;
 mod plot;
 mod px4_hil;
+mod record;
 mod render_frame;
 mod replay;
 mod track;
@@ -72,6 +74,11 @@ enum Command {
     /// PX4's control-allocation parameters of a vehicle (CA_ROTOR*, THR_MDL_FAC,
     /// MPC_THR_HOVER, output functions of its HIL channels) as an airframe-file snippet.
     Px4Airframe(px4_hil::AirframeArgs),
+    /// Record demonstrations of a task's scripted policy (the rollouts of `bench`) as a
+    /// LeRobot v3.0 dataset: observation state, actions, task prompt (120 fps).
+    Record(Box<record::Args>),
+    /// LeRobot datasets: `info`, `validate`, `export-openpi` (v2.1, 20 Hz), `merge`.
+    Dataset(dataset_cmd::Args),
 }
 
 fn main() -> ExitCode {
@@ -108,6 +115,8 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(&args),
         Command::Px4Airframe(args) => px4_hil::run_airframe(&args),
         Command::Render(args) => render_frame::run(&args),
+        Command::Record(args) => record::run(&args),
+        Command::Dataset(args) => dataset_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
