@@ -93,6 +93,8 @@ pub struct Args {
     pub(crate) twin: TwinFlags,
     #[command(flatten)]
     pub(crate) state: crate::track::StateFlags,
+    #[command(flatten)]
+    pub(crate) cameras: crate::camera_flags::CameraFlags,
     /// Output directory: results.json, config.json and one MCAP log per rollout.
     #[arg(long, value_name = "DIR")]
     pub(crate) out: Option<PathBuf>,
@@ -211,7 +213,15 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         (BenchLink::Ipc(_), _) => 1,
         _ => jobs,
     };
+    if args.cameras.any() && !matches!(link, BenchLink::InProcess) {
+        return Err(bad_input(format!(
+            "--cameras with --link {}: the cameras are rendered from the twin in this process;              run with --link twin",
+            args.link
+        )));
+    }
+    let cameras = args.cameras.config(&vehicle)?;
     Ok(BenchConfig {
+        cameras,
         link,
         episode,
         vehicle,

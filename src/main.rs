@@ -4,6 +4,7 @@
 //! Exit codes: 0 success, 2 bad input (one line on stderr naming what was wrong), 1 failure.
 
 mod bench;
+mod camera_flags;
 mod cli_error;
 mod compare;
 mod dataset_cmd;

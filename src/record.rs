@@ -63,9 +63,8 @@ pub struct Args {
     /// The observation state's keys, comma-separated, in order.
     #[arg(long, value_name = "KEYS", default_value = "ee_pos,ee_quat,gripper_width")]
     state_keys: String,
-    /// Cameras to record as images (ee, base).
-    #[arg(long, value_name = "LIST")]
-    cameras: Option<String>,
+    #[command(flatten)]
+    cameras: crate::camera_flags::CameraFlags,
     /// Write the summary JSON here.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -110,6 +109,7 @@ impl Args {
             connect_timeout_ms: 10_000,
             twin: self.twin.clone(),
             state: self.state.clone(),
+            cameras: self.cameras.clone(),
             out: None,
             json: None,
             vehicles: self.vehicles.clone(),
@@ -164,11 +164,6 @@ pub fn run(args: &Args) -> Result<()> {
     if max_attempts == 0 {
         return Err(bad_input("--max-attempts 0: make at least one attempt"));
     }
-    if let Some(cameras) = &args.cameras {
-        return Err(bad_input(format!(
-            "--cameras {cameras}: the flight loop does not render cameras in this build (issue 17)"
-        )));
-    }
     let keys = state_keys(&args.state_keys)?;
     let semantics = match bench.interface {
         Interface::Ee => ActionSemantics::EeAbsolute,
@@ -178,7 +173,20 @@ pub fn run(args: &Args) -> Result<()> {
     if rate.fract() != 0.0 || rate <= 0.0 {
         return Err(bad_input(format!("the control rate {rate} Hz is not a whole number of frames per second")));
     }
-    let spec = DatasetSpec::new(&bench.vehicle, &keys, semantics, rate as u32, &[]);
+    let cameras: Vec<(String, usize, usize)> = bench
+        .cameras
+        .as_ref()
+        .map(|c| {
+            c.cameras
+                .iter()
+                .map(|s| {
+                    let i = &s.intrinsics;
+                    (s.name.clone(), i.height as usize, i.width as usize)
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let spec = DatasetSpec::new(&bench.vehicle, &keys, semantics, rate as u32, &cameras);
     let recording = json!({
         "task": bench.tasks[0].name(),
         "platform": bench.vehicle.id,
@@ -187,6 +195,8 @@ pub fn run(args: &Args) -> Result<()> {
         "seed": bench.seed,
         "episode_length": bench.episode,
         "disturbances": args.twin.disturbances,
+        "cameras": cameras.iter().map(|c| &c.0).collect::<Vec<_>>(),
+        "visual_dr": args.cameras.visual_dr == crate::camera_flags::OnOff::On,
         "state_source": serde_json::to_value(bench.state_source).unwrap_or(Value::Null),
         "twin": serde_json::to_value(&bench.twin)?,
         "actions": "float32, rounded before the stack flies them",

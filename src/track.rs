@@ -71,6 +71,8 @@ pub struct Args {
     scene: SceneFlag,
     #[command(flatten)]
     state: StateFlags,
+    #[command(flatten)]
+    cameras: crate::camera_flags::CameraFlags,
     /// Write the scores as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -262,7 +264,9 @@ fn config(args: &Args) -> Result<TrackConfig> {
     } else {
         Interface::BaseJoint
     };
+    let cameras = args.cameras.config(&vehicle)?;
     Ok(TrackConfig {
+        cameras,
         vehicle,
         controller,
         trajectory,
@@ -398,6 +402,11 @@ pub(crate) fn run_with(
 }
 
 impl Args {
+    /// Whether the flight renders cameras (`--cameras`).
+    pub(crate) fn wants_cameras(&self) -> bool {
+        self.cameras.any()
+    }
+
     /// Whether the flight writes an MCAP log (`--mcap`).
     pub(crate) fn logs_mcap(&self) -> bool {
         self.mcap.is_some()
@@ -463,7 +472,14 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
         args.controller
     );
     let link_name = link.name();
+    if args.cameras.any() && !matches!(link, BenchLink::InProcess) {
+        return Err(bad_input(format!(
+            "--cameras over {link_name}: the cameras are rendered from the twin in this              process; fly with --link twin"
+        )));
+    }
+    let cameras = args.cameras.config(&vehicle)?;
     let config = BenchConfig {
+        cameras,
         vehicle,
         controller,
         controller_name,

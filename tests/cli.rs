@@ -755,3 +755,48 @@ fn render_without_an_adapter_is_bad_input_saying_how_to_install_one() {
     );
     assert!(!png.exists());
 }
+
+/// `--cameras` is refused on one line: an unknown camera (naming the known ones), a link that
+/// is not the twin in this process, a machine without a graphics adapter.
+#[test]
+fn cameras_are_refused_on_one_line_for_unknown_names_other_links_and_no_adapter() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+    let out_dir = dir.path().join("run");
+    let out_arg = out_dir.to_string_lossy().into_owned();
+    let bench = |extra: &[&str]| {
+        let mut args = vec![
+            "bench", "--platform", "fa-hexa", "--task", "press-button", "--rollouts", "1",
+            "--out", &out_arg,
+        ];
+        args.extend_from_slice(extra);
+        amstack(&args)
+    };
+    assert_bad_input(
+        &bench(&["--cameras", "ee,wrist"]),
+        &["--cameras ee,wrist", "wrist", "ee_camera", "base_camera", "scene"],
+    );
+    assert_bad_input(
+        &bench(&["--cameras", "ee", "--link", "ipc:nowhere"]),
+        &["--cameras", "--link twin"],
+    );
+    assert_bad_input(
+        &amstack(&["fly", "--link", "ipc:nowhere", "--cameras", "ee"]),
+        &["--cameras", "--link twin"],
+    );
+    assert!(!out_dir.exists(), "nothing written on bad input");
+    #[cfg(target_os = "linux")]
+    for args in [
+        vec!["bench", "--platform", "fa-hexa", "--task", "press-button", "--rollouts", "1",
+             "--cameras", "ee", "--out", &out_arg],
+        vec!["track", "--cameras", "ee,base"],
+    ] {
+        // No Metal backend on Linux: a machine where rendering is impossible.
+        let out = Command::new(env!("CARGO_BIN_EXE_amstack"))
+            .args(&args)
+            .env("WGPU_BACKEND", "metal")
+            .output()
+            .unwrap_or_else(|e| panic!("cannot start amstack: {e}"));
+        assert_bad_input(&out, &["--cameras", "no graphics adapter", "mesa-vulkan-drivers"]);
+        assert!(!out_dir.exists(), "nothing written without an adapter");
+    }
+}

@@ -29,7 +29,8 @@ use sim_twin::{TaskId, TwinConfig, TwinError};
 
 pub use self::episode::BenchLink;
 use crate::flight::{
-    ActionNoise, ActionSource, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask, TaskCriteria,
+    ActionNoise, ActionSource, BenchMetrics, CameraConfig, End, FlightError, FlightSpec, Observer,
+    ScriptedTask, TaskCriteria,
 };
 use crate::flight_log::FlightLog;
 use crate::link::LinkError;
@@ -70,6 +71,8 @@ pub struct BenchConfig {
     pub link: BenchLink,
     /// Where the controllers' base state comes from (the measurement, or the estimator).
     pub state_source: StateSource,
+    /// The cameras rendered in each rollout (the in-process twin only), if any.
+    pub cameras: Option<CameraConfig>,
 }
 
 pub use crate::flight::EpisodeLength;
@@ -149,6 +152,9 @@ pub enum BenchError {
     /// The state estimator could not start or diverged.
     #[error(transparent)]
     Estimate(#[from] EstimateError),
+    /// The cameras could not be rendered.
+    #[error("{0}")]
+    Cameras(String),
 }
 
 impl BenchError {
@@ -162,6 +168,9 @@ impl BenchError {
                 task,
                 message: e.to_string(),
             },
+            // Cameras over a link that cannot render them: the user's choice of link.
+            e @ FlightError::CamerasNeedTwin(_) => Self::Link(LinkError::Refused(e.to_string())),
+            e @ FlightError::Cameras(_) => Self::Cameras(e.to_string()),
         }
     }
 }
@@ -282,6 +291,14 @@ pub fn run_rollout_with(
     };
     let criteria_names = task.criteria_names();
     let mut criteria = TaskCriteria::new(criteria_names.len(), true);
+    // The cameras first: a machine that cannot render leaves no log behind.
+    let mut rig = match &config.cameras {
+        Some(c) => Some(
+            c.rig(vehicle)
+                .map_err(|e| BenchError::Cameras(e.to_string()))?,
+        ),
+        None => None,
+    };
     let mut log = match log_path {
         None => None,
         Some(path) => {
@@ -292,7 +309,8 @@ pub fn run_rollout_with(
                 .with_controller_config(&config.controller)?;
             Some(
                 FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
-                    .with_rotor_limits(twin_config.disturbances.saturation),
+                    .with_rotor_limits(twin_config.disturbances.saturation)
+                    .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
             )
         }
     };
@@ -336,6 +354,7 @@ pub fn run_rollout_with(
                 interface: Some(config.interface),
                 action_noise,
                 stop: Some(stop),
+                cameras: rig.as_mut(),
             },
         )
     };

@@ -23,6 +23,7 @@ fn flight(
     let v = vehicle(id);
     let controller = profile(&v, kind).unwrap_or_else(|e| panic!("{id}: {e}"));
     TrackConfig {
+        cameras: None,
         vehicle: v,
         controller,
         trajectory,
@@ -348,6 +349,7 @@ fn bench(
 ) -> policy_runtime::bench::BenchReport {
     let v = vehicle(id);
     let config = policy_runtime::bench::BenchConfig {
+        cameras: None,
         controller: profile(&v, kind).unwrap_or_else(|e| panic!("{id}: {e}")),
         controller_name: "test".to_owned(),
         vehicle: v,
@@ -414,4 +416,88 @@ fn fa_hexa_presses_the_button_and_pushes_the_slider_through_ik_pid() {
             t.task
         );
     }
+}
+
+/// A rollout with the EE and base cameras (visual DR on) logs them as PNG that the independent
+/// Python reader decodes at the cameras' 384×384, every 50th observation; the same seed logs
+/// the same bytes; the flight itself is the one flown without cameras.
+#[test]
+fn rollout_camera_images_decode_at_their_size_and_repeat_with_the_seed() {
+    use policy_runtime::flight::{CameraConfig, CameraRig, select_cameras};
+    use sim_twin::TaskId;
+    let v = vehicle("fa-hexa");
+    let cameras = select_cameras(&v, &["ee", "base"]).unwrap_or_else(|e| panic!("{e}"));
+    match CameraRig::new(&v, &cameras, render::VisualDr::On) {
+        Err(render::RenderError::NoAdapter(reason)) => {
+            eprintln!("SKIPPED: no graphics adapter on this machine ({reason})");
+            return;
+        }
+        Err(e) => panic!("{e}"),
+        Ok(_) => {}
+    }
+    const EVERY: u64 = 50;
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let rollout = |name: &str, with_cameras: bool| {
+        let config = policy_runtime::bench::BenchConfig {
+            cameras: with_cameras.then(|| CameraConfig {
+                cameras: cameras.clone(),
+                visual_dr: render::VisualDr::On,
+                log_every: EVERY,
+            }),
+            controller: profile(&v, ControllerKind::Pid).unwrap_or_else(|e| panic!("{e}")),
+            controller_name: "test".to_owned(),
+            vehicle: v.clone(),
+            interface: Interface::Ee,
+            tasks: vec![TaskId::PressButton],
+            rollouts: 1,
+            seed: 5,
+            twin: TwinConfig::default(),
+            jobs: 1,
+            episode: policy_runtime::bench::EpisodeLength::Script,
+            mcap_dir: Some(dir.path().join(name)),
+            link: policy_runtime::bench::BenchLink::InProcess,
+            state_source: StateSource::Truth,
+        };
+        std::fs::create_dir_all(dir.path().join(name).join(TaskId::PressButton.name()))
+            .unwrap_or_else(|e| panic!("{e}"));
+        let stop = std::sync::atomic::AtomicBool::new(false);
+        policy_runtime::bench::run_rollout(&config, TaskId::PressButton, 0, &stop)
+            .unwrap_or_else(|e| panic!("{e}"))
+    };
+    let first = rollout("first", true);
+    let second = rollout("second", true);
+    let plain = rollout("plain", false);
+    assert!(first.success, "{:?}", first.termination);
+    assert_eq!(first.executed_steps, plain.executed_steps);
+    let summary = |r: &policy_runtime::bench::RolloutResult| {
+        serde_json::to_string(&r.summary).unwrap_or_default()
+    };
+    assert_eq!(summary(&first), summary(&plain), "cameras change no result");
+    let images = (first.executed_steps - 1) / EVERY + 1;
+    let mut digests = Vec::new();
+    for r in [&first, &second] {
+        let path = r.mcap.clone().unwrap_or_default();
+        let (code, report) = tests::mcap_check(&path, &["--require-complete"]);
+        assert_eq!(code, 0, "{report:#}");
+        for topic in ["/camera/ee_camera/image", "/camera/base_camera/image"] {
+            let entry = &report["images"][topic];
+            assert_eq!(entry["count"], images, "{topic}: {entry}");
+            assert_eq!(entry["format"], "png", "{topic}");
+            assert_eq!((entry["width"].clone(), entry["height"].clone()), (384.into(), 384.into()));
+            digests.push(entry["sha256"].clone());
+        }
+        let count = |topic: &str| {
+            report["channels"]
+                .as_array()
+                .and_then(|cs| cs.iter().find(|c| c["topic"] == topic))
+                .map(|c| c["count"].clone())
+        };
+        assert_eq!(count("/camera/ee_camera/calibration"), Some(images.into()));
+        assert_eq!(count("/camera/tf"), Some(images.into()));
+    }
+    assert_eq!(digests[0], digests[2], "EE camera: same seed, same PNG bytes");
+    assert_eq!(digests[1], digests[3], "base camera: same seed, same PNG bytes");
+    assert_ne!(digests[0], digests[1], "the two cameras see different things");
+    let ee = digests[0].as_array().cloned().unwrap_or_default();
+    assert!(ee.first() != ee.last(), "the EE camera's view changes over the flight");
 }

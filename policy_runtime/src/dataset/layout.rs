@@ -221,10 +221,14 @@ pub fn task_prompt(task: TaskId) -> &'static str {
     }
 }
 
-/// The feature key of a camera's images: `observation.images.<name>_camera`, the reference's
-/// names (`ee_camera`, `base_camera`), which its training and export scripts look for.
+/// The feature key of a camera's images: `observation.images.<full name>` (`ee` →
+/// `observation.images.ee_camera`), the reference's names, which its training and export
+/// scripts look for.
 pub fn image_key(camera: &str) -> String {
-    format!("observation.images.{camera}_camera")
+    format!(
+        "observation.images.{}",
+        crate::flight::full_camera_name(camera)
+    )
 }
 
 /// What one dataset records: its features and what they mean.

@@ -92,7 +92,7 @@ pub fn export_openpi(
             })
         })
         .collect::<Result<_, _>>()?;
-    let cams: Vec<(String, String, usize, usize)> = [("ee", "ee_image"), ("base", "base_image")]
+    let cams: Vec<(String, String, usize, usize)> = [("ee_camera", "ee_image"), ("base_camera", "base_image")]
         .iter()
         .filter_map(|(cam, name)| {
             let key = image_key(cam);

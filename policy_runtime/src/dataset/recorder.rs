@@ -13,11 +13,12 @@ use sim_twin::TaskId;
 use super::layout::{
     ActionSemantics, StateKey, action_of_vector, action_vector, state_vector, task_prompt,
 };
-use super::write::{EpisodeFrames, EpisodeSource};
+use super::write::{EpisodeFrames, EpisodeSource, encode_png};
 use super::{DatasetError, DatasetWriter};
 use crate::bench::{BenchConfig, BenchError, RolloutHooks, rollout_seed, run_rollout_with};
 use crate::flight::{
-    ActionSource, Decided, FlightError, Observation, Observer, ScriptedTask, SourceError, Step,
+    ActionSource, Decided, FlightError, FrameUse, Observation, Observer, ScriptedTask,
+    SourceError, Step,
 };
 use crate::stack::{Action, FlightStack, Interface};
 
@@ -29,17 +30,23 @@ pub struct Recorder {
     vehicle: Vehicle,
     keys: Vec<StateKey>,
     action_dim: usize,
+    cameras: Vec<String>,
     frames: EpisodeFrames,
 }
 
 impl Recorder {
-    /// A recorder of `keys` on `vehicle`, with actions of `action_dim` values.
-    pub fn new(vehicle: &Vehicle, keys: &[StateKey], action_dim: usize) -> Self {
+    /// A recorder of `keys` on `vehicle`, with actions of `action_dim` values and the images
+    /// of `cameras` (names of the flight's camera rig; each tick's frames are asked for).
+    pub fn new(vehicle: &Vehicle, keys: &[StateKey], action_dim: usize, cameras: &[String]) -> Self {
         Self {
             vehicle: vehicle.clone(),
             keys: keys.to_vec(),
             action_dim,
-            frames: EpisodeFrames::default(),
+            cameras: cameras.to_vec(),
+            frames: EpisodeFrames {
+                images: vec![Vec::new(); cameras.len()],
+                ..EpisodeFrames::default()
+            },
         }
     }
 
@@ -57,7 +64,29 @@ impl Recorder {
 }
 
 impl Observer for Recorder {
+    fn wants_frames(&self, _k: u64) -> FrameUse {
+        if self.cameras.is_empty() {
+            FrameUse::None
+        } else {
+            FrameUse::Decided
+        }
+    }
+
     fn decided(&mut self, tick: &Decided<'_>) -> Result<(), FlightError> {
+        if !self.cameras.is_empty() {
+            let frames = tick
+                .frames
+                .filter(|f| f.k == tick.k)
+                .ok_or_else(|| SourceError(format!("tick {}: no images of its observation", tick.k)))?;
+            for (name, out) in self.cameras.iter().zip(&mut self.frames.images) {
+                let frame = frames
+                    .get(name)
+                    .ok_or_else(|| SourceError(format!("tick {}: no image of camera {name}", tick.k)))?;
+                let png = encode_png(frame.image.width, frame.image.height, &frame.image.rgb)
+                    .map_err(|e| SourceError(format!("tick {}: camera {name}: {e}", tick.k)))?;
+                out.push(png);
+            }
+        }
         let action = tick.action.ok_or_else(|| {
             SourceError("the recorder needs the action of every tick (not an open-loop command)".into())
         })?;
@@ -101,6 +130,10 @@ impl<S: ActionSource> ActionSource for QuantizedActions<S> {
 
     fn tick_limit(&self) -> Option<u64> {
         self.inner.tick_limit()
+    }
+
+    fn wants_frames(&self, k: u64) -> bool {
+        self.inner.wants_frames(k)
     }
 
     fn next(
@@ -357,7 +390,12 @@ fn attempt(
         ScriptedTask::new(task, seed, rate_hz, bench.episode),
         bench.interface,
     );
-    let mut recorder = Recorder::new(&bench.vehicle, &config.state_keys, action_dim);
+    let cameras: Vec<String> = bench
+        .cameras
+        .as_ref()
+        .map(|c| c.cameras.iter().map(|s| s.name.clone()).collect())
+        .unwrap_or_default();
+    let mut recorder = Recorder::new(&bench.vehicle, &config.state_keys, action_dim, &cameras);
     let result = run_rollout_with(
         bench,
         task,
@@ -395,6 +433,9 @@ fn attempt(
         let state_dim = episode.state.len() / n.max(1);
         episode.state.truncate(applied * state_dim);
         episode.action.truncate(applied * action_dim);
+        for images in &mut episode.images {
+            images.truncate(applied);
+        }
     }
     Ok((attempt, Some(episode)))
 }

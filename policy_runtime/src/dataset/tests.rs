@@ -78,7 +78,7 @@ fn files(root: &Path) -> Vec<(String, Vec<u8>)> {
 #[test]
 fn episodes_read_back_as_written_and_validate() {
     let dir = tempfile::tempdir().unwrap();
-    let cams = vec![("ee".to_owned(), 4, 4)];
+    let cams = vec![("ee_camera".to_owned(), 4, 4)];
     let mut w = DatasetWriter::create(dir.path(), spec(&cams), json!({"test": 1})).unwrap();
     let written = [episode(0, 7, "press the button", 1), episode(1, 5, "open the door", 1), episode(2, 3, "press the button", 1)];
     for e in &written {
@@ -186,7 +186,7 @@ fn the_validator_names_each_inconsistency() {
 fn openpi_export_takes_every_sixth_frame() {
     let dir = tempfile::tempdir().unwrap();
     let out = tempfile::tempdir().unwrap();
-    let cams = vec![("ee".to_owned(), 4, 4)];
+    let cams = vec![("ee_camera".to_owned(), 4, 4)];
     let mut w = DatasetWriter::create(dir.path(), spec(&cams), Value::Null).unwrap();
     w.write_episode(episode(0, 13, "a", 1)).unwrap();
     w.write_episode(episode(1, 5, "a", 1)).unwrap(); // under one logical frame: skipped
@@ -237,6 +237,7 @@ fn bench_config(vehicle: &str, interface: Interface) -> BenchConfig {
         seed: 3,
         twin: TwinConfig::default(),
         jobs: 2,
+        cameras: None,
         episode: EpisodeLength::Script,
         mcap_dir: None,
         link: BenchLink::InProcess,
@@ -290,7 +291,7 @@ fn recorded_actions_replayed_reproduce_the_recorded_states_bit_for_bit() {
         let attempt = e.source.attempt;
         assert_eq!(e.source.seed, Some(rollout_seed(config.seed, attempt as usize)));
         let mut source = RecordedActions::new(r.spec.action_semantics, r.spec.action_dim, e.action.clone());
-        let mut replayed = Recorder::new(&config.vehicle, &keys, r.spec.action_dim);
+        let mut replayed = Recorder::new(&config.vehicle, &keys, r.spec.action_dim, &[]);
         let result = run_rollout_with(
             &config,
             TaskId::PressButton,
