@@ -24,8 +24,10 @@ written (failed ones too with --save-failed) until the dataset holds --episodes,
 --max-attempts attempts were made. A frame k holds the observation of tick k
 (observation.state: the --state-keys, measured) and the action applied after it (action:
 the 8-D absolute end-effector target, or with --interface joint the 12-D base + joint target
-the whole-body IK made of it), at 120 fps. Actions are rounded to float32 before the stack
-flies them, so the recorded action is exactly the applied one.
+the whole-body IK made of it), at 120 fps; with --cameras ee[,base] also the images of
+observation k (observation.images.ee_camera: 384x384 RGB, PNG in the Parquet file). Actions
+are rounded to float32 before the stack flies them, so the recorded action is exactly the
+applied one.
 
 The output is a LeRobot v3.0 dataset (lerobot >= 0.4 loads it with
 LeRobotDataset(repo_id, root=DIR)); `amstack dataset info|validate|export-openpi|merge` work
@@ -37,7 +39,8 @@ State keys: ee_pos ee_quat gripper_width base_pos base_quat base_lin_vel base_an
 arm_joint_pos arm_joint_vel.
 
 Examples:
-  amstack record --platform fa-hexa --task press-button --episodes 80 --out data/press-button
+  amstack record --platform fa-hexa --task press-button --episodes 80 --cameras ee \\
+      --out data/press-button
   amstack record --platform fa-hexa --task push-slider --interface joint \\
       --state-keys base_pos,base_quat,arm_joint_pos,gripper_width --out data/slider-joint
   amstack dataset validate data/press-button")]
