@@ -187,7 +187,11 @@ pub fn run(args: &Args) -> Result<()> {
                 target_hz,
                 export.stride,
                 export.raw_frames,
-                if export.images { "" } else { ", without images (none recorded)" },
+                if export.images {
+                    ""
+                } else {
+                    ", without images (none recorded)"
+                },
                 out.display()
             );
             Ok(())

@@ -64,7 +64,11 @@ pub struct Args {
     #[arg(long)]
     resume: bool,
     /// The observation state's keys, comma-separated, in order.
-    #[arg(long, value_name = "KEYS", default_value = "ee_pos,ee_quat,gripper_width")]
+    #[arg(
+        long,
+        value_name = "KEYS",
+        default_value = "ee_pos,ee_quat,gripper_width"
+    )]
     state_keys: String,
     #[command(flatten)]
     cameras: crate::camera_flags::CameraFlags,
@@ -174,7 +178,9 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let rate = bench.twin.control_rate_hz;
     if rate.fract() != 0.0 || rate <= 0.0 {
-        return Err(bad_input(format!("the control rate {rate} Hz is not a whole number of frames per second")));
+        return Err(bad_input(format!(
+            "the control rate {rate} Hz is not a whole number of frames per second"
+        )));
     }
     let cameras: Vec<(String, usize, usize)> = bench
         .cameras
@@ -225,8 +231,12 @@ pub fn run(args: &Args) -> Result<()> {
         }
         writer
     } else {
-        std::fs::create_dir_all(&args.out)
-            .map_err(|e| bad_input(format!("--out {}: cannot create it: {e}", args.out.display())))?;
+        std::fs::create_dir_all(&args.out).map_err(|e| {
+            bad_input(format!(
+                "--out {}: cannot create it: {e}",
+                args.out.display()
+            ))
+        })?;
         DatasetWriter::create(&args.out, spec, recording)?
     };
     let first_attempt = writer.next_attempt();

@@ -3,7 +3,11 @@
 //! scripts/setup-python.sh): every file agrees with the data, the openpi export's frames are
 //! every 6th source frame, bad input is one line and exit 2.
 
-#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests: fail loudly")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "tests: fail loudly"
+)]
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -31,7 +35,9 @@ fn ok(args: &[&str]) -> String {
 
 fn check(dir: &Path, openpi: Option<&Path>) -> serde_json::Value {
     let mut cmd = Command::new(python());
-    cmd.arg(scripts_dir().join("dataset_check.py")).arg(dir).arg("--json");
+    cmd.arg(scripts_dir().join("dataset_check.py"))
+        .arg(dir)
+        .arg("--json");
     if let Some(o) = openpi {
         cmd.arg("--openpi").arg(o);
     }
@@ -84,7 +90,13 @@ fn a_recorded_dataset_is_read_back_by_pyarrow_and_exported_at_20_hz() {
     assert_eq!(report["frames"], summary["dataset_frames"]);
     // export-openpi: 20 Hz frames equal every 6th source frame.
     let out = tmp.path().join("openpi");
-    ok(&["dataset", "export-openpi", d, "--out", out.to_str().unwrap()]);
+    ok(&[
+        "dataset",
+        "export-openpi",
+        d,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     let report = check(&dir, Some(&out));
     let frames = report["frames"].as_u64().unwrap();
     let openpi = report["openpi_frames"].as_u64().unwrap();
@@ -108,11 +120,25 @@ fn bad_input_is_one_line_and_exit_2() {
             "not empty (pass --resume",
         ),
         (
-            vec!["record", "--task", "fly-to-the-moon", "--out", "/tmp/x-never"],
+            vec![
+                "record",
+                "--task",
+                "fly-to-the-moon",
+                "--out",
+                "/tmp/x-never",
+            ],
             "unknown task",
         ),
         (
-            vec!["record", "--task", "press-button", "--state-keys", "ee_pos,elbow", "--out", "/tmp/x-never"],
+            vec![
+                "record",
+                "--task",
+                "press-button",
+                "--state-keys",
+                "ee_pos,elbow",
+                "--out",
+                "/tmp/x-never",
+            ],
             "unknown state key \"elbow\"",
         ),
         (vec!["dataset", "validate", d.as_str()], "not a dataset"),

@@ -291,7 +291,11 @@ impl DatasetSpec {
                 key: "action".to_owned(),
                 dtype: Dtype::Float32,
                 shape: vec![self.action_dim],
-                names: Some((0..self.action_dim).map(|i| format!("action_{i}")).collect()),
+                names: Some(
+                    (0..self.action_dim)
+                        .map(|i| format!("action_{i}"))
+                        .collect(),
+                ),
             },
         ];
         for (key, h, w) in &self.images {
@@ -361,7 +365,12 @@ impl DatasetSpec {
                 let shape: Vec<usize> = f
                     .get("shape")
                     .and_then(Value::as_array)
-                    .map(|s| s.iter().filter_map(Value::as_u64).map(|d| d as usize).collect())
+                    .map(|s| {
+                        s.iter()
+                            .filter_map(Value::as_u64)
+                            .map(|d| d as usize)
+                            .collect()
+                    })
                     .unwrap_or_default();
                 let [h, w, 3] = shape[..] else {
                     return Err(bad(format!(

@@ -62,13 +62,18 @@ pub fn export_openpi(
     if target_hz == 0 || spec.fps % target_hz != 0 {
         return Err(DatasetError::invalid(
             "export-openpi",
-            format!("--target-hz {target_hz}: the dataset's {} fps is not a multiple of it", spec.fps),
+            format!(
+                "--target-hz {target_hz}: the dataset's {} fps is not a multiple of it",
+                spec.fps
+            ),
         ));
     }
     let stride = spec.fps / target_hz;
     let required: &[&str] = match spec.action_semantics {
         ActionSemantics::EeAbsolute => &["ee_pos", "ee_quat", "gripper_width"],
-        ActionSemantics::BaseJointAbsolute => &["base_pos", "base_quat", "arm_joint_pos", "gripper_width"],
+        ActionSemantics::BaseJointAbsolute => {
+            &["base_pos", "base_quat", "arm_joint_pos", "gripper_width"]
+        }
     };
     let arm = spec.action_dim.saturating_sub(8).max(4);
     let mut offsets = Vec::new();
@@ -92,16 +97,17 @@ pub fn export_openpi(
             })
         })
         .collect::<Result<_, _>>()?;
-    let cams: Vec<(String, String, usize, usize)> = [("ee_camera", "ee_image"), ("base_camera", "base_image")]
-        .iter()
-        .filter_map(|(cam, name)| {
-            let key = image_key(cam);
-            spec.images
-                .iter()
-                .find(|i| i.0 == key)
-                .map(|(k, h, w)| (k.clone(), (*name).to_owned(), *h, *w))
-        })
-        .collect();
+    let cams: Vec<(String, String, usize, usize)> =
+        [("ee_camera", "ee_image"), ("base_camera", "base_image")]
+            .iter()
+            .filter_map(|(cam, name)| {
+                let key = image_key(cam);
+                spec.images
+                    .iter()
+                    .find(|i| i.0 == key)
+                    .map(|(k, h, w)| (k.clone(), (*name).to_owned(), *h, *w))
+            })
+            .collect();
     // Features in frame order, then the indices.
     let mut features: Vec<Feature> = Vec::new();
     if let Some((_, name, h, w)) = cams.iter().find(|c| c.1 == "ee_image") {
@@ -114,9 +120,19 @@ pub fn export_openpi(
     if let Some((_, name, h, w)) = cams.iter().find(|c| c.1 == "base_image") {
         features.push(image_feature(name, *h, *w));
     }
-    features.push(Feature { key: "timestamp".into(), dtype: Dtype::Float32, shape: vec![1], names: None });
+    features.push(Feature {
+        key: "timestamp".into(),
+        dtype: Dtype::Float32,
+        shape: vec![1],
+        names: None,
+    });
     for k in ["frame_index", "episode_index", "index", "task_index"] {
-        features.push(Feature { key: k.into(), dtype: Dtype::Int64, shape: vec![1], names: None });
+        features.push(Feature {
+            key: k.into(),
+            dtype: Dtype::Int64,
+            shape: vec![1],
+            names: None,
+        });
     }
     // The parquet schema as `datasets` makes it; image features are CHW in info.json only.
     let mut schema_features = features.clone();
@@ -183,7 +199,9 @@ pub fn export_openpi(
                         (fixed(&v, spec.action_dim), float_stats(&v, spec.action_dim))
                     }
                     "timestamp" => {
-                        let v: Vec<f32> = (0..len).map(|k| (k as f64 / f64::from(target_hz)) as f32).collect();
+                        let v: Vec<f32> = (0..len)
+                            .map(|k| (k as f64 / f64::from(target_hz)) as f32)
+                            .collect();
                         (Arc::new(Float32Array::from(v.clone())), float_stats(&v, 1))
                     }
                     "frame_index" | "episode_index" | "index" | "task_index" => {
@@ -195,20 +213,36 @@ pub fn export_openpi(
                                 _ => task_index,
                             })
                             .collect();
-                        let s = FeatureStats::of_rows(&v.iter().map(|x| *x as f64).collect::<Vec<_>>(), 1, StatsKind::Int);
+                        let s = FeatureStats::of_rows(
+                            &v.iter().map(|x| *x as f64).collect::<Vec<_>>(),
+                            1,
+                            StatsKind::Int,
+                        );
                         (Arc::new(Int64Array::from(v)), s)
                     }
                     _ if f.dtype == Dtype::Image => {
-                        let (src_key, _, h, w) = cams.iter().find(|c| c.1 == f.key).cloned().unwrap_or_default();
+                        let (src_key, _, h, w) = cams
+                            .iter()
+                            .find(|c| c.1 == f.key)
+                            .cloned()
+                            .unwrap_or_default();
                         let c = spec.images.iter().position(|i| i.0 == src_key).unwrap_or(0);
-                        let pngs: Vec<Vec<u8>> = picks.iter().map(|&k| ep.images[c][k].clone()).collect();
-                        let rgb = pngs.iter().map(|p| decode_png(p).map(|d| d.2)).collect::<Result<Vec<_>, _>>()?;
+                        let pngs: Vec<Vec<u8>> =
+                            picks.iter().map(|&k| ep.images[c][k].clone()).collect();
+                        let rgb = pngs
+                            .iter()
+                            .map(|p| decode_png(p).map(|d| d.2))
+                            .collect::<Result<Vec<_>, _>>()?;
                         let _ = (h, w);
                         let s = all_pixel_stats(&rgb);
                         (image_column(&pngs), s)
                     }
                     key => {
-                        let (_, off, width) = parts.iter().find(|p| p.0 == key).cloned().unwrap_or_default();
+                        let (_, off, width) = parts
+                            .iter()
+                            .find(|p| p.0 == key)
+                            .cloned()
+                            .unwrap_or_default();
                         let v = rows(&ep.state, spec.state_dim, off, width);
                         let column: ArrayRef = if width == 1 {
                             Arc::new(Float32Array::from(v.clone()))
@@ -225,7 +259,8 @@ pub fn export_openpi(
                 "data/chunk-{:03}/episode_{episode_index:06}.parquet",
                 episode_index / OPENPI_CHUNK_SIZE
             );
-            let batch = RecordBatch::try_new(schema.clone(), columns).map_err(DatasetError::arrow(&rel))?;
+            let batch =
+                RecordBatch::try_new(schema.clone(), columns).map_err(DatasetError::arrow(&rel))?;
             write_parquet(out, &rel, &schema, &[batch])?;
             episodes_jsonl.push_str(&format!(
                 "{}\n",
@@ -266,13 +301,22 @@ pub fn export_openpi(
         ("total_frames", J::V(json!(frames_total))),
         ("total_tasks", J::V(json!(tasks.len()))),
         ("total_videos", J::V(json!(0))),
-        ("total_chunks", J::V(json!(episode_index.div_ceil(OPENPI_CHUNK_SIZE)))),
+        (
+            "total_chunks",
+            J::V(json!(episode_index.div_ceil(OPENPI_CHUNK_SIZE))),
+        ),
         ("chunks_size", J::V(json!(OPENPI_CHUNK_SIZE))),
         ("fps", J::V(json!(target_hz))),
-        ("splits", J::V(json!({"train": format!("0:{episode_index}")}))),
+        (
+            "splits",
+            J::V(json!({"train": format!("0:{episode_index}")})),
+        ),
         ("data_path", J::V(json!(OPENPI_DATA_PATH))),
         ("video_path", J::V(Value::Null)),
-        ("features", J::obj(features.iter().map(|f| (f.key.clone(), J::V(f.info()))))),
+        (
+            "features",
+            J::obj(features.iter().map(|f| (f.key.clone(), J::V(f.info())))),
+        ),
         (
             "ambench",
             J::obj([(
@@ -303,7 +347,11 @@ pub fn export_openpi(
     write_atomic(
         out,
         "ambench_openpi_export_report.json",
-        format!("{}\n", serde_json::to_string_pretty(&report).unwrap_or_default()).as_bytes(),
+        format!(
+            "{}\n",
+            serde_json::to_string_pretty(&report).unwrap_or_default()
+        )
+        .as_bytes(),
     )?;
     Ok(OpenpiExport {
         episodes: episode_index,
@@ -338,7 +386,11 @@ fn all_pixel_stats(frames: &[Vec<u8>]) -> FeatureStats {
         min: min.to_vec(),
         max: max.to_vec(),
         std: (0..3)
-            .map(|c| (sum_sq[c] / f64::max(n, 1.0) - mean[c] * mean[c]).max(0.0).sqrt())
+            .map(|c| {
+                (sum_sq[c] / f64::max(n, 1.0) - mean[c] * mean[c])
+                    .max(0.0)
+                    .sqrt()
+            })
             .collect(),
         mean,
         count: frames.len() as u64,
@@ -375,7 +427,11 @@ fn fixed(values: &[f32], dim: usize) -> ArrayRef {
 }
 
 fn float_stats(v: &[f32], dim: usize) -> FeatureStats {
-    FeatureStats::of_rows(&v.iter().map(|x| f64::from(*x)).collect::<Vec<_>>(), dim, StatsKind::Float)
+    FeatureStats::of_rows(
+        &v.iter().map(|x| f64::from(*x)).collect::<Vec<_>>(),
+        dim,
+        StatsKind::Float,
+    )
 }
 
 /// v2.1 episode statistics: min, max, mean, std, count (no quantiles).

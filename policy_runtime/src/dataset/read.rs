@@ -180,7 +180,10 @@ impl DatasetReader {
                     .unwrap_or_default()
                     .to_owned(),
                 seed: source.get("seed").and_then(Value::as_u64),
-                success: source.get("success").and_then(Value::as_bool).unwrap_or(false),
+                success: source
+                    .get("success")
+                    .and_then(Value::as_bool)
+                    .unwrap_or(false),
                 attempt: source.get("attempt").and_then(Value::as_u64).unwrap_or(e),
             },
             ..EpisodeFrames::default()

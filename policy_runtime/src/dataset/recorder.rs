@@ -17,8 +17,8 @@ use super::write::{EpisodeFrames, EpisodeSource, encode_png};
 use super::{DatasetError, DatasetWriter};
 use crate::bench::{BenchConfig, BenchError, RolloutHooks, rollout_seed, run_rollout_with};
 use crate::flight::{
-    ActionSource, Decided, FlightError, FrameUse, Observation, Observer, ScriptedTask,
-    SourceError, Step,
+    ActionSource, Decided, FlightError, FrameUse, Observation, Observer, ScriptedTask, SourceError,
+    Step,
 };
 use crate::stack::{Action, FlightStack, Interface};
 
@@ -37,7 +37,12 @@ pub struct Recorder {
 impl Recorder {
     /// A recorder of `keys` on `vehicle`, with actions of `action_dim` values and the images
     /// of `cameras` (names of the flight's camera rig; each tick's frames are asked for).
-    pub fn new(vehicle: &Vehicle, keys: &[StateKey], action_dim: usize, cameras: &[String]) -> Self {
+    pub fn new(
+        vehicle: &Vehicle,
+        keys: &[StateKey],
+        action_dim: usize,
+        cameras: &[String],
+    ) -> Self {
         Self {
             vehicle: vehicle.clone(),
             keys: keys.to_vec(),
@@ -74,21 +79,22 @@ impl Observer for Recorder {
 
     fn decided(&mut self, tick: &Decided<'_>) -> Result<(), FlightError> {
         if !self.cameras.is_empty() {
-            let frames = tick
-                .frames
-                .filter(|f| f.k == tick.k)
-                .ok_or_else(|| SourceError(format!("tick {}: no images of its observation", tick.k)))?;
+            let frames = tick.frames.filter(|f| f.k == tick.k).ok_or_else(|| {
+                SourceError(format!("tick {}: no images of its observation", tick.k))
+            })?;
             for (name, out) in self.cameras.iter().zip(&mut self.frames.images) {
-                let frame = frames
-                    .get(name)
-                    .ok_or_else(|| SourceError(format!("tick {}: no image of camera {name}", tick.k)))?;
+                let frame = frames.get(name).ok_or_else(|| {
+                    SourceError(format!("tick {}: no image of camera {name}", tick.k))
+                })?;
                 let png = encode_png(frame.image.width, frame.image.height, &frame.image.rgb)
                     .map_err(|e| SourceError(format!("tick {}: camera {name}: {e}", tick.k)))?;
                 out.push(png);
             }
         }
         let action = tick.action.ok_or_else(|| {
-            SourceError("the recorder needs the action of every tick (not an open-loop command)".into())
+            SourceError(
+                "the recorder needs the action of every tick (not an open-loop command)".into(),
+            )
         })?;
         let v = action_vector(action);
         if v.len() != self.action_dim {
@@ -100,7 +106,12 @@ impl Observer for Recorder {
             ))
             .into());
         }
-        state_vector(&self.vehicle, &self.keys, tick.measurement, &mut self.frames.state);
+        state_vector(
+            &self.vehicle,
+            &self.keys,
+            tick.measurement,
+            &mut self.frames.state,
+        );
         self.frames.action.extend(v);
         Ok(())
     }
@@ -203,8 +214,9 @@ impl ActionSource for RecordedActions {
             .actions
             .get(k * self.dim..(k + 1) * self.dim)
             .ok_or_else(|| SourceError(format!("tick {k}: no recorded action")))?;
-        let action = action_of_vector(self.semantics, row)
-            .ok_or_else(|| SourceError(format!("tick {k}: not a {} action", self.semantics.name())))?;
+        let action = action_of_vector(self.semantics, row).ok_or_else(|| {
+            SourceError(format!("tick {k}: not a {} action", self.semantics.name()))
+        })?;
         Ok(Step::Act {
             action,
             ee_reference: None,

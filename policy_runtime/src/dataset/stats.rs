@@ -229,12 +229,7 @@ fn flatten(v: &Value, out: &mut Vec<f64>) {
 
 /// The quantiles of `values` (n of them, within [lo, hi]) from a histogram of 5000 bins over
 /// [lo − 1e-10, hi + 1e-10], interpolated within the bin (lerobot's `RunningQuantileStats`).
-fn histogram_quantiles(
-    values: impl Iterator<Item = f64>,
-    lo: f64,
-    hi: f64,
-    n: usize,
-) -> Vec<f64> {
+fn histogram_quantiles(values: impl Iterator<Item = f64>, lo: f64, hi: f64, n: usize) -> Vec<f64> {
     let first = lo - 1e-10;
     let last = hi + 1e-10;
     let width = (last - first) / HISTOGRAM_BINS as f64;
@@ -306,7 +301,11 @@ mod tests {
     #[test]
     fn vector_stats_of_a_hand_made_column() {
         // 1, 2, 3, 4: mean 2.5, population std √1.25.
-        let s = FeatureStats::of_rows(&[1.0, 10.0, 2.0, 10.0, 3.0, 10.0, 4.0, 10.0], 2, StatsKind::Float);
+        let s = FeatureStats::of_rows(
+            &[1.0, 10.0, 2.0, 10.0, 3.0, 10.0, 4.0, 10.0],
+            2,
+            StatsKind::Float,
+        );
         assert_eq!(s.count, 4);
         assert_eq!((s.min[0], s.max[0], s.mean[0]), (1.0, 4.0, 2.5));
         assert!((s.std[0] - 1.25f64.sqrt()).abs() < 1e-12);
@@ -314,7 +313,11 @@ mod tests {
         assert_eq!(s.std[1], 0.0);
         assert!(s.quantiles.iter().all(|q| (q[1] - 10.0).abs() < 1e-9));
         // The median of 1..4 from the histogram: 2 samples below → within [2, 3].
-        assert!((2.0..=3.0).contains(&s.quantiles[2][0]), "{:?}", s.quantiles[2]);
+        assert!(
+            (2.0..=3.0).contains(&s.quantiles[2][0]),
+            "{:?}",
+            s.quantiles[2]
+        );
     }
 
     #[test]

@@ -8,7 +8,9 @@ use std::path::Path;
 use arrow::array::{FixedSizeListArray, Float32Array, Int64Array};
 
 use super::layout::{Dtype, data_file, episodes_file};
-use super::read::{DatasetReader, column, episode_stats_columns, fixed_values, image_bytes, read_parquet};
+use super::read::{
+    DatasetReader, column, episode_stats_columns, fixed_values, image_bytes, read_parquet,
+};
 use super::stats::{FeatureStats, StatsKind};
 use super::write::decode_png;
 
@@ -47,7 +49,11 @@ pub fn validate(root: &Path) -> Vec<String> {
         match stored {
             None => problems.push(format!("meta/info.json: no feature {}", f.key)),
             Some(s) if s.get("dtype").and_then(|d| d.as_str()) != Some(f.dtype.name()) => {
-                problems.push(format!("meta/info.json: features.{}.dtype is not {}", f.key, f.dtype.name()));
+                problems.push(format!(
+                    "meta/info.json: features.{}.dtype is not {}",
+                    f.key,
+                    f.dtype.name()
+                ));
             }
             Some(_) => {}
         }
@@ -68,7 +74,10 @@ pub fn validate(root: &Path) -> Vec<String> {
             problems.push(format!("{at}: found at position {i}"));
         }
         if r.from != to {
-            problems.push(format!("{at}: dataset_from_index {} (expected {to})", r.from));
+            problems.push(format!(
+                "{at}: dataset_from_index {} (expected {to})",
+                r.from
+            ));
         }
         if r.to != r.from + r.length {
             problems.push(format!(
@@ -80,7 +89,10 @@ pub fn validate(root: &Path) -> Vec<String> {
             problems.push(format!("{at}: length 0"));
         }
         if r.tasks.iter().any(|t| !reader.tasks.contains(t)) {
-            problems.push(format!("{at}: tasks {:?} not all in meta/tasks.parquet", r.tasks));
+            problems.push(format!(
+                "{at}: tasks {:?} not all in meta/tasks.parquet",
+                r.tasks
+            ));
         }
         to = r.to;
     }
@@ -134,23 +146,33 @@ pub fn validate(root: &Path) -> Vec<String> {
                     let i = index.value(r) as u64;
                     let e = episode.value(r) as u64;
                     let Some(row) = rows.get(e as usize) else {
-                        problems.push(format!("{file}: row index {i}: episode {e} not in meta/episodes"));
+                        problems.push(format!(
+                            "{file}: row index {i}: episode {e} not in meta/episodes"
+                        ));
                         continue;
                     };
                     if row.data != at {
                         problems.push(format!("{file}: row index {i}: episode {e} is in another file per meta/episodes"));
                     }
                     if !(row.from..row.to).contains(&i) {
-                        problems.push(format!("{file}: row index {i} outside episode {e}'s [{}, {})", row.from, row.to));
+                        problems.push(format!(
+                            "{file}: row index {i} outside episode {e}'s [{}, {})",
+                            row.from, row.to
+                        ));
                         continue;
                     }
                     let k = frame.value(r) as u64;
                     if k != i - row.from {
-                        problems.push(format!("{file}: row index {i}: frame_index {k}, expected {}", i - row.from));
+                        problems.push(format!(
+                            "{file}: row index {i}: frame_index {k}, expected {}",
+                            i - row.from
+                        ));
                     }
                     let t = ts.value(r);
                     if t != (k as f64 / fps) as f32 {
-                        problems.push(format!("{file}: row index {i}: timestamp {t} ≠ frame_index / fps"));
+                        problems.push(format!(
+                            "{file}: row index {i}: timestamp {t} ≠ frame_index / fps"
+                        ));
                     }
                     let ti = task.value(r);
                     match reader.tasks.get(ti as usize) {
@@ -160,11 +182,18 @@ pub fn validate(root: &Path) -> Vec<String> {
                     for (c, (col, dim)) in cols.iter().zip(widths).enumerate() {
                         let v = &col[r * dim..(r + 1) * dim];
                         if v.iter().any(|x| !x.is_finite()) {
-                            problems.push(format!("{file}: row index {i}: non-finite value in {}", ["observation.state", "action"][c]));
+                            problems.push(format!(
+                                "{file}: row index {i}: non-finite value in {}",
+                                ["observation.state", "action"][c]
+                            ));
                         }
                         values[c].extend(v.iter().map(|x| f64::from(*x)));
                         let ev = &mut episode_values[e as usize];
-                        if c == 0 { ev.0.extend(v.iter().map(|x| f64::from(*x))); } else { ev.1.extend(v.iter().map(|x| f64::from(*x))); }
+                        if c == 0 {
+                            ev.0.extend(v.iter().map(|x| f64::from(*x)));
+                        } else {
+                            ev.1.extend(v.iter().map(|x| f64::from(*x)));
+                        }
                     }
                     if k == 0 || i + 1 == row.to {
                         for (key, h, w, col) in &images {
@@ -193,18 +222,31 @@ pub fn validate(root: &Path) -> Vec<String> {
     let dims = [spec.state_dim, spec.action_dim];
     let stored = reader.stats_for(&features);
     match &stored {
-        None => problems.push("meta/stats.json: missing, or a feature's statistics are not shaped as lerobot's".to_owned()),
+        None => problems.push(
+            "meta/stats.json: missing, or a feature's statistics are not shaped as lerobot's"
+                .to_owned(),
+        ),
         Some(stats) => {
             for (c, key) in ["observation.state", "action"].into_iter().enumerate() {
-                let Some(s) = features.iter().position(|f| f.key == key).map(|p| &stats[p]) else { continue };
+                let Some(s) = features
+                    .iter()
+                    .position(|f| f.key == key)
+                    .map(|p| &stats[p])
+                else {
+                    continue;
+                };
                 let data = FeatureStats::of_rows(&values[c], dims[c], StatsKind::Float);
                 compare(&mut problems, &format!("meta/stats.json: {key}"), s, &data);
             }
             for (f, s) in features.iter().zip(stats) {
                 if f.dtype == Dtype::Image
-                    && (s.min.len() != 3 || s.min.iter().chain(&s.max).any(|x| !(0.0..=1.0).contains(x)))
+                    && (s.min.len() != 3
+                        || s.min.iter().chain(&s.max).any(|x| !(0.0..=1.0).contains(x)))
                 {
-                    problems.push(format!("meta/stats.json: {}: not 3 channels in [0, 1]", f.key));
+                    problems.push(format!(
+                        "meta/stats.json: {}: not 3 channels in [0, 1]",
+                        f.key
+                    ));
                 }
             }
         }
@@ -225,7 +267,9 @@ pub fn validate(root: &Path) -> Vec<String> {
         }
     }
     for f in &features {
-        for stat in ["min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99"] {
+        for stat in [
+            "min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99",
+        ] {
             let name = format!("stats/{}/{stat}", f.key);
             if !columns.iter().any(|(n, _)| *n == name) {
                 problems.push(format!("meta/episodes: no column {name}"));
@@ -233,10 +277,16 @@ pub fn validate(root: &Path) -> Vec<String> {
         }
     }
     let get = |name: &str, e: usize| -> Option<Vec<f64>> {
-        columns.iter().find(|(n, _)| n == name).and_then(|(_, v)| v.get(e).cloned())
+        columns
+            .iter()
+            .find(|(n, _)| n == name)
+            .and_then(|(_, v)| v.get(e).cloned())
     };
     for (e, (state, action)) in episode_values.iter().enumerate() {
-        for (key, v, dim) in [("observation.state", state, dims[0]), ("action", action, dims[1])] {
+        for (key, v, dim) in [
+            ("observation.state", state, dims[0]),
+            ("action", action, dims[1]),
+        ] {
             if v.is_empty() {
                 continue;
             }
@@ -247,13 +297,20 @@ pub fn validate(root: &Path) -> Vec<String> {
                     max: get(&format!("stats/{key}/max"), e)?,
                     mean: get(&format!("stats/{key}/mean"), e)?,
                     std: get(&format!("stats/{key}/std"), e)?,
-                    count: get(&format!("stats/{key}/count"), e)?.first().map(|c| *c as u64)?,
+                    count: get(&format!("stats/{key}/count"), e)?
+                        .first()
+                        .map(|c| *c as u64)?,
                     quantiles: Vec::new(),
                     kind: StatsKind::Float,
                 })
             })();
             match stored {
-                Some(s) => compare(&mut problems, &format!("meta/episodes: episode {e}: stats of {key}"), &s, &data),
+                Some(s) => compare(
+                    &mut problems,
+                    &format!("meta/episodes: episode {e}: stats of {key}"),
+                    &s,
+                    &data,
+                ),
                 None => problems.push(format!("meta/episodes: episode {e}: no stats of {key}")),
             }
         }
@@ -263,7 +320,10 @@ pub fn validate(root: &Path) -> Vec<String> {
 
 fn compare(problems: &mut Vec<String>, at: &str, stored: &FeatureStats, data: &FeatureStats) {
     if stored.count != data.count {
-        problems.push(format!("{at}: count {} ≠ {} frames", stored.count, data.count));
+        problems.push(format!(
+            "{at}: count {} ≠ {} frames",
+            stored.count, data.count
+        ));
     }
     for (name, s, d) in [
         ("min", &stored.min, &data.min),
@@ -272,9 +332,16 @@ fn compare(problems: &mut Vec<String>, at: &str, stored: &FeatureStats, data: &F
         ("std", &stored.std, &data.std),
     ] {
         if s.len() != d.len() {
-            problems.push(format!("{at}: {name} has {} values, the feature {}", s.len(), d.len()));
+            problems.push(format!(
+                "{at}: {name} has {} values, the feature {}",
+                s.len(),
+                d.len()
+            ));
         } else if let Some(i) = (0..s.len()).find(|&i| !close(s[i], d[i])) {
-            problems.push(format!("{at}: {name}[{i}] = {} but the data give {}", s[i], d[i]));
+            problems.push(format!(
+                "{at}: {name}[{i}] = {} but the data give {}",
+                s[i], d[i]
+            ));
         }
     }
 }

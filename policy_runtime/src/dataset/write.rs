@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use arrow::array::{
-    Array, ArrayRef, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array, ListArray,
-    StringArray, StructArray,
+    Array, ArrayRef, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
+    ListArray, StringArray, StructArray,
 };
 use arrow::buffer::OffsetBuffer;
 use arrow::datatypes::{DataType, Field, Fields, Schema};
@@ -93,7 +93,10 @@ pub fn decode_png(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), DatasetError>
     if info.color_type != png::ColorType::Rgb || info.bit_depth != png::BitDepth::Eight {
         return Err(DatasetError::invalid(
             "image",
-            format!("PNG is {:?} {:?}, not RGB8", info.color_type, info.bit_depth),
+            format!(
+                "PNG is {:?} {:?}, not RGB8",
+                info.color_type, info.bit_depth
+            ),
         ));
     }
     buf.truncate(info.buffer_size());
@@ -361,7 +364,11 @@ impl DatasetWriter {
             self.meta_rows.pop();
             return Err(e);
         }
-        write_atomic(&self.root, "meta/tasks.parquet", &tasks_parquet(&self.tasks)?)?;
+        write_atomic(
+            &self.root,
+            "meta/tasks.parquet",
+            &tasks_parquet(&self.tasks)?,
+        )?;
         let aggregated: Vec<FeatureStats> = match &self.stats {
             None => stats,
             Some(all) => all
@@ -370,7 +377,11 @@ impl DatasetWriter {
                 .filter_map(|(a, b)| FeatureStats::aggregate(&[a, b]))
                 .collect(),
         };
-        write_atomic(&self.root, "meta/stats.json", &self.stats_json(&aggregated).pretty())?;
+        write_atomic(
+            &self.root,
+            "meta/stats.json",
+            &self.stats_json(&aggregated).pretty(),
+        )?;
         self.stats = Some(aggregated);
         self.total_episodes += 1;
         self.total_frames += len as u64;
@@ -413,7 +424,10 @@ impl DatasetWriter {
                     image_column(frames)
                 }
                 other => {
-                    return Err(DatasetError::invalid("data", format!("unknown feature {other}")));
+                    return Err(DatasetError::invalid(
+                        "data",
+                        format!("unknown feature {other}"),
+                    ));
                 }
             };
             columns.push(column);
@@ -436,12 +450,20 @@ impl DatasetWriter {
             .iter()
             .map(|f| match f.key.as_str() {
                 "observation.state" => FeatureStats::of_rows(
-                    &episode.state.iter().map(|x| f64::from(*x)).collect::<Vec<_>>(),
+                    &episode
+                        .state
+                        .iter()
+                        .map(|x| f64::from(*x))
+                        .collect::<Vec<_>>(),
                     self.spec.state_dim,
                     StatsKind::Float,
                 ),
                 "action" => FeatureStats::of_rows(
-                    &episode.action.iter().map(|x| f64::from(*x)).collect::<Vec<_>>(),
+                    &episode
+                        .action
+                        .iter()
+                        .map(|x| f64::from(*x))
+                        .collect::<Vec<_>>(),
                     self.spec.action_dim,
                     StatsKind::Float,
                 ),
@@ -478,7 +500,9 @@ impl DatasetWriter {
     fn write_episodes_meta(&self, rel: &str) -> Result<(), DatasetError> {
         let rows = &self.meta_rows;
         let ints = |f: &dyn Fn(&EpisodeMeta) -> u64| -> ArrayRef {
-            Arc::new(Int64Array::from_iter_values(rows.iter().map(|r| f(r) as i64)))
+            Arc::new(Int64Array::from_iter_values(
+                rows.iter().map(|r| f(r) as i64),
+            ))
         };
         let mut fields: Vec<Field> = Vec::new();
         let mut columns: Vec<ArrayRef> = Vec::new();
@@ -523,7 +547,9 @@ impl DatasetWriter {
                 Arc::new(ListArray::new(
                     Arc::new(Field::new("item", DataType::Int64, true)),
                     OffsetBuffer::from_lengths(per.iter().map(|_| 1)),
-                    Arc::new(Int64Array::from_iter_values(per.iter().map(|s| s.count as i64))),
+                    Arc::new(Int64Array::from_iter_values(
+                        per.iter().map(|s| s.count as i64),
+                    )),
                     None,
                 )),
             );
@@ -537,7 +563,8 @@ impl DatasetWriter {
         push("meta/episodes/chunk_index", ints(&|r| r.meta.0));
         push("meta/episodes/file_index", ints(&|r| r.meta.1));
         let schema = Arc::new(Schema::new(fields));
-        let batch = RecordBatch::try_new(schema.clone(), columns).map_err(DatasetError::arrow(rel))?;
+        let batch =
+            RecordBatch::try_new(schema.clone(), columns).map_err(DatasetError::arrow(rel))?;
         write_parquet(&self.root, rel, &schema, &[batch]).map(|_| ())
     }
 
@@ -556,7 +583,10 @@ impl DatasetWriter {
             ("total_tasks", J::V(json!(self.tasks.len()))),
             ("chunks_size", J::V(json!(CHUNKS_SIZE))),
             ("data_files_size_in_mb", J::V(json!(DATA_FILES_SIZE_IN_MB))),
-            ("video_files_size_in_mb", J::V(json!(VIDEO_FILES_SIZE_IN_MB))),
+            (
+                "video_files_size_in_mb",
+                J::V(json!(VIDEO_FILES_SIZE_IN_MB)),
+            ),
             ("fps", J::V(json!(self.spec.fps))),
             (
                 "splits",
@@ -570,7 +600,11 @@ impl DatasetWriter {
             ("video_path", J::V(Value::Null)),
             (
                 "features",
-                J::obj(self.features.iter().map(|f| (f.key.clone(), J::V(f.info())))),
+                J::obj(
+                    self.features
+                        .iter()
+                        .map(|f| (f.key.clone(), J::V(f.info()))),
+                ),
             ),
             ("ambench", J::Obj(ambench)),
         ]);
@@ -606,7 +640,12 @@ pub(crate) fn data_schema(features: &[Feature]) -> Arc<Schema> {
         .collect();
     let meta = J::obj([("info", J::obj([("features", J::Obj(hf))]))]);
     let text = serde_json::to_string(&meta).unwrap_or_default();
-    Arc::new(Schema::new(fields).with_metadata(std::collections::HashMap::from([("huggingface".to_owned(), text)])))
+    Arc::new(
+        Schema::new(fields).with_metadata(std::collections::HashMap::from([(
+            "huggingface".to_owned(),
+            text,
+        )])),
+    )
 }
 
 fn image_type() -> DataType {
@@ -814,7 +853,8 @@ pub fn merge(
                 ),
             ));
         }
-        recordings.push(json!({ "source": src.display().to_string(), "recording": reader.recording }));
+        recordings
+            .push(json!({ "source": src.display().to_string(), "recording": reader.recording }));
         let w = match &mut writer {
             Some(w) => w,
             None => writer.insert(DatasetWriter::create(out, spec.clone(), Value::Null)?),
