@@ -5,6 +5,9 @@
 # - `pymavlink`, the ground station of scripts/mavlink_gcs.py, used by tests/tests/mavlink.rs
 #   to talk to the twin's autopilot (`amstack twin serve --mavlink`) with a MAVLink
 #   implementation that is not ours;
+# - `imageio-ffmpeg`, whose wheel ships a static ffmpeg program: the video encoder of the
+#   tests of `--video` (AMSTACK_FFMPEG) on a machine without Debian's ffmpeg, and the
+#   independent reader that counts an MP4's frames.
 # - `pyarrow` and `numpy`, the independent reader of the LeRobot datasets `amstack record`
 #   writes (scripts/dataset_check.py, run by tests/tests/dataset.rs).
 #
@@ -22,8 +25,10 @@ set -euo pipefail
 MCAP_VERSION="1.6.0"
 PYMAVLINK_VERSION="2.4.50"
 PYARROW_VERSION="21.0.0"
+IMAGEIO_FFMPEG_VERSION="0.8.1"
 PINNED=("mcap==${MCAP_VERSION}" "lz4==4.4.5" "zstandard==0.25.0"
         "pymavlink==${PYMAVLINK_VERSION}" "lxml==6.1.3" "fastcrc==0.5.0"
+        "imageio-ffmpeg==${IMAGEIO_FFMPEG_VERSION}"
         "pyarrow==${PYARROW_VERSION}" "numpy==1.26.4")
 
 VENV="${AMSTACK_VENV:-$HOME/.cache/amstack-venv}"
@@ -44,10 +49,11 @@ installed_version() {
 }
 
 installed() {
-    echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink), pyarrow $(installed_version pyarrow)"
+    echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink)," \
+         "imageio-ffmpeg $(installed_version imageio-ffmpeg), pyarrow $(installed_version pyarrow)"
 }
 
-WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, pyarrow ${PYARROW_VERSION}"
+WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, imageio-ffmpeg ${IMAGEIO_FFMPEG_VERSION}, pyarrow ${PYARROW_VERSION}"
 if [[ -x "$VPY" && "$(installed)" == "$WANTED" ]]; then
     say "venv $VENV already has $WANTED: nothing to do"
     echo "$VPY"

@@ -95,6 +95,11 @@ pub struct Args {
     pub(crate) state: crate::track::StateFlags,
     #[command(flatten)]
     pub(crate) cameras: crate::camera_flags::CameraFlags,
+    /// Write one MP4 per rollout into DIR (`<task>/rollout-NNN.mp4`): the scene camera (with
+    /// the EE camera beside it when --cameras names ee), 30 fps from every 4th step. Needs the
+    /// ffmpeg program (apt-get install ffmpeg, or AMSTACK_FFMPEG=PATH).
+    #[arg(long, value_name = "DIR")]
+    pub(crate) video: Option<PathBuf>,
     /// Output directory: results.json, config.json and one MCAP log per rollout.
     #[arg(long, value_name = "DIR")]
     pub(crate) out: Option<PathBuf>,
@@ -213,13 +218,13 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         (BenchLink::Ipc(_), _) => 1,
         _ => jobs,
     };
-    if args.cameras.any() && !matches!(link, BenchLink::InProcess) {
+    if (args.cameras.any() || args.video.is_some()) && !matches!(link, BenchLink::InProcess) {
         return Err(bad_input(format!(
-            "--cameras with --link {}: the cameras are rendered from the twin in this process;              run with --link twin",
+            "--cameras/--video with --link {}: the cameras are rendered from the twin in this process; run with --link twin",
             args.link
         )));
     }
-    let cameras = args.cameras.config(&vehicle)?;
+    let cameras = args.cameras.config(&vehicle, args.video.as_deref())?;
     Ok(BenchConfig {
         cameras,
         link,
@@ -281,6 +286,9 @@ fn rollout_json(r: &RolloutResult) -> Value {
     });
     if let (Some(e), Some(object)) = (&r.estimator, value.as_object_mut()) {
         object.insert("estimator".to_owned(), json!(e));
+    }
+    if let (Some(v), Some(object)) = (&r.video, value.as_object_mut()) {
+        object.insert("video".to_owned(), json!(v));
     }
     value
 }

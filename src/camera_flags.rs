@@ -1,8 +1,11 @@
 //! `--cameras`, `--visual-dr`, `--camera-log-every`: the twin's cameras in a flight (`bench`,
 //! `track`, `fly --link twin`).
 
+use std::path::Path;
+
 use anyhow::Result;
-use policy_runtime::flight::{CameraConfig, select_cameras};
+use policy_runtime::flight::{CameraConfig, full_camera_name, select_cameras};
+use policy_runtime::video::{VideoConfig, ffmpeg_program};
 use render::{RenderError, VisualDr};
 
 use crate::cli_error::bad_input;
@@ -23,6 +26,9 @@ impl From<OnOff> for VisualDr {
         }
     }
 }
+
+/// A video frame every this many env steps: 30 fps from 120 Hz, as the reference's videos.
+const VIDEO_EVERY: u64 = 4;
 
 /// The cameras of a flight.
 #[derive(Debug, Clone, clap::Args)]
@@ -49,19 +55,52 @@ impl CameraFlags {
         self.cameras.is_some()
     }
 
-    /// The cameras' configuration for `vehicle` (None without --cameras). Bad input: an unknown
-    /// camera; no graphics adapter on this machine (checked here, before anything runs).
-    pub fn config(&self, vehicle: &platform::Vehicle) -> Result<Option<CameraConfig>> {
-        let Some(list) = &self.cameras else {
-            return Ok(None);
+    /// The cameras' configuration for `vehicle` (None without --cameras and --video). With
+    /// `video` (`--video`: its path), the scene camera is added and a video of it — with the EE
+    /// camera beside it when --cameras names it — is made of every 4th observation. Bad input:
+    /// an unknown camera; no graphics adapter on this machine; no ffmpeg (checked here, before
+    /// anything runs).
+    pub fn config(
+        &self,
+        vehicle: &platform::Vehicle,
+        video: Option<&Path>,
+    ) -> Result<Option<CameraConfig>> {
+        let list = match (&self.cameras, video) {
+            (None, None) => return Ok(None),
+            (Some(list), _) => list.clone(),
+            (None, Some(_)) => String::new(),
         };
-        let names: Vec<&str> = list.split(',').map(str::trim).collect();
+        let mut names: Vec<&str> = list
+            .split(',')
+            .map(str::trim)
+            .filter(|n| !n.is_empty())
+            .collect();
+        if video.is_some() && !names.iter().any(|n| full_camera_name(n) == "scene_camera") {
+            names.push("scene");
+        }
         let cameras = select_cameras(vehicle, &names)
             .map_err(|e| bad_input(format!("--cameras {list}: {e}")))?;
+        let video = match video {
+            None => None,
+            Some(path) => {
+                let program = ffmpeg_program().map_err(|e| bad_input(format!("--video: {e}")))?;
+                let mut shown = vec!["scene_camera".to_owned()];
+                if names.iter().any(|n| full_camera_name(n) == "ee_camera") {
+                    shown.push("ee_camera".to_owned());
+                }
+                Some(VideoConfig {
+                    program,
+                    path: path.to_owned(),
+                    cameras: shown,
+                    every: VIDEO_EVERY,
+                })
+            }
+        };
         let config = CameraConfig {
             cameras,
             visual_dr: self.visual_dr.into(),
             log_every: self.camera_log_every,
+            video,
         };
         // Open the adapter once now: a machine that cannot render is told before the run.
         config.rig(vehicle).map_err(|e| match e {

@@ -117,6 +117,7 @@ impl Args {
             twin: self.twin.clone(),
             state: self.state.clone(),
             cameras: self.cameras.clone(),
+            video: None,
             out: None,
             json: None,
             vehicles: self.vehicles.clone(),

@@ -4,6 +4,13 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
+use controllers::{ControllerKind, profile};
+use policy_runtime::flight::{
+    ActionSource, EpisodeLength, FlightSpec, Observation, ScriptedTask, SourceError, Step,
+    TrajectorySource,
+};
+use policy_runtime::stack::FlightStack;
+use policy_runtime::{Interface, StateSource, Trajectory, TwinLink};
 use render::{CameraSpec, RenderError, Renderer, Snapshot, VisualDr};
 use sim_twin::{TaskId, Twin, TwinConfig};
 
@@ -20,7 +27,9 @@ enum OnOff {
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
 The frame shows the twin at reset: the vehicle at its start pose and joints, the task's scene
-drawn from --seed as a benchmark rollout of that seed would have it. Cameras are the vehicle
+drawn from --seed as a benchmark rollout of that seed would have it; with --time T, after the
+task's scripted policy (PID, end-effector interface, as `bench`) flew T seconds from there
+(without --task: a hover), through the same flight loop as bench. Cameras are the vehicle
 file's [[camera]] sections (ee = ee_camera, base = base_camera) or the reference's scene camera
 (1280x720 at (-2, -2.5, 1.6) m looking at (2, 0, 1) m). Intrinsics: fx = fy = width x focal /
 aperture, principal point at the image centre (19.6 / 20.955 -> fx = 359.17 px at 384 px).
@@ -30,7 +39,8 @@ installed by scripts/setup.sh). Set WGPU_BACKEND=vulkan|gl to choose a backend.
 Examples:
   amstack render --platform fa-hexa --task press-button --out ee.png
   amstack render --platform fa-hexa --task peg-in-hole --camera scene --out scene.png
-  amstack render --platform ua-quad --task rotate-valve --seed 3 --visual-dr on --out dr.png")]
+  amstack render --platform ua-quad --task rotate-valve --seed 3 --visual-dr on --out dr.png
+  amstack render --platform fa-hexa --task press-button --time 4 --camera ee --out ee-4s.png")]
 pub struct Args {
     /// The vehicle: ee-only, fa-hexa, ua-hexa, ua-quad, omni-hexa, or the id of a --vehicle file.
     #[arg(long, value_name = "ID", default_value = "fa-hexa")]
@@ -42,6 +52,10 @@ pub struct Args {
     /// `amstack bench --help`); without it the empty world (ground only).
     #[arg(long, value_name = "NAME")]
     task: Option<String>,
+    /// Render after flying this many seconds from reset (the task's scripted policy, or a
+    /// hover without --task); 0: at reset.
+    #[arg(long, value_name = "S", default_value_t = 0.0)]
+    time: f64,
     /// Rollout seed: the scene's randomisation, and the look with --visual-dr on.
     #[arg(long, value_name = "S", default_value_t = 0)]
     seed: u64,
@@ -128,7 +142,18 @@ pub fn run(args: &Args) -> Result<()> {
         seed: args.seed,
         ..TwinConfig::default()
     };
-    let twin = Twin::new(vehicle.clone(), config)?;
+    if !(args.time.is_finite() && (0.0..=600.0).contains(&args.time)) {
+        return Err(bad_input(format!(
+            "--time {}: must be a number of seconds within [0, 600]",
+            args.time
+        )));
+    }
+    let twin = Twin::new(vehicle.clone(), config.clone())?;
+    let twin = if args.time > 0.0 {
+        fly_to(&vehicle, &config, twin, args.time)?
+    } else {
+        twin
+    };
     let mut renderer = Renderer::new(&vehicle, std::slice::from_ref(&spec), dr).map_err(|e| {
         match e {
             // No adapter is the machine's setup, which the user fixes: bad input, exit 2.
@@ -168,13 +193,14 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let adapter = renderer.adapter();
     println!(
-        "{}: {} of {} ({}, seed {}, visual DR {}) at t = 0 s, {}x{} px, fx {:.2} fy {:.2} cx {} cy {}; adapter {} ({:?})",
+        "{}: {} of {} ({}, seed {}, visual DR {}) at t = {:.3} s, {}x{} px, fx {:.2} fy {:.2} cx {} cy {}; adapter {} ({:?})",
         args.out.display(),
         spec.name,
         vehicle.id,
         task.map_or("no task", TaskId::name),
         args.seed,
         if dr == VisualDr::On { "on" } else { "off" },
+        twin.time_s(),
         k.width,
         k.height,
         k.fx,
@@ -185,4 +211,93 @@ pub fn run(args: &Args) -> Result<()> {
         adapter.backend,
     );
     Ok(())
+}
+
+/// A source flown for `ticks` ticks at most.
+struct Capped {
+    inner: Box<dyn ActionSource>,
+    ticks: u64,
+}
+
+impl ActionSource for Capped {
+    fn start(&mut self, first: &Observation<'_>) -> Result<(), SourceError> {
+        self.inner.start(first)
+    }
+
+    fn tick_limit(&self) -> Option<u64> {
+        Some(
+            self.inner
+                .tick_limit()
+                .map_or(self.ticks, |n| n.min(self.ticks)),
+        )
+    }
+
+    fn next(
+        &mut self,
+        k: u64,
+        observation: &Observation<'_>,
+        stack: &mut FlightStack,
+    ) -> Result<Step, SourceError> {
+        self.inner.next(k, observation, stack)
+    }
+}
+
+/// The twin after `time_s` seconds of the task's scripted policy (a hover without a task),
+/// flown through the flight loop.
+fn fly_to(
+    vehicle: &platform::Vehicle,
+    config: &TwinConfig,
+    twin: Twin,
+    time_s: f64,
+) -> Result<Twin> {
+    let rate_hz = config.control_rate_hz;
+    // A small positive number of ticks (time ≤ 600 s): the cast is exact.
+    let ticks = (time_s * rate_hz).round() as u64;
+    let controller = profile(vehicle, ControllerKind::Pid)?;
+    let mut stack = FlightStack::for_twin(vehicle.clone(), &controller, config)?;
+    let mut link = TwinLink::new(twin);
+    let (source, interface): (Box<dyn ActionSource>, Interface) = match config.task {
+        Some(task) => (
+            Box::new(ScriptedTask::new(
+                task,
+                config.seed,
+                rate_hz,
+                EpisodeLength::Script,
+            )),
+            Interface::Ee,
+        ),
+        None => (
+            Box::new(TrajectorySource::new(Trajectory::Hover, vehicle.clone())),
+            Interface::BaseJoint,
+        ),
+    };
+    let mut capped = Capped {
+        inner: source,
+        ticks,
+    };
+    let end = policy_runtime::flight::run(
+        &mut link,
+        &mut stack,
+        &mut capped,
+        &mut [],
+        FlightSpec {
+            max_ticks: ticks,
+            dt_s: config.control_dt_s(),
+            control_rate_hz: rate_hz,
+            seed: config.seed,
+            state_source: StateSource::Truth,
+            score_from_s: 0.0,
+            interface: Some(interface),
+            action_noise: None,
+            stop: None,
+            cameras: None,
+        },
+    )?;
+    if end.ticks < ticks {
+        eprintln!(
+            "note: the flight ended at t = {:.3} s ({:?}), before --time {time_s}",
+            end.last_time_s, end.end
+        );
+    }
+    Ok(link.into_twin())
 }

@@ -73,6 +73,11 @@ pub struct Args {
     state: StateFlags,
     #[command(flatten)]
     cameras: crate::camera_flags::CameraFlags,
+    /// Write an MP4 of the flight: the scene camera (with the EE camera beside it when
+    /// --cameras names ee), 30 fps from every 4th step. Needs the ffmpeg program (apt-get
+    /// install ffmpeg, or AMSTACK_FFMPEG=PATH).
+    #[arg(long, value_name = "FILE.mp4")]
+    video: Option<PathBuf>,
     /// Write the scores as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -264,7 +269,10 @@ fn config(args: &Args) -> Result<TrackConfig> {
     } else {
         Interface::BaseJoint
     };
-    let cameras = args.cameras.config(&vehicle)?;
+    if let Some(p) = &args.video {
+        check_writable("--video", p)?;
+    }
+    let cameras = args.cameras.config(&vehicle, args.video.as_deref())?;
     Ok(TrackConfig {
         cameras,
         vehicle,
@@ -398,13 +406,16 @@ pub(crate) fn run_with(
     if let Some(path) = &result.mcap {
         eprintln!("wrote {}", path.display());
     }
+    if let Some(path) = &args.video {
+        eprintln!("wrote {}", path.display());
+    }
     Ok(())
 }
 
 impl Args {
     /// Whether the flight renders cameras (`--cameras`).
     pub(crate) fn wants_cameras(&self) -> bool {
-        self.cameras.any()
+        self.cameras.any() || self.video.is_some()
     }
 
     /// Whether the flight writes an MCAP log (`--mcap`).
@@ -472,12 +483,15 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
         args.controller
     );
     let link_name = link.name();
-    if args.cameras.any() && !matches!(link, BenchLink::InProcess) {
+    if (args.cameras.any() || args.video.is_some()) && !matches!(link, BenchLink::InProcess) {
         return Err(bad_input(format!(
-            "--cameras over {link_name}: the cameras are rendered from the twin in this              process; fly with --link twin"
+            "--cameras over {link_name}: the cameras are rendered from the twin in this process; fly with --link twin"
         )));
     }
-    let cameras = args.cameras.config(&vehicle)?;
+    if let Some(p) = &args.video {
+        check_writable("--video", p)?;
+    }
+    let cameras = args.cameras.config(&vehicle, args.video.as_deref())?;
     let config = BenchConfig {
         cameras,
         vehicle,

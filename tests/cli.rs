@@ -765,15 +765,28 @@ fn cameras_are_refused_on_one_line_for_unknown_names_other_links_and_no_adapter(
     let out_arg = out_dir.to_string_lossy().into_owned();
     let bench = |extra: &[&str]| {
         let mut args = vec![
-            "bench", "--platform", "fa-hexa", "--task", "press-button", "--rollouts", "1",
-            "--out", &out_arg,
+            "bench",
+            "--platform",
+            "fa-hexa",
+            "--task",
+            "press-button",
+            "--rollouts",
+            "1",
+            "--out",
+            &out_arg,
         ];
         args.extend_from_slice(extra);
         amstack(&args)
     };
     assert_bad_input(
         &bench(&["--cameras", "ee,wrist"]),
-        &["--cameras ee,wrist", "wrist", "ee_camera", "base_camera", "scene"],
+        &[
+            "--cameras ee,wrist",
+            "wrist",
+            "ee_camera",
+            "base_camera",
+            "scene",
+        ],
     );
     assert_bad_input(
         &bench(&["--cameras", "ee", "--link", "ipc:nowhere"]),
@@ -786,8 +799,19 @@ fn cameras_are_refused_on_one_line_for_unknown_names_other_links_and_no_adapter(
     assert!(!out_dir.exists(), "nothing written on bad input");
     #[cfg(target_os = "linux")]
     for args in [
-        vec!["bench", "--platform", "fa-hexa", "--task", "press-button", "--rollouts", "1",
-             "--cameras", "ee", "--out", &out_arg],
+        vec![
+            "bench",
+            "--platform",
+            "fa-hexa",
+            "--task",
+            "press-button",
+            "--rollouts",
+            "1",
+            "--cameras",
+            "ee",
+            "--out",
+            &out_arg,
+        ],
         vec!["track", "--cameras", "ee,base"],
     ] {
         // No Metal backend on Linux: a machine where rendering is impossible.
@@ -796,7 +820,138 @@ fn cameras_are_refused_on_one_line_for_unknown_names_other_links_and_no_adapter(
             .env("WGPU_BACKEND", "metal")
             .output()
             .unwrap_or_else(|e| panic!("cannot start amstack: {e}"));
-        assert_bad_input(&out, &["--cameras", "no graphics adapter", "mesa-vulkan-drivers"]);
+        assert_bad_input(
+            &out,
+            &["--cameras", "no graphics adapter", "mesa-vulkan-drivers"],
+        );
         assert!(!out_dir.exists(), "nothing written without an adapter");
     }
+}
+
+/// `render --time T` flies the task's scripted policy T seconds through the flight loop, then
+/// renders: the frame is at t = T, and the EE camera has moved from its pose at reset.
+#[test]
+fn render_at_a_time_shows_the_flown_state() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+    let frame = |time: &str| {
+        let png = dir.path().join(format!("ee-{time}.png"));
+        let json = dir.path().join(format!("ee-{time}.json"));
+        let out = amstack(&[
+            "render",
+            "--platform",
+            "fa-hexa",
+            "--task",
+            "press-button",
+            "--camera",
+            "ee",
+            "--time",
+            time,
+            "--out",
+            &png.to_string_lossy(),
+            "--json",
+            &json.to_string_lossy(),
+        ]);
+        (out, json)
+    };
+    let (out, json) = frame("2");
+    if out.status.code() == Some(2) && stderr(&out).contains("no graphics adapter") {
+        eprintln!("SKIPPED: {}", stderr(&out).trim());
+        return;
+    }
+    assert!(out.status.success(), "{}", stderr(&out));
+    let read = |path: &Path| -> serde_json::Value {
+        let text = std::fs::read_to_string(path).unwrap_or_default();
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"))
+    };
+    let at_2 = read(&json);
+    assert!(
+        (at_2["time_s"].as_f64().unwrap_or(f64::NAN) - 2.0).abs() < 1e-9,
+        "{at_2}"
+    );
+    let (out, json) = frame("0");
+    assert!(out.status.success(), "{}", stderr(&out));
+    let at_0 = read(&json);
+    assert_eq!(at_0["time_s"].as_f64(), Some(0.0));
+    let p = |v: &serde_json::Value| v["world_from_camera"]["position_m"].clone();
+    assert_ne!(p(&at_0), p(&at_2), "the EE camera moved with the flight");
+    assert_bad_input(&frame("nan").0, &["--time NaN", "[0, 600]"]);
+}
+
+/// The venv's python (scripts/setup-python.sh, which also installs imageio-ffmpeg).
+fn venv_python() -> PathBuf {
+    let out = Command::new("bash")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/setup-python.sh"))
+        .output()
+        .unwrap_or_else(|e| panic!("setup-python.sh: {e}"));
+    assert!(out.status.success(), "setup-python.sh: {}", stderr(&out));
+    PathBuf::from(stdout(&out).lines().last().unwrap_or_default().trim())
+}
+
+/// `track --video`: an MP4 of the scene camera with the EE camera beside it, one frame every
+/// 4th step at 30 fps, encoded by ffmpeg (the one imageio-ffmpeg ships, through
+/// AMSTACK_FFMPEG) and read back by imageio-ffmpeg; without an encoder, exit 2 on one line.
+#[test]
+fn track_video_holds_a_frame_every_fourth_step_side_by_side() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+    let mp4 = dir.path().join("flight.mp4");
+    let mp4_arg = mp4.to_string_lossy().into_owned();
+    let args = [
+        "track",
+        "--platform",
+        "fa-hexa",
+        "--duration",
+        "1",
+        "--settle",
+        "0.5",
+        "--cameras",
+        "ee",
+        "--video",
+        &mp4_arg,
+    ];
+    let out = Command::new(env!("CARGO_BIN_EXE_amstack"))
+        .args(args)
+        .env("AMSTACK_FFMPEG", "/nonexistent/ffmpeg")
+        .output()
+        .unwrap_or_else(|e| panic!("cannot start amstack: {e}"));
+    assert_bad_input(
+        &out,
+        &["--video", "/nonexistent/ffmpeg", "apt-get install ffmpeg"],
+    );
+    assert!(!mp4.exists());
+
+    let python = venv_python();
+    let ffmpeg = Command::new(&python)
+        .args([
+            "-c",
+            "import imageio_ffmpeg as f; print(f.get_ffmpeg_exe())",
+        ])
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    let ffmpeg = stdout(&ffmpeg).trim().to_owned();
+    let out = Command::new(env!("CARGO_BIN_EXE_amstack"))
+        .args(args)
+        .env("AMSTACK_FFMPEG", &ffmpeg)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot start amstack: {e}"));
+    if out.status.code() == Some(2) && stderr(&out).contains("no graphics adapter") {
+        eprintln!("SKIPPED: {}", stderr(&out).trim());
+        return;
+    }
+    assert!(out.status.success(), "{}", stderr(&out));
+    let probe = Command::new(&python)
+        .args([
+            "-c",
+            "import imageio_ffmpeg as f, json, sys; r = f.read_frames(sys.argv[1]); \
+             meta = next(r); n = sum(1 for _ in r); \
+             print(json.dumps({'size': meta['size'], 'fps': meta['fps'], 'frames': n}))",
+            &mp4_arg,
+        ])
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    let v: serde_json::Value = serde_json::from_str(stdout(&probe).trim())
+        .unwrap_or_else(|e| panic!("{e}: {} {}", stdout(&probe), stderr(&probe)));
+    // 1 s at 120 Hz = 120 steps: observations 0, 4, …, 116; scene 1280×720 + EE 384×384.
+    assert_eq!(v["frames"], 30, "{v}");
+    assert_eq!(v["size"], serde_json::json!([1664, 720]), "{v}");
+    assert_eq!(v["fps"].as_f64(), Some(30.0), "{v}");
 }

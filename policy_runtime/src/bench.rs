@@ -123,6 +123,9 @@ pub struct RolloutResult {
     /// The estimator's figures (with `--state-source estimator`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub estimator: Option<EstimatorSummary>,
+    /// The rollout's video (with `--video`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub video: Option<PathBuf>,
 }
 
 /// A rollout that could not run at all.
@@ -314,6 +317,18 @@ pub fn run_rollout_with(
             )
         }
     };
+    let mut video = match config.cameras.as_ref().and_then(|c| c.video.as_ref()) {
+        Some(v) => {
+            let path = rollout_video_path(&v.path, task, index);
+            if let Some(dir) = path.parent() {
+                std::fs::create_dir_all(dir).map_err(|e| {
+                    BenchError::Cameras(format!("cannot create {}: {e}", dir.display()))
+                })?;
+            }
+            Some(v.writer(path))
+        }
+        None => None,
+    };
     let limits_n = (!vehicle.rotors.is_empty())
         .then_some((vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n));
     let mut metrics = BenchMetrics::new(
@@ -336,6 +351,9 @@ pub fn run_rollout_with(
             observers.push(log);
         }
         observers.push(&mut metrics);
+        if let Some(v) = &mut video {
+            observers.push(v);
+        }
         for o in &mut extra {
             observers.push(&mut **o);
         }
@@ -361,6 +379,10 @@ pub fn run_rollout_with(
     let observed = link.task_observed();
     let mcap = match log {
         Some(log) => Some(log.finish()?.path),
+        None => None,
+    };
+    let video = match video {
+        Some(v) => v.finish()?.map(|s| s.path),
         None => None,
     };
     let flown = flown.map_err(|e| BenchError::of_flight(e, task))?;
@@ -391,7 +413,14 @@ pub fn run_rollout_with(
         wall_time_s: started.elapsed().as_secs_f64(),
         mcap,
         estimator: flown.estimator,
+        video,
     })
+}
+
+/// Where rollout `index` of `task` writes its video under `dir`.
+pub fn rollout_video_path(dir: &Path, task: TaskId, index: usize) -> PathBuf {
+    dir.join(task.name())
+        .join(format!("rollout-{index:03}.mp4"))
 }
 
 /// The arm reach the errors are normalised by: the vehicle's, or ‖p_ee − p_base‖ at the

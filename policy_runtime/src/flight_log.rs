@@ -36,7 +36,7 @@ use platform::{Measurement, Vehicle};
 use schemars::JsonSchema;
 use serde::Serialize;
 
-use crate::flight::Frames;
+use crate::cameras::Frames;
 pub use crate::link_channels::{
     AUTOPILOT_STATE_TOPIC, AutopilotStateMessage, LinkCounters, MAVLINK_RAW_TOPIC, MavlinkRawFrame,
 };

@@ -25,6 +25,7 @@
 //! compare two logs), [`scripted`] (the scripted demonstrations' interpolation).
 
 pub mod bench;
+pub mod cameras;
 pub mod dataset;
 pub mod flight;
 pub mod flight_log;
@@ -42,6 +43,7 @@ pub mod task_policies;
 pub mod track;
 pub mod trajectory;
 pub mod validation;
+pub mod video;
 
 pub use ipc_link::{IpcLink, IpcLinkConfig, IpcLinkError};
 pub use link::{Link, LinkError, Setpoint, SetpointLevel, TwinLink, VehicleSensors};

@@ -198,6 +198,11 @@ impl TwinLink {
         &self.twin
     }
 
+    /// The twin behind the link, given back.
+    pub fn into_twin(self) -> Twin {
+        self.twin
+    }
+
     /// The twin behind the link, mutable (adding scene objects).
     pub fn twin_mut(&mut self) -> &mut Twin {
         &mut self.twin

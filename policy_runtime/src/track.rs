@@ -239,6 +239,11 @@ pub fn run_track_with_link(
     } else {
         None
     };
+    let mut video = config
+        .cameras
+        .as_ref()
+        .and_then(|c| c.video.as_ref())
+        .map(|v| v.writer(v.path.clone()));
     let ticks = (config.duration_s / dt).round() as u64;
     let mut metrics = TrackMetrics::new(
         config.settle_s,
@@ -254,6 +259,9 @@ pub fn run_track_with_link(
         }
         observers.push(&mut metrics);
         observers.push(&mut progress);
+        if let Some(v) = &mut video {
+            observers.push(v);
+        }
         crate::flight::run(
             link,
             &mut stack,
@@ -278,6 +286,9 @@ pub fn run_track_with_link(
         Some(log) => Some(log.finish()?.path),
         None => None,
     };
+    if let Some(v) = video {
+        v.finish()?;
+    }
     let flown = flown?;
     match flown.end {
         End::Completed | End::Success => {}

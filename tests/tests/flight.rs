@@ -443,6 +443,7 @@ fn rollout_camera_images_decode_at_their_size_and_repeat_with_the_seed() {
                 cameras: cameras.clone(),
                 visual_dr: render::VisualDr::On,
                 log_every: EVERY,
+                video: None,
             }),
             controller: profile(&v, ControllerKind::Pid).unwrap_or_else(|e| panic!("{e}")),
             controller_name: "test".to_owned(),
@@ -483,7 +484,10 @@ fn rollout_camera_images_decode_at_their_size_and_repeat_with_the_seed() {
             let entry = &report["images"][topic];
             assert_eq!(entry["count"], images, "{topic}: {entry}");
             assert_eq!(entry["format"], "png", "{topic}");
-            assert_eq!((entry["width"].clone(), entry["height"].clone()), (384.into(), 384.into()));
+            assert_eq!(
+                (entry["width"].clone(), entry["height"].clone()),
+                (384.into(), 384.into())
+            );
             digests.push(entry["sha256"].clone());
         }
         let count = |topic: &str| {
@@ -495,9 +499,21 @@ fn rollout_camera_images_decode_at_their_size_and_repeat_with_the_seed() {
         assert_eq!(count("/camera/ee_camera/calibration"), Some(images.into()));
         assert_eq!(count("/camera/tf"), Some(images.into()));
     }
-    assert_eq!(digests[0], digests[2], "EE camera: same seed, same PNG bytes");
-    assert_eq!(digests[1], digests[3], "base camera: same seed, same PNG bytes");
-    assert_ne!(digests[0], digests[1], "the two cameras see different things");
+    assert_eq!(
+        digests[0], digests[2],
+        "EE camera: same seed, same PNG bytes"
+    );
+    assert_eq!(
+        digests[1], digests[3],
+        "base camera: same seed, same PNG bytes"
+    );
+    assert_ne!(
+        digests[0], digests[1],
+        "the two cameras see different things"
+    );
     let ee = digests[0].as_array().cloned().unwrap_or_default();
-    assert!(ee.first() != ee.last(), "the EE camera's view changes over the flight");
+    assert!(
+        ee.first() != ee.last(),
+        "the EE camera's view changes over the flight"
+    );
 }

@@ -6,7 +6,7 @@
 //!
 //! ```text
 //! measurement (link) ─► state source: truth | estimator ─► observation (+ task scene,
-//!    + camera images on the ticks a source or observer asks for them: [`cameras`])
+//!    + camera images on the ticks a source or observer asks for them: [`crate::cameras`])
 //!    ─► action source (trajectory | scripted task policy | logged actions | …)
 //!    ─► action noise (one place, its own random stream) ─► interface (EE ⇄ base + joint)
 //!    ─► flight stack: IK | MPC → base controller → allocation → TickRecord
@@ -25,7 +25,6 @@
 //! calls in the order given: those that fill [`Stepped`] for others (the criteria latch)
 //! come before those that read it (the log).
 
-mod cameras;
 mod noise;
 mod observer;
 mod source;
@@ -34,10 +33,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use platform::Measurement;
 
-pub use self::cameras::{
-    CAMERA_ALIASES, CameraConfig, CameraFrame, CameraRig, FrameUse, Frames, full_camera_name,
-    select_cameras,
-};
 pub use self::noise::ActionNoise;
 pub use self::observer::{
     BenchMetrics, Decided, Flow, Observer, Progress, Start, Stepped, StopReason, TaskCriteria,
@@ -45,6 +40,10 @@ pub use self::observer::{
 };
 pub use self::source::{
     ActionSource, EpisodeLength, Observation, ScriptedTask, SourceError, Step, TrajectorySource,
+};
+pub use crate::cameras::{
+    CAMERA_ALIASES, CameraConfig, CameraFrame, CameraRig, FrameUse, Frames, VideoConfig,
+    full_camera_name, select_cameras,
 };
 use crate::link::{Link, LinkError, LinkMessage};
 use crate::record::RecordError;
@@ -76,7 +75,7 @@ pub struct FlightSpec<'a> {
     /// Set from another thread to stop between ticks (the flight ends `Interrupted`).
     pub stop: Option<&'a AtomicBool>,
     /// The cameras, rendered on the ticks the source or an observer asks for them
-    /// ([`cameras`]); only a link that can render (the in-process twin) takes them. None:
+    /// ([`crate::cameras`]); only a link that can render (the in-process twin) takes them. None:
     /// nothing is rendered.
     pub cameras: Option<&'a mut CameraRig>,
 }

@@ -14,7 +14,7 @@ use platform::Measurement;
 use sim_twin::TaskSnapshot;
 
 use super::FlightError;
-use super::cameras::{FrameUse, Frames};
+use crate::cameras::{FrameUse, Frames};
 use crate::flight_log::{FlightLog, TaskState, rotors_saturated};
 use crate::link::LinkMessage;
 use crate::metrics::{CriteriaLatch, TrackingRecord};

@@ -12,7 +12,7 @@ use platform::{Measurement, RandomStream, Vehicle};
 use serde::Serialize;
 use sim_twin::{TaskId, TaskSnapshot};
 
-use super::cameras::Frames;
+use crate::cameras::Frames;
 use crate::stack::{Action, EeTarget, FlightStack, TickRecord};
 use crate::task_policies::{PolicyContext, TaskPolicy, gripper_override, scripted};
 use crate::trajectory::Trajectory;

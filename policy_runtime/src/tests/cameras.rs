@@ -212,13 +212,22 @@ fn assert_same_images(observed: &Frames, standalone: &Frames, what: &str) {
     assert_eq!(observed.cameras.len(), standalone.cameras.len(), "{what}");
     for (o, s) in observed.cameras.iter().zip(&standalone.cameras) {
         assert_eq!(o.name, s.name, "{what}");
-        assert_eq!((o.image.width, o.image.height), (384, 384), "{what}: {}", o.name);
+        assert_eq!(
+            (o.image.width, o.image.height),
+            (384, 384),
+            "{what}: {}",
+            o.name
+        );
         assert!(
             o.image.rgb == s.image.rgb,
             "{what}: {} differs from the standalone render",
             o.name
         );
-        assert_eq!(o.world_from_camera, s.world_from_camera, "{what}: {}", o.name);
+        assert_eq!(
+            o.world_from_camera, s.world_from_camera,
+            "{what}: {}",
+            o.name
+        );
         assert_eq!(o.intrinsics, s.intrinsics, "{what}: {}", o.name);
     }
 }
@@ -250,7 +259,10 @@ fn images_of_observation_k_are_a_render_of_the_state_at_k_shown_as_asked() {
     let ks = |v: &[(u64, Frames)]| v.iter().map(|(k, f)| (*k, f.k)).collect::<Vec<_>>();
     // Decided carries them where the source or a Decided observer asked; Stepped wherever
     // they were rendered; always the images of that tick's observation.
-    assert_eq!(ks(&at_decided.decided), vec![(0, 0), (10, 10), (LAST, LAST)]);
+    assert_eq!(
+        ks(&at_decided.decided),
+        vec![(0, 0), (10, 10), (LAST, LAST)]
+    );
     assert_eq!(
         ks(&at_stepped.stepped),
         vec![(0, 0), (5, 5), (10, 10), (LAST, LAST)]
@@ -272,7 +284,10 @@ fn images_of_observation_k_are_a_render_of_the_state_at_k_shown_as_asked() {
     assert_eq!(end.frames_rendered, 0);
     let truth = again.twin().truth();
     assert_eq!(truth.time_s.to_bits(), truth_25.time_s.to_bits());
-    assert_eq!(truth.base.position_in_world_m, truth_25.base.position_in_world_m);
+    assert_eq!(
+        truth.base.position_in_world_m,
+        truth_25.base.position_in_world_m
+    );
     assert_eq!(truth.joint_positions, truth_25.joint_positions);
     assert_same_images(
         frames_25,
@@ -343,7 +358,10 @@ fn cameras_over_a_link_that_cannot_render_are_refused_at_start() {
     match fly(&vehicle, &mut link, &mut source, &mut [], 5, Some(&mut rig)) {
         Err(e @ FlightError::CamerasNeedTwin(_)) => {
             let text = e.to_string();
-            assert!(text.contains("remote") && text.contains("--link twin"), "{text}");
+            assert!(
+                text.contains("remote") && text.contains("--link twin"),
+                "{text}"
+            );
         }
         other => panic!("expected CamerasNeedTwin, got {other:?}"),
     }

@@ -1,23 +1,23 @@
 //! Cameras in the flight loop: the images of an observation.
 //!
-//! A flight with a [`CameraRig`] in its [`super::FlightSpec`] renders the rig's cameras at the
+//! A flight with a [`CameraRig`] in its [`crate::flight::FlightSpec`] renders the rig's cameras at the
 //! state of observation k — the link's state after the physics step of tick k−1, the same
 //! instant as the proprioception of that observation — on the ticks where someone asked for
 //! them, and only then:
 //!
-//! - the action source, when [`super::ActionSource::wants_frames`]`(k)` is true: the images
-//!   are finished before [`super::ActionSource::next`] and given in
-//!   [`super::Observation::frames`];
-//! - an observer, by [`super::Observer::wants_frames`]`(k)`: [`FrameUse::Decided`] gives them
-//!   in [`super::Decided::frames`] (finished while the stack decides, before the setpoint is
-//!   sent); [`FrameUse::Stepped`] gives them in [`super::Stepped::frames`] only, and the frame
+//! - the action source, when [`crate::flight::ActionSource::wants_frames`]`(k)` is true: the images
+//!   are finished before [`crate::flight::ActionSource::next`] and given in
+//!   [`crate::flight::Observation::frames`];
+//! - an observer, by [`crate::flight::Observer::wants_frames`]`(k)`: [`FrameUse::Decided`] gives them
+//!   in [`crate::flight::Decided::frames`] (finished while the stack decides, before the setpoint is
+//!   sent); [`FrameUse::Stepped`] gives them in [`crate::flight::Stepped::frames`] only, and the frame
 //!   renders beside the physics step of tick k (begun before the step, read back after it).
 //!
-//! Whatever asked, [`super::Stepped::frames`] of tick k carries the images of observation k
+//! Whatever asked, [`crate::flight::Stepped::frames`] of tick k carries the images of observation k
 //! when they were rendered (the images after the step are those of observation k+1: the next
 //! tick's). Only a link that holds the twin can render ([`crate::link::Link::camera_state`]:
 //! the in-process [`crate::TwinLink`]); a flight with a rig over another link fails at start
-//! with [`super::FlightError::Cameras`].
+//! with [`crate::flight::FlightError::Cameras`].
 
 use nalgebra::Isometry3;
 use platform::Vehicle;
@@ -73,10 +73,10 @@ impl Frames {
 /// When an observer needs the images of observation k (ordered: a later variant asks less).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Default)]
 pub enum FrameUse {
-    /// In [`super::Decided::frames`] (and [`super::Stepped::frames`]): read back before the
+    /// In [`crate::flight::Decided::frames`] (and [`crate::flight::Stepped::frames`]): read back before the
     /// setpoint is sent.
     Decided,
-    /// In [`super::Stepped::frames`] only: the frame renders beside the physics step.
+    /// In [`crate::flight::Stepped::frames`] only: the frame renders beside the physics step.
     Stepped,
     /// Not at this tick.
     #[default]
@@ -137,6 +137,22 @@ pub struct CameraConfig {
     pub visual_dr: VisualDr,
     /// The flight log holds the images of every this many-th observation (0: none).
     pub log_every: u64,
+    /// A video of each flight, if any.
+    pub video: Option<VideoConfig>,
+}
+
+/// A video of a run: which cameras, how often, which encoder, where ([`crate::video`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct VideoConfig {
+    /// The ffmpeg program ([`crate::video::ffmpeg_program`]).
+    pub program: std::path::PathBuf,
+    /// The MP4 (`track`), or the directory of one MP4 per rollout (`bench`:
+    /// `<task>/rollout-NNN.mp4`).
+    pub path: std::path::PathBuf,
+    /// The cameras side by side, by name (`scene_camera`, then `ee_camera`).
+    pub cameras: Vec<String>,
+    /// One frame every this many observations (4 at 120 Hz: the reference's 30 fps).
+    pub every: u64,
 }
 
 impl CameraConfig {
