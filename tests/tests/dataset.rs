@@ -64,6 +64,8 @@ const RECORD: &[&str] = &[
     "5",
     "--jobs",
     "2",
+    "--cameras",
+    "ee",
 ];
 
 #[test]
@@ -87,6 +89,13 @@ fn a_recorded_dataset_is_read_back_by_pyarrow_and_exported_at_20_hz() {
     // The independent reader: every file, every index and statistic.
     let report = check(&dir, None);
     assert_eq!(report["episodes"], 2);
+    assert!(
+        info.lines()
+            .any(|l| l.contains("observation.images.ee_camera")
+                && l.contains("image")
+                && l.contains("[384, 384, 3]")),
+        "{info}"
+    );
     assert_eq!(report["frames"], summary["dataset_frames"]);
     // export-openpi: 20 Hz frames equal every 6th source frame.
     let out = tmp.path().join("openpi");

@@ -295,6 +295,7 @@ pub fn sample_indices(len: usize) -> Vec<usize> {
 }
 
 #[cfg(test)]
+#[allow(clippy::expect_used, reason = "tests: a failed set-up fails loudly")]
 mod tests {
     use super::*;
 
