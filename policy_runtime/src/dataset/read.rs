@@ -339,13 +339,16 @@ fn read_episodes(root: &Path) -> Result<Vec<EpisodeRow>, DatasetError> {
     Ok(rows)
 }
 
+/// Columns by name, each a list of rows of values.
+pub(crate) type NamedRows = Vec<(String, Vec<Vec<f64>>)>;
+
 /// The `stats/<feature>/<stat>` values of episode rows of an episodes file, flattened, by
 /// column name (for the validator).
 pub(crate) fn episode_stats_columns(
     root: &Path,
     rel: &str,
-) -> Result<Vec<(String, Vec<Vec<f64>>)>, DatasetError> {
-    let mut out: Vec<(String, Vec<Vec<f64>>)> = Vec::new();
+) -> Result<NamedRows, DatasetError> {
+    let mut out: NamedRows = Vec::new();
     for batch in read_parquet(&root.join(rel))? {
         for (field, col) in batch.schema().fields().iter().zip(batch.columns()) {
             if !field.name().starts_with("stats/") {

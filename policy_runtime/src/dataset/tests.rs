@@ -444,6 +444,12 @@ fn recording_is_the_same_bytes_whatever_the_threads_and_resumes() {
     record_into(two.path(), &config, &keys, 3);
     let a = files(one.path());
     let b = files(two.path());
+    assert!(
+        b.iter().any(|f| f.0 == "data/chunk-000/file-001.parquet")
+            && b.iter().any(|f| f.0 == "meta/episodes/chunk-000/file-001.parquet"),
+        "{:?}",
+        b.iter().map(|f| &f.0).collect::<Vec<_>>()
+    );
     assert_eq!(
         a.iter().map(|f| &f.0).collect::<Vec<_>>(),
         vec![

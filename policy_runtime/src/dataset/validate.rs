@@ -252,7 +252,7 @@ pub fn validate(root: &Path) -> Vec<String> {
         }
     }
     let meta_files: BTreeSet<(u64, u64)> = rows.iter().map(|r| r.meta).collect();
-    let mut columns: Vec<(String, Vec<Vec<f64>>)> = Vec::new();
+    let mut columns: super::read::NamedRows = Vec::new();
     for (c, f) in meta_files {
         match episode_stats_columns(root, &episodes_file(c, f)) {
             Ok(cols) => {
