@@ -344,10 +344,7 @@ pub(crate) type NamedRows = Vec<(String, Vec<Vec<f64>>)>;
 
 /// The `stats/<feature>/<stat>` values of episode rows of an episodes file, flattened, by
 /// column name (for the validator).
-pub(crate) fn episode_stats_columns(
-    root: &Path,
-    rel: &str,
-) -> Result<NamedRows, DatasetError> {
+pub(crate) fn episode_stats_columns(root: &Path, rel: &str) -> Result<NamedRows, DatasetError> {
     let mut out: NamedRows = Vec::new();
     for batch in read_parquet(&root.join(rel))? {
         for (field, col) in batch.schema().fields().iter().zip(batch.columns()) {

@@ -446,7 +446,8 @@ fn recording_is_the_same_bytes_whatever_the_threads_and_resumes() {
     let b = files(two.path());
     assert!(
         b.iter().any(|f| f.0 == "data/chunk-000/file-001.parquet")
-            && b.iter().any(|f| f.0 == "meta/episodes/chunk-000/file-001.parquet"),
+            && b.iter()
+                .any(|f| f.0 == "meta/episodes/chunk-000/file-001.parquet"),
         "{:?}",
         b.iter().map(|f| &f.0).collect::<Vec<_>>()
     );
