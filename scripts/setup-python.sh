@@ -8,6 +8,8 @@
 # - `imageio-ffmpeg`, whose wheel ships a static ffmpeg program: the video encoder of the
 #   tests of `--video` (AMSTACK_FFMPEG) on a machine without Debian's ffmpeg, and the
 #   independent reader that counts an MP4's frames.
+# - `pyarrow` and `numpy`, the independent reader of the LeRobot datasets `amstack record`
+#   writes (scripts/dataset_check.py, run by tests/tests/dataset.rs).
 #
 #   AMSTACK_VENV   where the venv lives (default: $HOME/.cache/amstack-venv)
 #   PYTHON         the interpreter that creates it (default: python3; needs its venv module)
@@ -18,13 +20,16 @@ set -euo pipefail
 
 # Pinned: the reader must not change under the tests. mcap 1.6.0 needs lz4 and zstandard to
 # decompress chunks; both ship manylinux wheels, so nothing is compiled. pymavlink 2.4.50
-# ships a manylinux wheel too and needs lxml and fastcrc (wheels).
+# ships a manylinux wheel too and needs lxml and fastcrc (wheels). numpy stays below 2: the
+# policies' openpi-client (same venv) requires numpy < 2, and pyarrow 21 runs on it (26 does not).
 MCAP_VERSION="1.6.0"
 PYMAVLINK_VERSION="2.4.50"
+PYARROW_VERSION="21.0.0"
 IMAGEIO_FFMPEG_VERSION="0.8.1"
 PINNED=("mcap==${MCAP_VERSION}" "lz4==4.4.5" "zstandard==0.25.0"
         "pymavlink==${PYMAVLINK_VERSION}" "lxml==6.1.3" "fastcrc==0.5.0"
-        "imageio-ffmpeg==${IMAGEIO_FFMPEG_VERSION}")
+        "imageio-ffmpeg==${IMAGEIO_FFMPEG_VERSION}"
+        "pyarrow==${PYARROW_VERSION}" "numpy==1.26.4")
 
 VENV="${AMSTACK_VENV:-$HOME/.cache/amstack-venv}"
 PYTHON="${PYTHON:-python3}"
@@ -45,10 +50,10 @@ installed_version() {
 
 installed() {
     echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink)," \
-         "imageio-ffmpeg $(installed_version imageio-ffmpeg)"
+         "imageio-ffmpeg $(installed_version imageio-ffmpeg), pyarrow $(installed_version pyarrow)"
 }
 
-WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, imageio-ffmpeg ${IMAGEIO_FFMPEG_VERSION}"
+WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, imageio-ffmpeg ${IMAGEIO_FFMPEG_VERSION}, pyarrow ${PYARROW_VERSION}"
 if [[ -x "$VPY" && "$(installed)" == "$WANTED" ]]; then
     say "venv $VENV already has $WANTED: nothing to do"
     echo "$VPY"

@@ -65,66 +65,66 @@ Examples:
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct Args {
     #[command(subcommand)]
-    action: Option<crate::bench_shard::BenchAction>,
+    pub(crate) action: Option<crate::bench_shard::BenchAction>,
     /// Task name, or `all`.
     #[arg(long, default_value = "all")]
-    task: String,
+    pub(crate) task: String,
     /// Vehicle id (ee-only, fa-hexa, ua-hexa, ua-quad, omni-hexa, or one added with --vehicle).
     #[arg(long, default_value = "ee-only")]
-    platform: String,
+    pub(crate) platform: String,
     /// Controller [default: pid on ee-only, ik-pid otherwise].
     #[arg(long)]
-    controller: Option<String>,
+    pub(crate) controller: Option<String>,
     /// Action interface: ee (end-effector target) or joint (base pose + arm joints, from the
     /// scripted end-effector targets through the whole-body IK).
     #[arg(long, default_value = "ee", value_parser = ["ee", "joint"])]
-    interface: String,
+    pub(crate) interface: String,
     /// Rollouts per task.
     #[arg(long, default_value_t = 10)]
-    rollouts: usize,
+    pub(crate) rollouts: usize,
     /// Episode length: `spec` (the task's), `script` (the task's, or longer where its scripted
     /// policy needs it, as the reference's demonstration recorder runs it: only Wipe Window),
     /// or seconds.
     #[arg(long, value_name = "spec|script|S", default_value = "script")]
-    episode_length: String,
+    pub(crate) episode_length: String,
     /// Worker threads [default: all cores; 1 over ipc].
     #[arg(long)]
-    jobs: Option<usize>,
+    pub(crate) jobs: Option<usize>,
     /// Where the rollouts run: `twin` (this process) or `ipc:<service>` (the twin of
     /// `amstack twin serve --ipc <service> --flight-chooses-episode`, in lockstep).
     #[arg(long, value_name = "LINK", default_value = "twin")]
-    link: String,
+    pub(crate) link: String,
     /// How long each answer of the twin may take before the run stops, ms (ipc).
     #[arg(long, value_name = "MS", default_value_t = 50)]
-    link_timeout_ms: u64,
+    pub(crate) link_timeout_ms: u64,
     /// How long to wait for the twin to answer each rollout's handshake, ms (ipc).
     #[arg(long, value_name = "MS", default_value_t = 10_000)]
-    connect_timeout_ms: u64,
+    pub(crate) connect_timeout_ms: u64,
     #[command(flatten)]
-    twin: TwinFlags,
+    pub(crate) twin: TwinFlags,
     #[command(flatten)]
-    state: crate::track::StateFlags,
+    pub(crate) state: crate::track::StateFlags,
     #[command(flatten)]
-    cameras: crate::camera_flags::CameraFlags,
+    pub(crate) cameras: crate::camera_flags::CameraFlags,
     /// Write one MP4 per rollout into DIR (`<task>/rollout-NNN.mp4`): the scene camera (with
     /// the EE camera beside it when --cameras names ee), 30 fps from every 4th step. Needs the
     /// ffmpeg program (apt-get install ffmpeg, or AMSTACK_FFMPEG=PATH).
     #[arg(long, value_name = "DIR")]
-    video: Option<PathBuf>,
+    pub(crate) video: Option<PathBuf>,
     /// Output directory: results.json, config.json and one MCAP log per rollout.
     #[arg(long, value_name = "DIR")]
-    out: Option<PathBuf>,
+    pub(crate) out: Option<PathBuf>,
     /// Write the results JSON here (also written to --out).
     #[arg(long, value_name = "FILE")]
-    json: Option<PathBuf>,
+    pub(crate) json: Option<PathBuf>,
     /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
     #[arg(long = "vehicle", value_name = "FILE.toml")]
-    vehicles: Vec<PathBuf>,
+    pub(crate) vehicles: Vec<PathBuf>,
     /// Run only shard I (0-based) of N of the rollouts and write a partial result
     /// (--out DIR/part.json, or --json); `env/N` reads I from SLURM_ARRAY_TASK_ID or
     /// JOB_COMPLETION_INDEX. Merge the parts with `amstack bench merge`.
     #[arg(long, value_name = "I/N")]
-    shard: Option<String>,
+    pub(crate) shard: Option<String>,
 }
 
 /// Controllers valid on a vehicle, and whether each takes the joint interface.

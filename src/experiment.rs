@@ -167,12 +167,11 @@ fn embodiment(a: &EmbodimentArgs) -> Result<()> {
         let dir = a.out.join("valve").join(platform);
         let flags = bench_flags(a, platform, "rotate-valve", 1);
         let report = run_cell(&flags, Some(dir.clone()), &bar)?;
-        let success = report.tasks.first().is_some_and(|t| t.summary.successes > 0);
-        let log = policy_runtime::bench::rollout_log_path(
-            &dir,
-            sim_twin::TaskId::RotateValve,
-            0,
-        );
+        let success = report
+            .tasks
+            .first()
+            .is_some_and(|t| t.summary.successes > 0);
+        let log = policy_runtime::bench::rollout_log_path(&dir, sim_twin::TaskId::RotateValve, 0);
         valve.push((platform, success, base_orientation(&log)?));
     }
     bar.finish_and_clear();
@@ -235,7 +234,11 @@ fn table(cells: &[Cell]) -> Table {
 }
 
 /// A metric's mean over a vehicle's cells (None where a cell has no successful rollout).
-fn mean_of(cells: &[Cell], platform: &str, pick: impl Fn(&RunSummary) -> Option<f64>) -> Option<f64> {
+fn mean_of(
+    cells: &[Cell],
+    platform: &str,
+    pick: impl Fn(&RunSummary) -> Option<f64>,
+) -> Option<f64> {
     let v: Vec<f64> = cells
         .iter()
         .filter(|c| c.platform == platform)
@@ -247,8 +250,10 @@ fn mean_of(cells: &[Cell], platform: &str, pick: impl Fn(&RunSummary) -> Option<
 /// The paper's reading of its table, checked on the measured figures: (claim, holds).
 fn orderings(cells: &[Cell], valve: &[(&str, bool, BaseOrientation)]) -> Vec<(String, bool)> {
     let lowest = |pick: &dyn Fn(&RunSummary) -> Option<f64>, who: &str, highest: bool| {
-        let values: Vec<(&str, Option<f64>)> =
-            VEHICLES.iter().map(|v| (*v, mean_of(cells, v, pick))).collect();
+        let values: Vec<(&str, Option<f64>)> = VEHICLES
+            .iter()
+            .map(|v| (*v, mean_of(cells, v, pick)))
+            .collect();
         let Some(mine) = values.iter().find(|(v, _)| *v == who).and_then(|(_, x)| *x) else {
             return false;
         };
@@ -262,9 +267,9 @@ fn orderings(cells: &[Cell], valve: &[(&str, bool, BaseOrientation)]) -> Vec<(St
     let base = |s: &RunSummary| s.norm_base_error.mean;
     let sat = |s: &RunSummary| s.saturation_rate.mean;
     let fa_tilt = mean_of(cells, "fa-hexa", tilt);
-    let ua_tilt_more = ["ua-quad", "ua-hexa"].iter().all(|v| {
-        matches!((mean_of(cells, v, tilt), fa_tilt), (Some(u), Some(f)) if u > f)
-    });
+    let ua_tilt_more = ["ua-quad", "ua-hexa"]
+        .iter()
+        .all(|v| matches!((mean_of(cells, v, tilt), fa_tilt), (Some(u), Some(f)) if u > f));
     let valve_claim = match valve {
         [(_, _, ua), (_, _, fa)] => ua.max_tilt_deviation() > 2.0 * fa.max_tilt_deviation(),
         _ => false,
@@ -376,11 +381,20 @@ fn draw_valve(
     let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
     let root = BitMapBackend::new(path, (1400, 420 * runs.len().max(1) as u32)).into_drawing_area();
     root.fill(&WHITE)?;
-    let colors = [RGBColor(214, 39, 40), RGBColor(44, 160, 44), RGBColor(31, 119, 180)];
-    for (area, (platform, success, s)) in root.split_evenly((runs.len().max(1), 1)).iter().zip(runs) {
+    let colors = [
+        RGBColor(214, 39, 40),
+        RGBColor(44, 160, 44),
+        RGBColor(31, 119, 180),
+    ];
+    for (area, (platform, success, s)) in root.split_evenly((runs.len().max(1), 1)).iter().zip(runs)
+    {
         let t1 = s.times_s.last().copied().unwrap_or(1.0).max(1e-3);
         let deg = |x: f64| x.to_degrees();
-        let all = s.desired_rpy.iter().chain(&s.actual_rpy).flat_map(|r| r.iter().copied());
+        let all = s
+            .desired_rpy
+            .iter()
+            .chain(&s.actual_rpy)
+            .flat_map(|r| r.iter().copied());
         let (lo, hi) = all.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
             (l.min(deg(x)), h.max(deg(x)))
         });
@@ -407,14 +421,20 @@ fn draw_valve(
             let c = colors[i];
             chart
                 .draw_series(LineSeries::new(
-                    s.times_s.iter().zip(&s.actual_rpy).map(|(t, r)| (*t, deg(r[i]))),
+                    s.times_s
+                        .iter()
+                        .zip(&s.actual_rpy)
+                        .map(|(t, r)| (*t, deg(r[i]))),
                     c.stroke_width(2),
                 ))?
                 .label(format!("{name} actual"))
                 .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
             chart
                 .draw_series(DashedLineSeries::new(
-                    s.times_s.iter().zip(&s.desired_rpy).map(|(t, r)| (*t, deg(r[i]))),
+                    s.times_s
+                        .iter()
+                        .zip(&s.desired_rpy)
+                        .map(|(t, r)| (*t, deg(r[i]))),
                     8,
                     5,
                     c.stroke_width(1),

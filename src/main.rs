@@ -9,16 +9,18 @@ mod bench_shard;
 mod camera_flags;
 mod cli_error;
 mod compare;
+mod dataset_cmd;
+mod experiment;
 mod fly;
 mod mpc_bench;
 mod output;
 mod platforms;
 mod plot;
 mod px4_hil;
+mod record;
 mod render_frame;
 mod replay;
 mod sweep;
-mod experiment;
 mod track;
 mod twin_flags;
 mod twin_serve;
@@ -84,6 +86,11 @@ enum Command {
     /// The paper's experiments as one command each (`embodiment`): tables (terminal, JSON)
     /// and PNG plots in an output folder.
     Experiment(Box<experiment::Args>),
+    /// Record demonstrations of a task's scripted policy (the rollouts of `bench`) as a
+    /// LeRobot v3.0 dataset: observation state, actions, task prompt (120 fps).
+    Record(Box<record::Args>),
+    /// LeRobot datasets: `info`, `validate`, `export-openpi` (v2.1, 20 Hz), `merge`.
+    Dataset(dataset_cmd::Args),
 }
 
 fn main() -> ExitCode {
@@ -122,6 +129,8 @@ fn main() -> ExitCode {
         Command::Render(args) => render_frame::run(&args),
         Command::Sweep(args) => sweep::run(&args),
         Command::Experiment(args) => experiment::run(&args),
+        Command::Record(args) => record::run(&args),
+        Command::Dataset(args) => dataset_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

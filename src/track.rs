@@ -90,7 +90,7 @@ pub struct Args {
 }
 
 /// Where the controllers' base state comes from, and the simulated sensors of the estimator.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 #[command(next_help_heading = "State source")]
 pub struct StateFlags {
     /// `truth`: the controllers fly on the twin's measurement; `estimator`: on the EKF fed by

@@ -7,7 +7,7 @@ use sim_twin::{Disturbances, MotorConfig, TaskId, TwinConfig};
 
 use crate::cli_error::bad_input;
 
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct TwinFlags {
     /// Comma-separated: drag, wind, ground, wall, noise, saturation; or `reference` (the
     /// paper's evaluation set: all but noise), `all`, `none`. Without `saturation` the

@@ -31,7 +31,8 @@ pub use self::episode::BenchLink;
 pub use self::shard::{ASSIGNMENT as SHARD_ASSIGNMENT, Shard, ShardError};
 use crate::cameras::{CameraConfig, CameraRig};
 use crate::flight::{
-    ActionNoise, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask, TaskCriteria,
+    ActionNoise, ActionSource, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask,
+    TaskCriteria,
 };
 use crate::flight_log::FlightLog;
 use crate::link::LinkError;
@@ -242,6 +243,37 @@ pub fn run_rollout_logged(
     stop: &AtomicBool,
     log_path: Option<&Path>,
 ) -> Result<RolloutResult, BenchError> {
+    run_rollout_with(config, task, index, stop, log_path, RolloutHooks::default())
+}
+
+/// What a caller plugs into a rollout besides the benchmark's own parts (`amstack record`:
+/// the script with its actions rounded to what the dataset stores, and the recorder).
+#[derive(Default)]
+pub struct RolloutHooks<'a> {
+    /// The action source in place of the task's script (built for the rollout's seed).
+    pub source: Option<&'a mut dyn ActionSource>,
+    /// Observers after the benchmark's (criteria, log, metrics).
+    pub observers: Vec<&'a mut dyn Observer>,
+}
+
+impl std::fmt::Debug for RolloutHooks<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RolloutHooks")
+            .field("source", &self.source.is_some())
+            .field("observers", &self.observers.len())
+            .finish()
+    }
+}
+
+/// Runs one rollout of `task` as [`run_rollout_logged`] does, with `hooks` plugged in.
+pub fn run_rollout_with(
+    config: &BenchConfig,
+    task: TaskId,
+    index: usize,
+    stop: &AtomicBool,
+    log_path: Option<&Path>,
+    hooks: RolloutHooks<'_>,
+) -> Result<RolloutResult, BenchError> {
     let started = Instant::now();
     let seed = rollout_seed(config.seed, index);
     let vehicle = &config.vehicle;
@@ -303,7 +335,15 @@ pub fn run_rollout_logged(
         limits_n,
         usize::try_from(task.max_steps(rate_hz)).unwrap_or(0),
     );
-    let mut source = ScriptedTask::new(task, seed, rate_hz, config.episode);
+    let mut script = ScriptedTask::new(task, seed, rate_hz, config.episode);
+    let RolloutHooks {
+        source,
+        observers: mut extra,
+    } = hooks;
+    let source: &mut dyn ActionSource = match source {
+        Some(s) => s,
+        None => &mut script,
+    };
     let flown = {
         // The criteria latch fills the task state the log writes after it.
         let mut observers: Vec<&mut dyn Observer> = vec![&mut criteria];
@@ -314,10 +354,13 @@ pub fn run_rollout_logged(
         if let Some(v) = &mut video {
             observers.push(v);
         }
+        for o in &mut extra {
+            observers.push(&mut **o);
+        }
         crate::flight::run(
             link.as_mut(),
             &mut stack,
-            &mut source,
+            source,
             &mut observers,
             FlightSpec {
                 max_ticks: task.max_steps(rate_hz),

@@ -17,7 +17,8 @@
 //!   with saturation fed back; its [`TickRecord`] holds the whole cascade;
 //! - **observers** ([`flight::Observer`]): the MCAP log ([`flight_log`], written by
 //!   [`record`]), the task criteria latch and stop rule, the tracking and benchmark metrics
-//!   ([`metrics`]), progress.
+//!   ([`metrics`]), progress, the demonstration recorder ([`dataset::Recorder`]: LeRobot
+//!   datasets, [`dataset`]).
 //!
 //! Around the loop: [`trajectory`] and [`track`] (`amstack track`), [`bench`] (the benchmark
 //! runner: tasks × rollouts on worker threads), [`validation`] (replay a logged flight,
@@ -25,6 +26,7 @@
 
 pub mod bench;
 pub mod cameras;
+pub mod dataset;
 pub mod flight;
 pub mod flight_log;
 pub mod ipc_link;

@@ -1,0 +1,383 @@
+//! Reading a dataset back: its metadata, and an episode's frames.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use arrow::array::{
+    Array, AsArray, BinaryArray, FixedSizeListArray, Float32Array, Int64Array, ListArray,
+    StringArray, StructArray,
+};
+use arrow::datatypes::{Float32Type, Int64Type};
+use arrow::record_batch::RecordBatch;
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use serde_json::Value;
+
+use super::DatasetError;
+use super::layout::{DatasetSpec, Dtype, Feature, data_file};
+use super::stats::{FeatureStats, StatsKind};
+use super::write::{EpisodeFrames, EpisodeSource};
+
+/// One row of `meta/episodes`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeRow {
+    /// `episode_index`.
+    pub index: u64,
+    /// `tasks`.
+    pub tasks: Vec<String>,
+    /// `length`.
+    pub length: u64,
+    /// `data/chunk_index`, `data/file_index`.
+    pub data: (u64, u64),
+    /// `dataset_from_index`.
+    pub from: u64,
+    /// `dataset_to_index`.
+    pub to: u64,
+    /// `meta/episodes/chunk_index`, `meta/episodes/file_index`.
+    pub meta: (u64, u64),
+}
+
+/// A dataset opened for reading.
+#[derive(Debug)]
+pub struct DatasetReader {
+    /// The root folder.
+    pub root: PathBuf,
+    /// `meta/info.json`.
+    pub info: Value,
+    /// What it records.
+    pub spec: DatasetSpec,
+    /// `total_episodes`.
+    pub total_episodes: u64,
+    /// `total_frames`.
+    pub total_frames: u64,
+    /// Tasks by index.
+    pub tasks: Vec<String>,
+    /// Rows of `meta/episodes`, in episode order.
+    pub episodes: Vec<EpisodeRow>,
+    /// `ambench.episodes`: where each episode came from.
+    pub sources: Vec<Value>,
+    /// `ambench.recording`.
+    pub recording: Value,
+    cache: Option<((u64, u64), Vec<RecordBatch>)>,
+}
+
+pub(crate) fn read_parquet(path: &Path) -> Result<Vec<RecordBatch>, DatasetError> {
+    let file = std::fs::File::open(path).map_err(DatasetError::io(path))?;
+    let reader = ParquetRecordBatchReaderBuilder::try_new(file)
+        .and_then(|b| b.build())
+        .map_err(DatasetError::parquet(path))?;
+    reader
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| DatasetError::invalid(&path.display().to_string(), e.to_string()))
+}
+
+pub(crate) fn column<'a, T: 'static>(
+    batch: &'a RecordBatch,
+    name: &str,
+    file: &str,
+) -> Result<&'a T, DatasetError> {
+    batch
+        .column_by_name(name)
+        .ok_or_else(|| DatasetError::invalid(file, format!("no column {name:?}")))?
+        .as_any()
+        .downcast_ref::<T>()
+        .ok_or_else(|| DatasetError::invalid(file, format!("column {name:?} has another type")))
+}
+
+fn ints(batch: &RecordBatch, name: &str, file: &str) -> Result<Vec<u64>, DatasetError> {
+    Ok(column::<Int64Array>(batch, name, file)?
+        .values()
+        .iter()
+        .map(|v| *v as u64)
+        .collect())
+}
+
+impl DatasetReader {
+    /// Opens the dataset in `root`: `info.json`, the tasks, the episodes' rows.
+    pub fn open(root: &Path) -> Result<Self, DatasetError> {
+        let info_path = root.join("meta/info.json");
+        let text = std::fs::read_to_string(&info_path).map_err(DatasetError::io(&info_path))?;
+        let info: Value = serde_json::from_str(&text)
+            .map_err(|e| DatasetError::invalid("meta/info.json", e.to_string()))?;
+        let version = info.get("codebase_version").and_then(Value::as_str);
+        if version != Some(super::layout::CODEBASE_VERSION) {
+            return Err(DatasetError::invalid(
+                "meta/info.json",
+                format!("codebase_version {version:?}: amstack reads v3.0"),
+            ));
+        }
+        let spec = DatasetSpec::from_info(&info, "meta/info.json")?;
+        let total = |k: &str| info.get(k).and_then(Value::as_u64).unwrap_or(0);
+        let ambench = info.get("ambench").cloned().unwrap_or(Value::Null);
+        let mut reader = Self {
+            root: root.to_owned(),
+            spec,
+            total_episodes: total("total_episodes"),
+            total_frames: total("total_frames"),
+            tasks: Vec::new(),
+            episodes: Vec::new(),
+            sources: ambench
+                .get("episodes")
+                .and_then(Value::as_array)
+                .cloned()
+                .unwrap_or_default(),
+            recording: ambench.get("recording").cloned().unwrap_or(Value::Null),
+            info,
+            cache: None,
+        };
+        if reader.total_episodes == 0 {
+            return Ok(reader);
+        }
+        reader.tasks = read_tasks(root)?;
+        reader.episodes = read_episodes(root)?;
+        Ok(reader)
+    }
+
+    /// The statistics of `stats.json` for `features` (None if missing or misshapen).
+    pub fn stats_for(&self, features: &[Feature]) -> Option<Vec<FeatureStats>> {
+        let text = std::fs::read_to_string(self.root.join("meta/stats.json")).ok()?;
+        let all: Value = serde_json::from_str(&text).ok()?;
+        features
+            .iter()
+            .map(|f| {
+                let kind = match f.dtype {
+                    Dtype::Image => StatsKind::Image,
+                    Dtype::Int64 => StatsKind::Int,
+                    Dtype::Float32 => StatsKind::Float,
+                };
+                FeatureStats::from_json(all.get(&f.key)?, kind)
+            })
+            .collect()
+    }
+
+    /// The batches of a data file (the last one read is kept).
+    pub fn data_batches(&mut self, at: (u64, u64)) -> Result<&[RecordBatch], DatasetError> {
+        if self.cache.as_ref().map(|c| c.0) != Some(at) {
+            let batches = read_parquet(&self.root.join(data_file(at.0, at.1)))?;
+            self.cache = Some((at, batches));
+        }
+        Ok(self.cache.as_ref().map_or(&[][..], |c| c.1.as_slice()))
+    }
+
+    /// Episode `e`'s frames (the rows of its data file with its `episode_index`, in order).
+    pub fn episode(&mut self, e: u64) -> Result<EpisodeFrames, DatasetError> {
+        let row = self
+            .episodes
+            .iter()
+            .find(|r| r.index == e)
+            .cloned()
+            .ok_or_else(|| DatasetError::invalid("meta/episodes", format!("no episode {e}")))?;
+        let file = data_file(row.data.0, row.data.1);
+        let spec = self.spec.clone();
+        let tasks = self.tasks.clone();
+        let source = self.sources.get(e as usize).cloned().unwrap_or(Value::Null);
+        let batches = self.data_batches(row.data)?;
+        let mut out = EpisodeFrames {
+            images: vec![Vec::new(); spec.images.len()],
+            source: EpisodeSource {
+                task_name: source
+                    .get("task")
+                    .and_then(Value::as_str)
+                    .unwrap_or_default()
+                    .to_owned(),
+                seed: source.get("seed").and_then(Value::as_u64),
+                success: source
+                    .get("success")
+                    .and_then(Value::as_bool)
+                    .unwrap_or(false),
+                attempt: source.get("attempt").and_then(Value::as_u64).unwrap_or(e),
+            },
+            ..EpisodeFrames::default()
+        };
+        for batch in batches {
+            let episode = column::<Int64Array>(batch, "episode_index", &file)?;
+            let task = column::<Int64Array>(batch, "task_index", &file)?;
+            let state = fixed_values(batch, "observation.state", &file)?;
+            let action = fixed_values(batch, "action", &file)?;
+            let images = spec
+                .images
+                .iter()
+                .map(|(key, _, _)| image_bytes(batch, key, &file))
+                .collect::<Result<Vec<_>, _>>()?;
+            for r in 0..batch.num_rows() {
+                if episode.value(r) as u64 != e {
+                    continue;
+                }
+                if out.task.is_empty() {
+                    out.task = tasks
+                        .get(task.value(r) as usize)
+                        .cloned()
+                        .unwrap_or_default();
+                }
+                let sd = spec.state_dim;
+                let ad = spec.action_dim;
+                out.state.extend_from_slice(&state[r * sd..(r + 1) * sd]);
+                out.action.extend_from_slice(&action[r * ad..(r + 1) * ad]);
+                for (c, col) in images.iter().enumerate() {
+                    out.images[c].push(col.value(r).to_vec());
+                }
+            }
+        }
+        if out.len(spec.state_dim) as u64 != row.length {
+            return Err(DatasetError::invalid(
+                &file,
+                format!(
+                    "episode {e}: {} frames, meta/episodes says {}",
+                    out.len(spec.state_dim),
+                    row.length
+                ),
+            ));
+        }
+        Ok(out)
+    }
+}
+
+/// The float32 values of a fixed-size-list column, flat.
+pub(crate) fn fixed_values<'a>(
+    batch: &'a RecordBatch,
+    name: &str,
+    file: &str,
+) -> Result<&'a [f32], DatasetError> {
+    let list = column::<FixedSizeListArray>(batch, name, file)?;
+    let values = list
+        .values()
+        .as_any()
+        .downcast_ref::<Float32Array>()
+        .ok_or_else(|| DatasetError::invalid(file, format!("{name}: not float32")))?;
+    let offset = list.offset() * list.value_length() as usize;
+    Ok(&values.values()[offset..offset + list.len() * list.value_length() as usize])
+}
+
+/// The `bytes` of an image column.
+pub(crate) fn image_bytes<'a>(
+    batch: &'a RecordBatch,
+    name: &str,
+    file: &str,
+) -> Result<&'a BinaryArray, DatasetError> {
+    let s = column::<StructArray>(batch, name, file)?;
+    s.column_by_name("bytes")
+        .and_then(|c| c.as_any().downcast_ref::<BinaryArray>())
+        .ok_or_else(|| DatasetError::invalid(file, format!("{name}: no binary `bytes` field")))
+}
+
+fn read_tasks(root: &Path) -> Result<Vec<String>, DatasetError> {
+    let rel = "meta/tasks.parquet";
+    let mut by_index = BTreeMap::new();
+    for batch in read_parquet(&root.join(rel))? {
+        let index = column::<Int64Array>(&batch, "task_index", rel)?;
+        let name = if batch.column_by_name("__index_level_0__").is_some() {
+            "__index_level_0__"
+        } else {
+            "task"
+        };
+        let text = column::<StringArray>(&batch, name, rel)?;
+        for r in 0..batch.num_rows() {
+            by_index.insert(index.value(r), text.value(r).to_owned());
+        }
+    }
+    let tasks: Vec<String> = by_index.values().cloned().collect();
+    if by_index.keys().copied().ne(0..tasks.len() as i64) {
+        return Err(DatasetError::invalid(
+            rel,
+            format!(
+                "task_index values {:?} are not 0..{}",
+                by_index.keys().collect::<Vec<_>>(),
+                tasks.len()
+            ),
+        ));
+    }
+    Ok(tasks)
+}
+
+fn read_episodes(root: &Path) -> Result<Vec<EpisodeRow>, DatasetError> {
+    let mut files: Vec<PathBuf> = Vec::new();
+    let dir = root.join("meta/episodes");
+    for chunk in std::fs::read_dir(&dir).map_err(DatasetError::io(&dir))? {
+        let chunk = chunk.map_err(DatasetError::io(&dir))?.path();
+        if chunk.is_dir() {
+            for f in std::fs::read_dir(&chunk).map_err(DatasetError::io(&chunk))? {
+                let f = f.map_err(DatasetError::io(&chunk))?.path();
+                if f.extension().is_some_and(|e| e == "parquet") {
+                    files.push(f);
+                }
+            }
+        }
+    }
+    files.sort();
+    let mut rows = Vec::new();
+    for path in files {
+        let rel = path
+            .strip_prefix(root)
+            .unwrap_or(&path)
+            .display()
+            .to_string();
+        for batch in read_parquet(&path)? {
+            let tasks = column::<ListArray>(&batch, "tasks", &rel)?;
+            let index = ints(&batch, "episode_index", &rel)?;
+            let length = ints(&batch, "length", &rel)?;
+            let dc = ints(&batch, "data/chunk_index", &rel)?;
+            let df = ints(&batch, "data/file_index", &rel)?;
+            let from = ints(&batch, "dataset_from_index", &rel)?;
+            let to = ints(&batch, "dataset_to_index", &rel)?;
+            let mc = ints(&batch, "meta/episodes/chunk_index", &rel)?;
+            let mf = ints(&batch, "meta/episodes/file_index", &rel)?;
+            for r in 0..batch.num_rows() {
+                let t = tasks.value(r);
+                let t = t.as_string::<i32>();
+                rows.push(EpisodeRow {
+                    index: index[r],
+                    tasks: (0..t.len()).map(|i| t.value(i).to_owned()).collect(),
+                    length: length[r],
+                    data: (dc[r], df[r]),
+                    from: from[r],
+                    to: to[r],
+                    meta: (mc[r], mf[r]),
+                });
+            }
+        }
+    }
+    rows.sort_by_key(|r| r.index);
+    Ok(rows)
+}
+
+/// Columns by name, each a list of rows of values.
+pub(crate) type NamedRows = Vec<(String, Vec<Vec<f64>>)>;
+
+/// The `stats/<feature>/<stat>` values of episode rows of an episodes file, flattened, by
+/// column name (for the validator).
+pub(crate) fn episode_stats_columns(root: &Path, rel: &str) -> Result<NamedRows, DatasetError> {
+    let mut out: NamedRows = Vec::new();
+    for batch in read_parquet(&root.join(rel))? {
+        for (field, col) in batch.schema().fields().iter().zip(batch.columns()) {
+            if !field.name().starts_with("stats/") {
+                continue;
+            }
+            let mut rows = Vec::new();
+            if let Some(list) = col.as_any().downcast_ref::<ListArray>() {
+                for r in 0..list.len() {
+                    let mut v = Vec::new();
+                    flatten_array(list.value(r).as_ref(), &mut v);
+                    rows.push(v);
+                }
+            }
+            match out.iter_mut().find(|(n, _)| n == field.name()) {
+                Some((_, all)) => all.extend(rows),
+                None => out.push((field.name().clone(), rows)),
+            }
+        }
+    }
+    Ok(out)
+}
+
+fn flatten_array(a: &dyn Array, out: &mut Vec<f64>) {
+    if let Some(l) = a.as_any().downcast_ref::<ListArray>() {
+        for i in 0..l.len() {
+            flatten_array(l.value(i).as_ref(), out);
+        }
+    } else if let Some(f) = a.as_primitive_opt::<arrow::datatypes::Float64Type>() {
+        out.extend(f.values().iter());
+    } else if let Some(i) = a.as_primitive_opt::<Int64Type>() {
+        out.extend(i.values().iter().map(|x| *x as f64));
+    } else if let Some(f) = a.as_primitive_opt::<Float32Type>() {
+        out.extend(f.values().iter().map(|x| f64::from(*x)));
+    }
+}

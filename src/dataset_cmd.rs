@@ -1,0 +1,220 @@
+//! `amstack dataset`: look at, check, export and merge LeRobot datasets.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use policy_runtime::dataset::{DatasetReader, export_openpi, merge, validate};
+use serde_json::json;
+
+use crate::cli_error::bad_input;
+use crate::output::{check_writable, write_json};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, clap::Subcommand)]
+enum Command {
+    /// Episodes, frames, features, fps, size and tasks of a dataset.
+    Info {
+        /// The dataset folder.
+        #[arg(value_name = "DIR")]
+        dir: PathBuf,
+        /// Write the figures as JSON here.
+        #[arg(long, value_name = "FILE")]
+        json: Option<PathBuf>,
+    },
+    /// Check a dataset: the checks of the reference's validator (state and action features,
+    /// positive totals and fps, episode lengths summing to the frames, first and last frames'
+    /// shapes) and the consistency of every index, timestamp and statistic. One line per
+    /// problem; exit 1 if any.
+    Validate {
+        /// The dataset folder.
+        #[arg(value_name = "DIR")]
+        dir: PathBuf,
+    },
+    /// Export to openpi's LeRobot v2.1 layout at the policy rate: frame k of an episode is
+    /// raw frame k·(fps / target-hz) (120 → 20 Hz: every 6th, ⌊len/6⌋ frames), with
+    /// `ee_image` (and `base_image`), `actions` and the state split into its fields.
+    #[command(name = "export-openpi")]
+    ExportOpenpi {
+        /// The dataset folders (the same features; several tasks make one export).
+        #[arg(value_name = "DIR", required = true)]
+        dirs: Vec<PathBuf>,
+        /// The export's folder (must not exist or be empty).
+        #[arg(long, value_name = "OUT")]
+        out: PathBuf,
+        /// The policy's rate, Hz (divides the dataset's fps).
+        #[arg(long, default_value_t = 20)]
+        target_hz: u32,
+    },
+    /// Merge datasets of several tasks (the same features) into one multi-task dataset:
+    /// episodes re-indexed in the order given, tasks numbered as they appear, statistics
+    /// aggregated.
+    Merge {
+        /// The dataset folders.
+        #[arg(value_name = "DIR", required = true)]
+        dirs: Vec<PathBuf>,
+        /// The merged dataset's folder (must not exist or be empty).
+        #[arg(long, value_name = "OUT")]
+        out: PathBuf,
+    },
+}
+
+fn dir_size(path: &Path) -> u64 {
+    std::fs::read_dir(path)
+        .map(|entries| {
+            entries
+                .flatten()
+                .map(|e| match e.metadata() {
+                    Ok(m) if m.is_dir() => dir_size(&e.path()),
+                    Ok(m) => m.len(),
+                    Err(_) => 0,
+                })
+                .sum()
+        })
+        .unwrap_or(0)
+}
+
+fn open(dir: &Path) -> Result<DatasetReader> {
+    if !dir.join("meta/info.json").is_file() {
+        return Err(bad_input(format!(
+            "{}: not a dataset (no meta/info.json)",
+            dir.display()
+        )));
+    }
+    DatasetReader::open(dir).map_err(|e| bad_input(format!("{}: {e}", dir.display())))
+}
+
+fn fresh_out(out: &Path) -> Result<()> {
+    if std::fs::read_dir(out).is_ok_and(|mut d| d.next().is_some()) {
+        return Err(bad_input(format!("--out {}: not empty", out.display())));
+    }
+    std::fs::create_dir_all(out)
+        .map_err(|e| bad_input(format!("--out {}: cannot create it: {e}", out.display())))
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    match &args.command {
+        Command::Info { dir, json } => {
+            if let Some(p) = json {
+                check_writable("--json", p)?;
+            }
+            let r = open(dir)?;
+            let size = dir_size(dir);
+            let features: Vec<_> = r
+                .spec
+                .features()
+                .iter()
+                .map(|f| json!({"key": f.key, "dtype": f.dtype.name(), "shape": f.shape}))
+                .collect();
+            let value = json!({
+                "dataset": dir.display().to_string(),
+                "codebase_version": r.info["codebase_version"],
+                "robot_type": r.spec.robot_type,
+                "episodes": r.total_episodes,
+                "frames": r.total_frames,
+                "fps": r.spec.fps,
+                "duration_s": r.total_frames as f64 / f64::from(r.spec.fps),
+                "action_semantics": r.spec.action_semantics.name(),
+                "state_keys": r.spec.state_keys,
+                "tasks": r.tasks,
+                "features": features,
+                "bytes": size,
+                "recording": r.recording,
+            });
+            println!(
+                "{}: LeRobot {} dataset of {} ({}), {} episodes, {} frames at {} fps ({:.1} s), {:.1} MB",
+                dir.display(),
+                r.info["codebase_version"].as_str().unwrap_or("?"),
+                r.spec.robot_type,
+                r.spec.action_semantics.name(),
+                r.total_episodes,
+                r.total_frames,
+                r.spec.fps,
+                r.total_frames as f64 / f64::from(r.spec.fps),
+                size as f64 / 1e6
+            );
+            for f in r.spec.features() {
+                println!("  {:<32} {:<8} {:?}", f.key, f.dtype.name(), f.shape);
+            }
+            println!("  state keys: {}", r.spec.state_keys.join(" "));
+            for (i, t) in r.tasks.iter().enumerate() {
+                println!("  task {i}: {t}");
+            }
+            if let Some(p) = json {
+                write_json(p, &value)?;
+            }
+            Ok(())
+        }
+        Command::Validate { dir } => {
+            let _ = open(dir)?;
+            let problems = validate(dir);
+            for p in &problems {
+                println!("{}: {p}", dir.display());
+            }
+            if problems.is_empty() {
+                let r = open(dir)?;
+                println!(
+                    "{}: valid ({} episodes, {} frames)",
+                    dir.display(),
+                    r.total_episodes,
+                    r.total_frames
+                );
+                Ok(())
+            } else {
+                anyhow::bail!("{} problem(s) in {}", problems.len(), dir.display())
+            }
+        }
+        Command::ExportOpenpi {
+            dirs,
+            out,
+            target_hz,
+        } => {
+            for d in dirs {
+                let _ = open(d)?;
+            }
+            fresh_out(out)?;
+            let mut progress = |e: u64| eprint!("\rexport-openpi: {e} episodes");
+            let export = export_openpi(dirs, out, *target_hz, &mut progress)?;
+            eprintln!();
+            println!(
+                "exported {} episodes, {} frames at {} Hz (every {}th of {} raw frames){} to {}",
+                export.episodes,
+                export.frames,
+                target_hz,
+                export.stride,
+                export.raw_frames,
+                if export.images {
+                    ""
+                } else {
+                    ", without images (none recorded)"
+                },
+                out.display()
+            );
+            Ok(())
+        }
+        Command::Merge { dirs, out } => {
+            for d in dirs {
+                let _ = open(d)?;
+            }
+            fresh_out(out)?;
+            let mut progress = |e: u64| eprint!("\rmerge: {e} episodes");
+            let w = merge(dirs, out, &mut progress).map_err(|e| match e {
+                policy_runtime::dataset::DatasetError::Invalid { .. } => bad_input(e.to_string()),
+                e => anyhow::Error::new(e),
+            })?;
+            eprintln!();
+            println!(
+                "merged {} datasets: {} episodes, {} frames in {}",
+                dirs.len(),
+                w.episodes(),
+                w.frames(),
+                out.display()
+            );
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,161 @@
+//! `amstack record` and `amstack dataset` as a user runs them, the dataset read back by an
+//! independent reader (pyarrow and numpy, scripts/dataset_check.py in the venv of
+//! scripts/setup-python.sh): every file agrees with the data, the openpi export's frames are
+//! every 6th source frame, bad input is one line and exit 2.
+
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "tests: fail loudly"
+)]
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use tests::process::amstack;
+use tests::{python, scripts_dir};
+
+fn run(args: &[&str]) -> Output {
+    Command::new(amstack())
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("amstack {args:?}: {e}"))
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = run(args);
+    assert!(
+        out.status.success(),
+        "amstack {args:?}: {:?}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn check(dir: &Path, openpi: Option<&Path>) -> serde_json::Value {
+    let mut cmd = Command::new(python());
+    cmd.arg(scripts_dir().join("dataset_check.py"))
+        .arg(dir)
+        .arg("--json");
+    if let Some(o) = openpi {
+        cmd.arg("--openpi").arg(o);
+    }
+    let out = cmd.output().unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "dataset_check.py printed no JSON ({e}): {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    });
+    assert!(out.status.success(), "dataset_check.py: {report}");
+    report
+}
+
+const RECORD: &[&str] = &[
+    "record",
+    "--platform",
+    "fa-hexa",
+    "--task",
+    "press-button",
+    "--episodes",
+    "2",
+    "--seed",
+    "5",
+    "--jobs",
+    "2",
+    "--cameras",
+    "ee",
+];
+
+#[test]
+fn a_recorded_dataset_is_read_back_by_pyarrow_and_exported_at_20_hz() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("press");
+    let summary = tmp.path().join("summary.json");
+    let mut args = RECORD.to_vec();
+    let d = dir.to_str().unwrap();
+    let s = summary.to_str().unwrap();
+    args.extend(["--out", d, "--json", s]);
+    ok(&args);
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&summary).unwrap()).unwrap();
+    assert_eq!(summary["dataset_episodes"], 2);
+    assert!(summary["frames_written"].as_u64().unwrap() > 100);
+    let validated = ok(&["dataset", "validate", d]);
+    assert!(validated.contains("valid (2 episodes"), "{validated}");
+    let info = ok(&["dataset", "info", d]);
+    assert!(info.contains("press the button"), "{info}");
+    // The independent reader: every file, every index and statistic.
+    let report = check(&dir, None);
+    assert_eq!(report["episodes"], 2);
+    assert!(
+        info.lines()
+            .any(|l| l.contains("observation.images.ee_camera")
+                && l.contains("image")
+                && l.contains("[384, 384, 3]")),
+        "{info}"
+    );
+    assert_eq!(report["frames"], summary["dataset_frames"]);
+    // export-openpi: 20 Hz frames equal every 6th source frame.
+    let out = tmp.path().join("openpi");
+    ok(&[
+        "dataset",
+        "export-openpi",
+        d,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let report = check(&dir, Some(&out));
+    let frames = report["frames"].as_u64().unwrap();
+    let openpi = report["openpi_frames"].as_u64().unwrap();
+    assert!(openpi <= frames / 6 && openpi + 2 >= frames / 6, "{report}");
+    // merge: the same dataset twice is one of 4 episodes with one task.
+    let merged = tmp.path().join("merged");
+    ok(&["dataset", "merge", d, d, "--out", merged.to_str().unwrap()]);
+    let report = check(&merged, None);
+    assert_eq!(report["episodes"], 4);
+    assert_eq!(report["frames"].as_u64().unwrap(), 2 * frames);
+}
+
+#[test]
+fn bad_input_is_one_line_and_exit_2() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().to_str().unwrap().to_owned();
+    std::fs::write(tmp.path().join("something"), "x").unwrap();
+    for (args, needle) in [
+        (
+            vec!["record", "--task", "press-button", "--out", d.as_str()],
+            "not empty (pass --resume",
+        ),
+        (
+            vec![
+                "record",
+                "--task",
+                "fly-to-the-moon",
+                "--out",
+                "/tmp/x-never",
+            ],
+            "unknown task",
+        ),
+        (
+            vec![
+                "record",
+                "--task",
+                "press-button",
+                "--state-keys",
+                "ee_pos,elbow",
+                "--out",
+                "/tmp/x-never",
+            ],
+            "unknown state key \"elbow\"",
+        ),
+        (vec!["dataset", "validate", d.as_str()], "not a dataset"),
+    ] {
+        let out = run(&args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert_eq!(stderr.trim().lines().count(), 1, "{args:?}: {stderr}");
+        assert!(stderr.contains(needle), "{args:?}: {stderr}");
+    }
+}
