@@ -15,7 +15,8 @@ use policy_runtime::bench::{
     BenchConfig, BenchError, BenchLink, BenchReport, EpisodeLength, RolloutResult, TaskResult,
     run_bench,
 };
-use policy_runtime::metrics::{Spread, format_or_na};
+use policy_runtime::bench::Termination;
+use policy_runtime::metrics::{Spread, Stats, format_or_na};
 use policy_runtime::{IpcLinkConfig, LinkError};
 use serde_json::{Value, json};
 use sim_twin::TaskId;
@@ -23,6 +24,7 @@ use sim_twin::TaskId;
 use crate::cli_error::bad_input;
 use crate::fly::{LinkChoice, link_choice};
 use crate::output::{check_writable, write_json};
+use crate::policy_flags::PolicyFlags;
 use crate::twin_flags::TwinFlags;
 use crate::vehicles::find_vehicle;
 
@@ -93,6 +95,8 @@ pub struct Args {
     twin: TwinFlags,
     #[command(flatten)]
     state: crate::track::StateFlags,
+    #[command(flatten)]
+    policy: PolicyFlags,
     /// Output directory: results.json, config.json and one MCAP log per rollout.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -183,6 +187,9 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         },
     };
     let twin = args.twin.twin_config()?;
+    let policy = args
+        .policy
+        .resolve(&vehicle, interface, twin.control_rate_hz)?;
     let link = match link_choice(&args.link)? {
         LinkChoice::Twin => BenchLink::InProcess,
         LinkChoice::Ipc(service) => BenchLink::Ipc(IpcLinkConfig {
@@ -225,6 +232,7 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         jobs,
         mcap_dir: args.out.as_ref().map(|d| d.join("rollouts")),
         state_source: args.state.state_source()?,
+        policy,
     })
 }
 
@@ -272,7 +280,33 @@ fn rollout_json(r: &RolloutResult) -> Value {
     if let (Some(e), Some(object)) = (&r.estimator, value.as_object_mut()) {
         object.insert("estimator".to_owned(), json!(e));
     }
+    if let (Some(p), Some(object)) = (&r.policy, value.as_object_mut()) {
+        object.insert("policy".to_owned(), json!(p));
+    }
     value
+}
+
+/// The learned policy's figures over `rollouts`: queries, latency statistics (ms), failed
+/// rollouts and their reasons.
+fn policy_json<'a>(rollouts: impl Iterator<Item = &'a RolloutResult>) -> Value {
+    let mut queries = 0;
+    let mut samples = Vec::new();
+    let mut failures = Vec::new();
+    for r in rollouts {
+        if let Some(p) = &r.policy {
+            queries += p.queries;
+            samples.extend_from_slice(&p.latency_samples_ms);
+            if let Some(why) = &p.failure {
+                failures.push(json!({ "task": r.task.name(), "index": r.index, "reason": why }));
+            }
+        }
+    }
+    json!({
+        "queries": queries,
+        "latency_ms": Stats::of(samples),
+        "policy_failed": failures.len(),
+        "failures": failures,
+    })
 }
 
 fn task_json(t: &TaskResult) -> Value {
@@ -303,6 +337,7 @@ fn task_json(t: &TaskResult) -> Value {
             "tilt_use_rad": spread_json(&s.tilt_use_rad),
             "saturation_rate": spread_json(&s.saturation_rate),
         },
+        "policy_failed": t.rollouts.iter().filter(|r| r.termination == Termination::PolicyFailed).count(),
         "per_rollout": t.rollouts.iter().map(rollout_json).collect::<Vec<_>>(),
     })
 }
@@ -320,6 +355,16 @@ pub(crate) fn results_json(
         .collect();
     let rollouts: usize = report.tasks.iter().map(|t| t.rollouts.len()).sum();
     let seconds_per_rollout = report.wall_time_s / rollouts.max(1) as f64;
+    let policy = config.policy.as_ref().map(|p| {
+        let mut value = policy_json(report.tasks.iter().flat_map(|t| &t.rollouts));
+        if let Some(object) = value.as_object_mut() {
+            object.insert("policy".to_owned(), p.endpoint.describe().into());
+            object.insert("policy_hz".to_owned(), p.policy_hz.into());
+            object.insert("action_steps".to_owned(), p.action_steps.into());
+            object.insert("latency_mode".to_owned(), json!(p.latency));
+        }
+        value
+    });
     Ok(json!({
         "schema": RESULTS_SCHEMA,
         "status": if report.interrupted { "interrupted" } else { "completed" },
@@ -335,6 +380,7 @@ pub(crate) fn results_json(
             "seconds_per_rollout": seconds_per_rollout,
             "rollouts_per_minute": 60.0 / seconds_per_rollout.max(1e-9),
         },
+        "policy": policy,
     }))
 }
 
@@ -416,7 +462,13 @@ pub fn run(args: &Args) -> Result<()> {
             "{} #{}: {}",
             r.task.name(),
             r.index,
-            if r.success { "success" } else { "fail" }
+            if r.success {
+                "success"
+            } else if r.termination == Termination::PolicyFailed {
+                "policy_failed"
+            } else {
+                "fail"
+            }
         ));
         bar.inc(1);
     };
@@ -446,6 +498,20 @@ pub fn run(args: &Args) -> Result<()> {
             estimates.iter().map(|e| e.fused).sum::<u64>(),
             estimates.iter().map(|e| e.rejected).sum::<u64>(),
         );
+    }
+    if config.policy.is_some() {
+        let p = policy_json(report.tasks.iter().flat_map(|t| &t.rollouts));
+        let ms = |q: &str| p["latency_ms"][q].as_f64().map_or("N/A".to_owned(), |x| format!("{x:.2} ms"));
+        eprintln!(
+            "policy: {} queries, latency median {}, p99 {}; {} rollout(s) policy_failed",
+            p["queries"],
+            ms("p50"),
+            ms("p99"),
+            p["policy_failed"]
+        );
+        for f in p["failures"].as_array().into_iter().flatten() {
+            eprintln!("  {} #{}: {}", f["task"].as_str().unwrap_or(""), f["index"], f["reason"].as_str().unwrap_or(""));
+        }
     }
     eprintln!(
         "{} env steps in {:.1} s ({:.0} steps/s, {} thread(s))",

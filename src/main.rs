@@ -10,6 +10,7 @@ mod fly;
 mod mpc_bench;
 mod output;
 mod platforms;
+mod policy_flags;
 mod plot;
 mod px4_hil;
 mod render_frame;

@@ -71,6 +71,8 @@ pub struct Args {
     scene: SceneFlag,
     #[command(flatten)]
     state: StateFlags,
+    #[command(flatten)]
+    pub(crate) policy: crate::policy_flags::PolicyFlags,
     /// Write the scores as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -406,7 +408,7 @@ impl Args {
 
 /// Whether `--trajectory` asks for the task's scripted policy.
 pub(crate) fn is_scripted(args: &Args) -> bool {
-    args.trajectory == SCRIPTED
+    args.trajectory == SCRIPTED || args.policy.policy.is_some()
 }
 
 /// `--trajectory scripted`.
@@ -428,7 +430,7 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
     args.scene.apply(&mut twin)?;
     let Some(task) = twin.task else {
         return Err(bad_input(
-            "--trajectory scripted: name the task whose script to fly with --task (the names of \
+            "--trajectory scripted and --policy: name the task to fly with --task (the names of \
              `amstack bench --help`)",
         ));
     };
@@ -463,6 +465,9 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
         args.controller
     );
     let link_name = link.name();
+    let policy = args
+        .policy
+        .resolve(&vehicle, interface, twin.control_rate_hz)?;
     let config = BenchConfig {
         vehicle,
         controller,
@@ -477,11 +482,16 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
         mcap_dir: None,
         link,
         state_source,
+        policy,
     };
     eprintln!(
-        "flying {}'s scripted policy (seed {}) on {} ({}, {} interface) over {link_name}, \
+        "flying {}'s {} (seed {}) on {} ({}, {} interface) over {link_name}, \
          disturbances: {}",
         task.name(),
+        config.policy.as_ref().map_or_else(
+            || "scripted policy".to_owned(),
+            |p| format!("policy {}", p.endpoint.describe())
+        ),
         config.seed,
         config.vehicle.id,
         config.controller_name,

@@ -29,8 +29,10 @@ use sim_twin::{TaskId, TwinConfig, TwinError};
 
 pub use self::episode::BenchLink;
 use crate::flight::{
-    ActionNoise, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask, TaskCriteria,
+    ActionNoise, ActionSource, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask,
+    TaskCriteria,
 };
+use crate::policy::{PolicyConfig, PolicySource, PolicyStats, task_prompt};
 use crate::flight_log::FlightLog;
 use crate::link::LinkError;
 use crate::metrics::{RolloutSummary, RunSummary, summarize_rollout, summarize_run};
@@ -70,6 +72,8 @@ pub struct BenchConfig {
     pub link: BenchLink,
     /// Where the controllers' base state comes from (the measurement, or the estimator).
     pub state_source: StateSource,
+    /// A learned policy instead of the scripted ones (its prompt defaults to the task's).
+    pub policy: Option<PolicyConfig>,
 }
 
 pub use crate::flight::EpisodeLength;
@@ -88,6 +92,9 @@ pub enum Termination {
     Diverged,
     /// Stopped on request.
     Interrupted,
+    /// The learned policy failed (unreachable, died, timed out, or answered something that
+    /// must not be flown): the rollout's `policy.failure` says why.
+    PolicyFailed,
 }
 
 /// One rollout's result.
@@ -120,6 +127,9 @@ pub struct RolloutResult {
     /// The estimator's figures (with `--state-source estimator`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub estimator: Option<EstimatorSummary>,
+    /// The learned policy's queries, latencies and failure (with a policy).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub policy: Option<PolicyStats>,
 }
 
 /// A rollout that could not run at all.
@@ -271,7 +281,25 @@ pub fn run_rollout_logged(
         limits_n,
         usize::try_from(task.max_steps(rate_hz)).unwrap_or(0),
     );
-    let mut source = ScriptedTask::new(task, seed, rate_hz, config.episode);
+    let mut scripted = ScriptedTask::new(task, seed, rate_hz, config.episode);
+    let mut learned = match &config.policy {
+        None => None,
+        Some(policy) => Some(
+            PolicySource::new(
+                policy,
+                vehicle,
+                config.interface,
+                rate_hz,
+                task_prompt(task),
+            )
+            .map_err(|message| BenchError::Policy { task, message })?
+            .with_tick_limit(config.episode.max_steps(task, rate_hz, 0)),
+        ),
+    };
+    let source: &mut dyn ActionSource = match &mut learned {
+        Some(l) => l,
+        None => &mut scripted,
+    };
     let flown = {
         // The criteria latch fills the task state the log writes after it.
         let mut observers: Vec<&mut dyn Observer> = vec![&mut criteria];
@@ -282,7 +310,7 @@ pub fn run_rollout_logged(
         crate::flight::run(
             link.as_mut(),
             &mut stack,
-            &mut source,
+            source,
             &mut observers,
             FlightSpec {
                 max_ticks: task.max_steps(rate_hz),
@@ -309,6 +337,7 @@ pub fn run_rollout_logged(
         End::Interrupted => Termination::Interrupted,
         End::NanAction => Termination::NanAction,
         End::Diverged(_) => Termination::Diverged,
+        End::PolicyFailed(_) => Termination::PolicyFailed,
     };
     let success = termination == Termination::Success;
     let reach = arm_reach_m(vehicle);
@@ -330,6 +359,7 @@ pub fn run_rollout_logged(
         wall_time_s: started.elapsed().as_secs_f64(),
         mcap,
         estimator: flown.estimator,
+        policy: learned.map(|l| l.stats()),
     })
 }
 

@@ -361,6 +361,7 @@ fn bench(
         mcap_dir: None,
         link: policy_runtime::bench::BenchLink::InProcess,
         state_source: StateSource::Truth,
+        policy: None,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     policy_runtime::bench::run_bench(&config, &|_| {}, &stop).unwrap_or_else(|e| panic!("{e}"))
