@@ -13,7 +13,11 @@ records, every channel with its schema name, encodings and message count, and ch
     anyOf/oneOf) -- so NaN logged as null in a number field is caught;
   - for a complete file, the summary's statistics agree with the messages streamed;
   - each --expect TOPIC=COUNT (a topic absent from the file counts 0);
-  - with --require-complete, that the file ends with its footer (a finished run).
+  - with --require-complete, that the file ends with its footer (a finished run);
+  - every foxglove.CompressedImage decodes: base64, then PNG (signature, IHDR, CRCs, the
+    inflated IDAT holding exactly height rows of width pixels) or JPEG (SOI/EOI markers); its
+    size and a SHA-256 of its bytes per message are reported under "images" (by topic), and a
+    PNG's size must match the width/height of the camera's foxglove.CameraCalibration.
 
 Exit status: 0 when every check passes, 1 when one fails or the file is not MCAP, 2 on bad
 usage. --json prints one JSON object instead of text (same content). Run it with the venv that
@@ -21,8 +25,12 @@ scripts/setup-python.sh creates:  "$(scripts/setup-python.sh)" scripts/mcap_chec
 """
 
 import argparse
+import base64
+import hashlib
 import json
+import struct
 import sys
+import zlib
 
 try:
     from mcap.records import Channel, Footer, Header, Message, Metadata, Schema, Statistics
@@ -33,6 +41,58 @@ except ImportError:  # pragma: no cover - environment problem, not a check failu
     sys.exit(2)
 
 MAX_ERRORS_SHOWN = 20
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# Bytes per pixel of 8-bit PNG colour types: grey, RGB, palette, grey+alpha, RGBA.
+PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
+
+
+def decode_png(data):
+    """(width, height) of a PNG whose chunks and pixel data are whole; raises ValueError."""
+    if not data.startswith(PNG_SIGNATURE):
+        raise ValueError("no PNG signature")
+    at, width, height, channels, idat = 8, None, None, None, b""
+    while at < len(data):
+        if at + 8 > len(data):
+            raise ValueError("truncated chunk header")
+        length, kind = struct.unpack(">I4s", data[at:at + 8])
+        body = data[at + 8:at + 8 + length]
+        crc = data[at + 8 + length:at + 12 + length]
+        if len(body) != length or len(crc) != 4:
+            raise ValueError(f"truncated {kind!r} chunk")
+        if zlib.crc32(kind + body) != struct.unpack(">I", crc)[0]:
+            raise ValueError(f"bad CRC in {kind!r} chunk")
+        if kind == b"IHDR":
+            width, height, depth, colour = struct.unpack(">IIBB", body[:10])
+            if depth != 8 or colour not in PNG_CHANNELS:
+                raise ValueError(f"unexpected bit depth {depth} / colour type {colour}")
+            channels = PNG_CHANNELS[colour]
+        elif kind == b"IDAT":
+            idat += body
+        elif kind == b"IEND":
+            break
+        at += 12 + length
+    if width is None:
+        raise ValueError("no IHDR chunk")
+    raw = zlib.decompress(idat)
+    if len(raw) != height * (1 + width * channels):
+        raise ValueError(f"pixel data of {len(raw)} bytes for {width}x{height}")
+    return width, height
+
+
+def check_image(payload):
+    """(format, width or None, height or None, sha256) of a foxglove.CompressedImage."""
+    data = base64.b64decode(payload.get("data", ""), validate=True)
+    fmt = payload.get("format")
+    digest = hashlib.sha256(data).hexdigest()
+    if fmt == "png":
+        w, h = decode_png(data)
+        return fmt, w, h, digest
+    if fmt == "jpeg":
+        if not (data.startswith(b"\xff\xd8") and data.endswith(b"\xff\xd9")):
+            raise ValueError("not a JPEG (SOI/EOI markers missing)")
+        return fmt, None, None, digest
+    raise ValueError(f"unknown image format {fmt!r}")
 
 
 def type_ok(value, typ):
@@ -121,11 +181,13 @@ def check(path, expected, require_complete):
         "channels": [],
         "message_count": 0,
         "summary_statistics": None,
+        "images": {},
         "errors": [],
     }
     errors = report["errors"]
     schemas, channels, counts = {}, {}, {}
     parsed_schemas = {}
+    calibrations = {}
     stats = None
     try:
         with open(path, "rb") as f:
@@ -171,6 +233,21 @@ def check(path, expected, require_complete):
                         parsed_schemas[channel.schema_id] = schema
                     for problem in validate(payload, schema if schema is not None else True):
                         errors.append(f"{channel.topic} #{record.sequence}: {problem}")
+                    name = schemas[channel.schema_id].name if channel.schema_id in schemas else None
+                    if name == "foxglove.CompressedImage":
+                        entry = report["images"].setdefault(channel.topic, {
+                            "count": 0, "format": None, "width": None, "height": None,
+                            "sha256": []})
+                        try:
+                            fmt, w, h, digest = check_image(payload)
+                        except (ValueError, TypeError, zlib.error) as e:
+                            errors.append(f"{channel.topic} #{record.sequence}: image: {e}")
+                            continue
+                        entry["count"] += 1
+                        entry["format"], entry["width"], entry["height"] = fmt, w, h
+                        entry["sha256"].append(digest)
+                    elif name == "foxglove.CameraCalibration":
+                        calibrations[channel.topic] = (payload.get("width"), payload.get("height"))
     except OSError as e:
         errors.append(f"cannot read {path}: {e}")
         return report
@@ -212,6 +289,12 @@ def check(path, expected, require_complete):
         got = by_topic.get(topic, 0)
         if got != want:
             errors.append(f"expected {want} messages on {topic}, found {got}")
+    for topic, entry in sorted(report["images"].items()):
+        calibration = topic[: -len("/image")] + "/calibration" if topic.endswith("/image") else None
+        size = calibrations.get(calibration)
+        if size is not None and entry["width"] is not None and size != (entry["width"], entry["height"]):
+            errors.append(f"{topic}: {entry['width']}x{entry['height']} images, "
+                          f"calibration says {size[0]}x{size[1]}")
     if require_complete and not report["complete"]:
         errors.append(f"file is not complete (no footer): {report['stopped_by']}")
     return report
@@ -236,6 +319,8 @@ def print_text(report):
         p(f"  {c['topic']:<{width}}  {c['schema_name']} ({c['schema_encoding']}, {c['message_encoding']})"
           f"  {c['count']} messages")
     p(f"messages: {report['message_count']}")
+    for topic, entry in sorted(report["images"].items()):
+        p(f"  {topic}: {entry['count']} {entry['format']} images, {entry['width']}x{entry['height']}")
     if report["summary_statistics"]:
         s = report["summary_statistics"]
         p(f"summary: {s['message_count']} messages in {s['chunk_count']} chunks, "

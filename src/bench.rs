@@ -11,11 +11,11 @@ use comfy_table::{Table, presets};
 use controllers::{ControllerKind, profile};
 use indicatif::{ProgressBar, ProgressStyle};
 use policy_runtime::Interface;
+use policy_runtime::bench::Termination;
 use policy_runtime::bench::{
     BenchConfig, BenchError, BenchLink, BenchReport, EpisodeLength, RolloutResult, TaskResult,
     run_bench,
 };
-use policy_runtime::bench::Termination;
 use policy_runtime::metrics::{Spread, Stats, format_or_na};
 use policy_runtime::{IpcLinkConfig, LinkError};
 use serde_json::{Value, json};
@@ -97,6 +97,8 @@ pub struct Args {
     state: crate::track::StateFlags,
     #[command(flatten)]
     policy: PolicyFlags,
+    #[command(flatten)]
+    cameras: crate::camera_flags::CameraFlags,
     /// Output directory: results.json, config.json and one MCAP log per rollout.
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -187,9 +189,12 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         },
     };
     let twin = args.twin.twin_config()?;
-    let policy = args
-        .policy
-        .resolve(&vehicle, interface, twin.control_rate_hz)?;
+    let policy = args.policy.resolve(
+        &vehicle,
+        interface,
+        twin.control_rate_hz,
+        &args.cameras.names(),
+    )?;
     let link = match link_choice(&args.link)? {
         LinkChoice::Twin => BenchLink::InProcess,
         LinkChoice::Ipc(service) => BenchLink::Ipc(IpcLinkConfig {
@@ -218,7 +223,15 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         (BenchLink::Ipc(_), _) => 1,
         _ => jobs,
     };
+    if args.cameras.any() && !matches!(link, BenchLink::InProcess) {
+        return Err(bad_input(format!(
+            "--cameras with --link {}: the cameras are rendered from the twin in this process;              run with --link twin",
+            args.link
+        )));
+    }
+    let cameras = args.cameras.config(&vehicle)?;
     Ok(BenchConfig {
+        cameras,
         link,
         episode,
         vehicle,
@@ -501,7 +514,11 @@ pub fn run(args: &Args) -> Result<()> {
     }
     if config.policy.is_some() {
         let p = policy_json(report.tasks.iter().flat_map(|t| &t.rollouts));
-        let ms = |q: &str| p["latency_ms"][q].as_f64().map_or("N/A".to_owned(), |x| format!("{x:.2} ms"));
+        let ms = |q: &str| {
+            p["latency_ms"][q]
+                .as_f64()
+                .map_or("N/A".to_owned(), |x| format!("{x:.2} ms"))
+        };
         eprintln!(
             "policy: {} queries, latency median {}, p99 {}; {} rollout(s) policy_failed",
             p["queries"],
@@ -510,7 +527,12 @@ pub fn run(args: &Args) -> Result<()> {
             p["policy_failed"]
         );
         for f in p["failures"].as_array().into_iter().flatten() {
-            eprintln!("  {} #{}: {}", f["task"].as_str().unwrap_or(""), f["index"], f["reason"].as_str().unwrap_or(""));
+            eprintln!(
+                "  {} #{}: {}",
+                f["task"].as_str().unwrap_or(""),
+                f["index"],
+                f["reason"].as_str().unwrap_or("")
+            );
         }
     }
     eprintln!(

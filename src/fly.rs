@@ -196,6 +196,13 @@ pub fn run(args: &FlyArgs) -> Result<()> {
     if let Some(p) = &args.timing_json {
         check_writable("--timing-json", p)?;
     }
+    if args.track.wants_cameras() && !matches!(choice, LinkChoice::Twin) {
+        return Err(bad_input(format!(
+            "--cameras with --link {}: the cameras are rendered from the twin in this process; \
+             fly with --link twin (or run `amstack track`)",
+            args.link
+        )));
+    }
     if track::is_scripted(&args.track) {
         let link = match choice {
             LinkChoice::Twin => BenchLink::InProcess,

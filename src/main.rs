@@ -4,14 +4,15 @@
 //! Exit codes: 0 success, 2 bad input (one line on stderr naming what was wrong), 1 failure.
 
 mod bench;
+mod camera_flags;
 mod cli_error;
 mod compare;
 mod fly;
 mod mpc_bench;
 mod output;
 mod platforms;
-mod policy_flags;
 mod plot;
+mod policy_flags;
 mod px4_hil;
 mod render_frame;
 mod replay;

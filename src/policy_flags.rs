@@ -21,7 +21,8 @@ pub struct PolicyFlags {
     /// Fly a learned policy instead of the task's script: `remote:ws://HOST:PORT` (an openpi
     /// policy server) or `onnx:FILE` (an ONNX model with its sidecar FILE.json,
     /// docs/policies.md). Queried every --action-steps macro steps at --policy-hz, each
-    /// macro action interpolated into control-rate setpoints (AMBENCH_SPEC §5.3).
+    /// macro action interpolated into control-rate setpoints (AMBENCH_SPEC §5.3). With
+    /// --cameras ee[,base] it also sees the cameras' images.
     #[arg(long, value_name = "remote:ws://HOST:PORT|onnx:FILE")]
     pub policy: Option<String>,
     /// Language instruction sent with each query [default: the task's, AMBENCH_SPEC §7.1].
@@ -52,12 +53,14 @@ pub struct PolicyFlags {
 }
 
 impl PolicyFlags {
-    /// The policy to fly `vehicle` through `interface` at `control_hz`, if one is asked for.
+    /// The policy to fly `vehicle` through `interface` at `control_hz`, if one is asked for;
+    /// `cameras`: the flight's (`--cameras`), whose `ee` and `base` images the policy sees.
     pub fn resolve(
         &self,
         vehicle: &Vehicle,
         interface: Interface,
         control_hz: f64,
+        cameras: &[String],
     ) -> Result<Option<PolicyConfig>> {
         let Some(text) = &self.policy else {
             return Ok(None);
@@ -106,15 +109,25 @@ impl PolicyFlags {
                 Some(keys) if *keys != side.state.keys => {
                     return Err(bad_input(format!(
                         "--state-keys: the model's sidecar takes {}",
-                        side.state.keys.iter().map(|k| k.name()).collect::<Vec<_>>().join(",")
+                        side.state
+                            .keys
+                            .iter()
+                            .map(|k| k.name())
+                            .collect::<Vec<_>>()
+                            .join(",")
                     )));
                 }
                 _ => state_keys = Some(side.state.keys.clone()),
             }
-            if !side.images.is_empty() {
+            if let Some(image) = side.images.iter().find(|i| {
+                let camera = i.key.trim_end_matches("_image");
+                !cameras
+                    .iter()
+                    .any(|c| c == camera || *c == format!("{camera}_camera"))
+            }) {
                 return Err(bad_input(format!(
-                    "--policy {text}: the model takes camera images; this build feeds \
-                     state-only policies (no cameras in the flight loop yet)"
+                    "--policy {text}: the model takes the image {}; add its camera to --cameras",
+                    image.key
                 )));
             }
             rates = side.rates;
@@ -141,7 +154,9 @@ impl PolicyFlags {
             .or(rates.map(|r| r.action_steps))
             .unwrap_or(8);
         if action_steps == 0 {
-            return Err(bad_input("--action-steps 0: execute at least one action per query"));
+            return Err(bad_input(
+                "--action-steps 0: execute at least one action per query",
+            ));
         }
         let latency = PolicyLatency::parse(&self.policy_latency)
             .map_err(|e| bad_input(format!("--policy-latency {e}")))?;

@@ -73,6 +73,8 @@ pub struct Args {
     state: StateFlags,
     #[command(flatten)]
     pub(crate) policy: crate::policy_flags::PolicyFlags,
+    #[command(flatten)]
+    cameras: crate::camera_flags::CameraFlags,
     /// Write the scores as JSON.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -264,7 +266,9 @@ fn config(args: &Args) -> Result<TrackConfig> {
     } else {
         Interface::BaseJoint
     };
+    let cameras = args.cameras.config(&vehicle)?;
     Ok(TrackConfig {
+        cameras,
         vehicle,
         controller,
         trajectory,
@@ -400,6 +404,11 @@ pub(crate) fn run_with(
 }
 
 impl Args {
+    /// Whether the flight renders cameras (`--cameras`).
+    pub(crate) fn wants_cameras(&self) -> bool {
+        self.cameras.any()
+    }
+
     /// Whether the flight writes an MCAP log (`--mcap`).
     pub(crate) fn logs_mcap(&self) -> bool {
         self.mcap.is_some()
@@ -465,10 +474,20 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
         args.controller
     );
     let link_name = link.name();
-    let policy = args
-        .policy
-        .resolve(&vehicle, interface, twin.control_rate_hz)?;
+    let policy = args.policy.resolve(
+        &vehicle,
+        interface,
+        twin.control_rate_hz,
+        &args.cameras.names(),
+    )?;
+    if args.cameras.any() && !matches!(link, BenchLink::InProcess) {
+        return Err(bad_input(format!(
+            "--cameras over {link_name}: the cameras are rendered from the twin in this              process; fly with --link twin"
+        )));
+    }
+    let cameras = args.cameras.config(&vehicle)?;
     let config = BenchConfig {
+        cameras,
         vehicle,
         controller,
         controller_name,

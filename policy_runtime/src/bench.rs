@@ -29,13 +29,13 @@ use sim_twin::{TaskId, TwinConfig, TwinError};
 
 pub use self::episode::BenchLink;
 use crate::flight::{
-    ActionNoise, ActionSource, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask,
-    TaskCriteria,
+    ActionNoise, ActionSource, BenchMetrics, CameraConfig, End, FlightError, FlightSpec, Observer,
+    ScriptedTask, TaskCriteria,
 };
-use crate::policy::{PolicyConfig, PolicySource, PolicyStats, task_prompt};
 use crate::flight_log::FlightLog;
 use crate::link::LinkError;
 use crate::metrics::{RolloutSummary, RunSummary, summarize_rollout, summarize_run};
+use crate::policy::{PolicyConfig, PolicySource, PolicyStats, task_prompt};
 use crate::record::{McapRecorder, RecordError, RunMetadata};
 use crate::stack::{FlightStack, Interface, StackError};
 use crate::state_source::{EstimateError, EstimatorSummary, StateSource};
@@ -74,6 +74,8 @@ pub struct BenchConfig {
     pub state_source: StateSource,
     /// A learned policy instead of the scripted ones (its prompt defaults to the task's).
     pub policy: Option<PolicyConfig>,
+    /// The cameras rendered in each rollout (the in-process twin only), if any.
+    pub cameras: Option<CameraConfig>,
 }
 
 pub use crate::flight::EpisodeLength;
@@ -159,6 +161,9 @@ pub enum BenchError {
     /// The state estimator could not start or diverged.
     #[error(transparent)]
     Estimate(#[from] EstimateError),
+    /// The cameras could not be rendered.
+    #[error("{0}")]
+    Cameras(String),
 }
 
 impl BenchError {
@@ -172,6 +177,9 @@ impl BenchError {
                 task,
                 message: e.to_string(),
             },
+            // Cameras over a link that cannot render them: the user's choice of link.
+            e @ FlightError::CamerasNeedTwin(_) => Self::Link(LinkError::Refused(e.to_string())),
+            e @ FlightError::Cameras(_) => Self::Cameras(e.to_string()),
         }
     }
 }
@@ -261,6 +269,14 @@ pub fn run_rollout_logged(
     };
     let criteria_names = task.criteria_names();
     let mut criteria = TaskCriteria::new(criteria_names.len(), true);
+    // The cameras first: a machine that cannot render leaves no log behind.
+    let mut rig = match &config.cameras {
+        Some(c) => Some(
+            c.rig(vehicle)
+                .map_err(|e| BenchError::Cameras(e.to_string()))?,
+        ),
+        None => None,
+    };
     let mut log = match log_path {
         None => None,
         Some(path) => {
@@ -271,7 +287,8 @@ pub fn run_rollout_logged(
                 .with_controller_config(&config.controller)?;
             Some(
                 FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
-                    .with_rotor_limits(twin_config.disturbances.saturation),
+                    .with_rotor_limits(twin_config.disturbances.saturation)
+                    .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
             )
         }
     };
@@ -322,6 +339,7 @@ pub fn run_rollout_logged(
                 interface: Some(config.interface),
                 action_noise,
                 stop: Some(stop),
+                cameras: rig.as_mut(),
             },
         )
     };

@@ -18,6 +18,9 @@
 //! | `/estimator/state` | amstack.EstimatorState | the estimate the controllers flew on (`--state-source estimator`), its deviations, biases, innovations |
 //! | `/autopilot/state` | amstack.AutopilotState | MAVLink flights: what the autopilot says about itself, the link's counters |
 //! | `/mavlink/raw` | amstack.MavlinkRaw | MAVLink flights: every frame in and out, bytes as on the wire |
+//! | `/camera/<name>/image` | foxglove.CompressedImage | flights with cameras: the camera's PNG every Nth observation |
+//! | `/camera/<name>/calibration` | foxglove.CameraCalibration | its intrinsics (K, P), with each image |
+//! | `/camera/tf` | foxglove.FrameTransforms | world→camera (ROS optical frame), with each image set |
 //!
 //! A link's own channels (the MAVLink link: the last two) are the messages it returns from
 //! [`crate::Link::drain_messages`], written by [`FlightLog::link_messages`].
@@ -33,11 +36,14 @@ use platform::{Measurement, Vehicle};
 use schemars::JsonSchema;
 use serde::Serialize;
 
+use crate::flight::Frames;
 pub use crate::link_channels::{
     AUTOPILOT_STATE_TOPIC, AutopilotStateMessage, LinkCounters, MAVLINK_RAW_TOPIC, MavlinkRawFrame,
 };
 use crate::link_channels::{LinkMessage, LinkPayload};
-use crate::record::foxglove::{FrameTransform, FrameTransforms, PoseInFrame};
+use crate::record::foxglove::{
+    CameraCalibration, CompressedImage, FrameTransform, FrameTransforms, PoseInFrame, Time,
+};
 use crate::record::{Channel, McapRecorder, RecordError, SchemaName};
 use crate::stack::{Action, BaseJointTarget, EeTarget, TickRecord};
 
@@ -471,6 +477,14 @@ schema_names!(
     EstimatorState
 );
 
+/// One camera's channels.
+#[derive(Debug)]
+struct CameraChannels {
+    name: String,
+    image: Channel<CompressedImage>,
+    calibration: Channel<CameraCalibration>,
+}
+
 /// The open channels of one flight log.
 #[derive(Debug)]
 pub struct FlightLog {
@@ -496,6 +510,14 @@ pub struct FlightLog {
     estimate: Option<Channel<EstimatorState>>,
     /// A link's own channels, each opened on its first message.
     link_channels: LinkChannels,
+    /// The cameras' channels, opened on the first images logged.
+    cameras: Vec<CameraChannels>,
+    /// `/camera/tf`, opened with the cameras' channels.
+    camera_tf: Option<Channel<FrameTransforms>>,
+    /// The cameras are logged at every this many-th observation (0: never).
+    camera_every: u64,
+    /// PNG scratch.
+    png: Vec<u8>,
     joint_names: Vec<String>,
     limits: (f64, f64),
     /// Whether the flight's rotors are limited (else `/rotors.saturated` counts only clamped
@@ -527,6 +549,10 @@ impl FlightLog {
             task: None,
             estimate: None,
             link_channels: LinkChannels::default(),
+            cameras: Vec::new(),
+            camera_tf: None,
+            camera_every: 0,
+            png: Vec::new(),
             joint_names: (0..vehicle.model.dof())
                 .map(|d| vehicle.model.dof_joint(d).name.clone())
                 .collect(),
@@ -542,6 +568,81 @@ impl FlightLog {
     pub fn with_rotor_limits(mut self, enforced: bool) -> Self {
         self.limits_enforced = enforced;
         self
+    }
+
+    /// Logs the flight's camera images at every `every`-th observation (k = 0, every, 2·every,
+    /// …; 0: never) — as a flight observer it asks for them on those ticks only.
+    pub fn with_camera_log(mut self, every: u64) -> Self {
+        self.camera_every = every;
+        self
+    }
+
+    /// The camera log's period in observations (0: cameras not logged).
+    pub fn camera_log_every(&self) -> u64 {
+        self.camera_every
+    }
+
+    /// Logs the images of one observation: per camera its PNG (`/camera/<name>/image`), its
+    /// calibration (`/camera/<name>/calibration`), and the cameras' world poses
+    /// (`/camera/tf`), at the observation's time.
+    pub fn cameras(&mut self, frames: &Frames) -> Result<(), RecordError> {
+        use base64::Engine as _;
+        let t = nanos(frames.time_s);
+        let stamp = Time::from_nanos(t);
+        let mut tf = FrameTransforms::default();
+        for frame in &frames.cameras {
+            let index = match self.cameras.iter().position(|c| c.name == frame.name) {
+                Some(i) => i,
+                None => {
+                    let topic = format!("/camera/{}", frame.name);
+                    let channels = CameraChannels {
+                        name: frame.name.clone(),
+                        image: self.recorder.channel(&format!("{topic}/image"))?,
+                        calibration: self.recorder.channel(&format!("{topic}/calibration"))?,
+                    };
+                    self.cameras.push(channels);
+                    self.cameras.len() - 1
+                }
+            };
+            let channels = &self.cameras[index];
+            self.png.clear();
+            frame
+                .image
+                .write_png(&mut self.png)
+                .map_err(|e| RecordError::Image {
+                    topic: channels.image.topic().to_owned(),
+                    message: e.to_string(),
+                })?;
+            let image = CompressedImage {
+                timestamp: stamp,
+                frame_id: frame.name.clone(),
+                data: base64::engine::general_purpose::STANDARD.encode(&self.png),
+                format: "png".to_owned(),
+            };
+            self.recorder.log(&channels.image, t, &image)?;
+            let k = &frame.intrinsics;
+            let calibration = CameraCalibration::pinhole(
+                stamp,
+                frame.name.clone(),
+                frame.image.width,
+                frame.image.height,
+                [k.fx, k.fy, k.cx, k.cy],
+            );
+            self.recorder.log(&channels.calibration, t, &calibration)?;
+            tf.transforms.push(FrameTransform::new(
+                t,
+                "world",
+                frame.name.clone(),
+                &frame.world_from_camera,
+            ));
+        }
+        let channel = match self.camera_tf.take() {
+            Some(c) => c,
+            None => self.recorder.channel("/camera/tf")?,
+        };
+        let logged = self.recorder.log(&channel, t, &tf);
+        self.camera_tf = Some(channel);
+        logged
     }
 
     /// Logs one tick: the measurement it acted on, what it decided, the EE reference.

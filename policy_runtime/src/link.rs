@@ -14,7 +14,7 @@
 
 use estimator::{ImuSample, OdometryMeasurement};
 use platform::{ActuatorCommand, AttitudeSetpoint, Measurement};
-use sim_twin::{TaskSnapshot, Twin, TwinError};
+use sim_twin::{SceneVisual, TaskSnapshot, Twin, TwinError};
 
 pub use crate::link_channels::LinkMessage;
 
@@ -164,6 +164,19 @@ pub trait Link {
     fn drain_messages(&mut self, time_s: f64, out: &mut Vec<LinkMessage>) {
         let _ = (time_s, out);
     }
+
+    /// The scene's visual shapes, for a link whose cameras can be rendered (the in-process
+    /// twin); `None` (the default): this link cannot render cameras.
+    fn camera_scene(&self) -> Option<Vec<SceneVisual>> {
+        None
+    }
+
+    /// Fills `state` with what the cameras draw now (the vehicle's pose and joints, the
+    /// scene's object poses, exact); false (the default): this link cannot render cameras.
+    fn camera_state(&self, state: &mut render::Snapshot) -> bool {
+        let _ = state;
+        false
+    }
 }
 
 /// The twin in this process: `send` advances it one control period (lockstep).
@@ -225,5 +238,14 @@ impl Link for TwinLink {
 
     fn task(&self) -> Option<TaskSnapshot> {
         self.twin.task_snapshot()
+    }
+
+    fn camera_scene(&self) -> Option<Vec<SceneVisual>> {
+        Some(self.twin.scene_visuals())
+    }
+
+    fn camera_state(&self, state: &mut render::Snapshot) -> bool {
+        state.update_from_twin(&self.twin);
+        true
     }
 }

@@ -22,7 +22,8 @@ use serde::Serialize;
 use sim_twin::{Twin, TwinConfig};
 
 use crate::flight::{
-    ActionNoise, End, FlightError, FlightSpec, Observer, Progress, TrackMetrics, TrajectorySource,
+    ActionNoise, CameraConfig, End, FlightError, FlightSpec, Observer, Progress, TrackMetrics,
+    TrajectorySource,
 };
 use crate::flight_log::FlightLog;
 use crate::link::{Link, LinkError, TwinLink};
@@ -57,6 +58,8 @@ pub struct TrackConfig {
     /// The MPC's solve-budget clock (None in the twin: results must not depend on the wall
     /// clock; a flight on hardware may pass one).
     pub clock: Option<Clock>,
+    /// The cameras rendered in the flight (the in-process twin only), if any.
+    pub cameras: Option<CameraConfig>,
 }
 
 /// The scores of one flight.
@@ -132,6 +135,9 @@ pub enum TrackError {
         /// Simulated time reached, s.
         at_s: f64,
     },
+    /// The cameras could not be rendered.
+    #[error("{0}")]
+    Cameras(String),
     /// The flight stack produced a non-finite setpoint (nothing was sent).
     #[error("the flight stack produced a non-finite setpoint at t = {at_s:.3} s; it was not sent")]
     NonFinite {
@@ -148,6 +154,9 @@ impl From<FlightError> for TrackError {
             FlightError::Estimate(e) => Self::Estimate(e),
             FlightError::Stack(e) => Self::Stack(e),
             FlightError::Source(e) => Self::Config(e.to_string()),
+            // Cameras over a link that cannot render them: the user's choice of link.
+            e @ FlightError::CamerasNeedTwin(_) => Self::Link(LinkError::Refused(e.to_string())),
+            e @ FlightError::Cameras(_) => Self::Cameras(e.to_string()),
         }
     }
 }
@@ -198,6 +207,14 @@ pub fn run_track_with_link(
     let dt = config.twin.control_dt_s();
     let mut stack = FlightStack::for_twin(vehicle.clone(), &config.controller, &config.twin)?
         .with_clock(config.clock.clone());
+    // The cameras first: a machine that cannot render leaves no log behind.
+    let mut rig = match &config.cameras {
+        Some(c) => Some(
+            c.rig(vehicle)
+                .map_err(|e| TrackError::Cameras(e.to_string()))?,
+        ),
+        None => None,
+    };
     let mut log = match &config.mcap {
         None => None,
         Some(path) => {
@@ -208,7 +225,8 @@ pub fn run_track_with_link(
                 .with_controller_config(&config.controller)?;
             Some(
                 FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
-                    .with_rotor_limits(config.twin.disturbances.saturation),
+                    .with_rotor_limits(config.twin.disturbances.saturation)
+                    .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
             )
         }
     };
@@ -251,6 +269,7 @@ pub fn run_track_with_link(
                 interface: Some(config.interface),
                 action_noise,
                 stop: None,
+                cameras: rig.as_mut(),
             },
         )
     };

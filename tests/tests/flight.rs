@@ -23,6 +23,7 @@ fn flight(
     let v = vehicle(id);
     let controller = profile(&v, kind).unwrap_or_else(|e| panic!("{id}: {e}"));
     TrackConfig {
+        cameras: None,
         vehicle: v,
         controller,
         trajectory,
@@ -348,6 +349,7 @@ fn bench(
 ) -> policy_runtime::bench::BenchReport {
     let v = vehicle(id);
     let config = policy_runtime::bench::BenchConfig {
+        cameras: None,
         controller: profile(&v, kind).unwrap_or_else(|e| panic!("{id}: {e}")),
         controller_name: "test".to_owned(),
         vehicle: v,

@@ -132,8 +132,14 @@ fn a_remote_policy_flies_through_openpi_s_protocol() {
             "prompt"
         ]
     );
-    assert_eq!(requests[0]["keys"]["am_bench/ee_pos"], serde_json::json!(["float32", [3]]));
-    assert_eq!(requests[0]["keys"]["am_bench/ee_quat"], serde_json::json!(["float32", [4]]));
+    assert_eq!(
+        requests[0]["keys"]["am_bench/ee_pos"],
+        serde_json::json!(["float32", [3]])
+    );
+    assert_eq!(
+        requests[0]["keys"]["am_bench/ee_quat"],
+        serde_json::json!(["float32", [4]])
+    );
     // The chunks were flown: the end-effector went to the goal, 10 cm ahead and 10 cm up
     // of where it started (observed by the server at the last query, tick 432).
     let position = |q: &Value| -> Vec<f64> {
@@ -216,7 +222,10 @@ fn a_silent_server_times_out() {
 
 #[test]
 fn a_wrong_shape_is_refused() {
-    broken("wrong-shape", "wrong shape: actions (10, 7), expected (>= 8, 8)");
+    broken(
+        "wrong-shape",
+        "wrong shape: actions (10, 7), expected (>= 8, 8)",
+    );
 }
 
 #[test]
@@ -226,7 +235,10 @@ fn a_non_finite_action_is_refused() {
 
 #[test]
 fn an_unnormalised_quaternion_is_refused() {
-    broken("unnormalised", "unnormalised quaternion at actions[0, 3..7]: norm 2.000000");
+    broken(
+        "unnormalised",
+        "unnormalised quaternion at actions[0, 3..7]: norm 2.000000",
+    );
 }
 
 #[test]
@@ -244,7 +256,14 @@ fn replaying_a_demonstration_through_the_remote_path_succeeds() {
     let scripted = bench(
         dir.path(),
         "scripted",
-        &["--rollouts", "1", "--seed", "5", "--out", out.to_str().unwrap_or_default()],
+        &[
+            "--rollouts",
+            "1",
+            "--seed",
+            "5",
+            "--out",
+            out.to_str().unwrap_or_default(),
+        ],
     );
     assert_eq!(rollouts(&scripted)[0]["success"], true, "{scripted}");
     let demo = out.join("rollouts/press-button/rollout-000.mcap");
@@ -265,9 +284,14 @@ fn replaying_a_demonstration_through_the_remote_path_succeeds() {
     let r = &rollouts(&replayed)[0];
     assert_eq!(r["success"], true, "{r}");
     // Within a chunk of the demonstration's own length.
-    let demo_steps = rollouts(&scripted)[0]["executed_steps"].as_u64().unwrap_or(0);
+    let demo_steps = rollouts(&scripted)[0]["executed_steps"]
+        .as_u64()
+        .unwrap_or(0);
     let steps = r["executed_steps"].as_u64().unwrap_or(0);
-    assert!(steps.abs_diff(demo_steps) <= TICKS_PER_QUERY, "{steps} vs {demo_steps}");
+    assert!(
+        steps.abs_diff(demo_steps) <= TICKS_PER_QUERY,
+        "{steps} vs {demo_steps}"
+    );
 }
 
 #[test]
@@ -281,7 +305,11 @@ fn onnx_inference_matches_onnxruntime() {
         .arg(&model)
         .output()
         .unwrap_or_else(|e| panic!("{e}"));
-    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
     let len = |k: StateKey| match k {
         StateKey::EePos | StateKey::BasePos => 3,
         StateKey::EeQuat | StateKey::BaseQuat => 4,
@@ -293,7 +321,13 @@ fn onnx_inference_matches_onnxruntime() {
     let inputs: Vec<Vec<f32>> = (0..5)
         .map(|i| {
             (0..8)
-                .map(|j| if i == 0 { 0.0 } else { ((i * 8 + j) as f32 * 0.37).sin() * i as f32 })
+                .map(|j| {
+                    if i == 0 {
+                        0.0
+                    } else {
+                        ((i * 8 + j) as f32 * 0.37).sin() * i as f32
+                    }
+                })
                 .collect()
         })
         .collect();
@@ -308,9 +342,16 @@ fn onnx_inference_matches_onnxruntime() {
         .arg(&file)
         .output()
         .unwrap_or_else(|e| panic!("{e}"));
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
     let reference: Value = serde_json::from_slice(&run.stdout).unwrap_or_else(|e| panic!("{e}"));
-    for (input, expected) in inputs.iter().zip(reference["outputs"].as_array().into_iter().flatten()) {
+    for (input, expected) in inputs
+        .iter()
+        .zip(reference["outputs"].as_array().into_iter().flatten())
+    {
         let ours = policy.run_raw(input, &[]).unwrap_or_else(|e| panic!("{e}"));
         let theirs: Vec<f64> = expected
             .as_array()
@@ -339,15 +380,64 @@ fn an_onnx_policy_flies_a_rollout_from_the_cli() {
         .arg(&model)
         .output()
         .unwrap_or_else(|e| panic!("{e}"));
-    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
     let policy = format!("onnx:{}", model.display());
     // 1 s: 119 ticks, a query every 48: 3 queries.
     let results = bench(
         dir.path(),
         "onnx",
-        &["--rollouts", "1", "--episode-length", "1", "--policy", &policy],
+        &[
+            "--rollouts",
+            "1",
+            "--episode-length",
+            "1",
+            "--policy",
+            &policy,
+        ],
     );
     let r = &rollouts(&results)[0];
     assert_eq!(r["policy"]["queries"], 3, "{r}");
     assert_eq!(r["policy"]["failure"], Value::Null, "{r}");
+}
+
+#[test]
+fn a_remote_policy_sees_the_cameras_images_on_query_ticks() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let log = dir.path().join("requests.jsonl");
+    let server = Server::start(&["--log", log.to_str().unwrap_or_default()]);
+    let url = format!("remote:{}", server.url);
+    // 1 s: 119 ticks, 3 queries, each with the EE camera's image of its observation.
+    let results = bench(
+        dir.path(),
+        "cameras",
+        &[
+            "--rollouts",
+            "1",
+            "--episode-length",
+            "1",
+            "--cameras",
+            "ee",
+            "--policy",
+            &url,
+        ],
+    );
+    let r = &rollouts(&results)[0];
+    assert_eq!(r["policy"]["queries"], 3, "{r}");
+    let requests: Vec<Value> = std::fs::read_to_string(&log)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}")))
+        .collect();
+    assert_eq!(requests.len(), 3);
+    for q in &requests {
+        let image = &q["keys"]["am_bench/ee_image"];
+        assert_eq!(image[0], "uint8", "{q}");
+        assert_eq!(image[1][2], 3, "{q}");
+        assert!(image[1][0].as_u64().unwrap_or(0) > 0);
+        assert_eq!(q["keys"].get("am_bench/base_image"), None);
+    }
 }

@@ -14,6 +14,7 @@ use crate::stack::{Action, EeTarget};
 fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> BenchConfig {
     let vehicle = Vehicle::builtin(vehicle).unwrap_or_else(|e| panic!("{e}"));
     BenchConfig {
+        cameras: None,
         controller: profile(&vehicle, controller).unwrap_or_else(|e| panic!("{e}")),
         controller_name: "test".to_owned(),
         vehicle,
@@ -75,6 +76,7 @@ fn fly_scripted(task: TaskId, vehicle: &str, seed: u64, watch: impl FnMut(&Stepp
             interface: Some(Interface::Ee),
             action_noise: None,
             stop: None,
+            cameras: None,
         },
     )
     .unwrap_or_else(|e| panic!("{e}"));

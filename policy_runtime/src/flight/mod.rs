@@ -5,7 +5,8 @@
 //! One tick `k` (t_k = k·dt):
 //!
 //! ```text
-//! measurement (link) ─► state source: truth | estimator ─► observation (+ task scene)
+//! measurement (link) ─► state source: truth | estimator ─► observation (+ task scene,
+//!    + camera images on the ticks a source or observer asks for them: [`cameras`])
 //!    ─► action source (trajectory | scripted task policy | logged actions | learned policy)
 //!       (a source that fails ends the flight `PolicyFailed`, nothing sent)
 //!    ─► action noise (one place, its own random stream) ─► interface (EE ⇄ base + joint)
@@ -25,6 +26,7 @@
 //! calls in the order given: those that fill [`Stepped`] for others (the criteria latch)
 //! come before those that read it (the log).
 
+mod cameras;
 mod noise;
 mod observer;
 mod source;
@@ -33,6 +35,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use platform::Measurement;
 
+pub use self::cameras::{
+    CAMERA_ALIASES, CameraConfig, CameraFrame, CameraRig, FrameUse, Frames, full_camera_name,
+    select_cameras,
+};
 pub use self::noise::ActionNoise;
 pub use self::observer::{
     BenchMetrics, Decided, Flow, Observer, Progress, Start, Stepped, StopReason, TaskCriteria,
@@ -70,6 +76,10 @@ pub struct FlightSpec<'a> {
     pub action_noise: Option<ActionNoise>,
     /// Set from another thread to stop between ticks (the flight ends `Interrupted`).
     pub stop: Option<&'a AtomicBool>,
+    /// The cameras, rendered on the ticks the source or an observer asks for them
+    /// ([`cameras`]); only a link that can render (the in-process twin) takes them. None:
+    /// nothing is rendered.
+    pub cameras: Option<&'a mut CameraRig>,
 }
 
 /// How a flight ended (it ran; see [`FlightError`] for one that could not go on).
@@ -100,6 +110,8 @@ pub struct FlightEnd {
     pub last_time_s: f64,
     /// The estimator's figures (with the estimator as state source).
     pub estimator: Option<EstimatorSummary>,
+    /// Observations whose camera images were rendered.
+    pub frames_rendered: u64,
 }
 
 /// A flight that could not go on.
@@ -120,6 +132,14 @@ pub enum FlightError {
     /// The stack cannot produce the link's setpoint.
     #[error(transparent)]
     Stack(#[from] StackError),
+    /// The cameras could not be rendered.
+    #[error("cameras: {0}")]
+    Cameras(#[from] render::RenderError),
+    /// Cameras were asked for over a link that cannot render them.
+    #[error(
+        "cameras need the twin in this process (--link twin): the link '{0}' cannot render them"
+    )]
+    CamerasNeedTwin(String),
 }
 
 /// Flies one flight: `source` through `stack` over `link`, every tick shown to `observers`
@@ -132,6 +152,14 @@ pub fn run(
     observers: &mut [&mut dyn Observer],
     spec: FlightSpec<'_>,
 ) -> Result<FlightEnd, FlightError> {
+    let mut rig = spec.cameras;
+    if let Some(r) = rig.as_deref_mut() {
+        r.start(&*link, spec.seed).map_err(|e| match e {
+            Some(e) => FlightError::Cameras(e),
+            None => FlightError::CamerasNeedTwin(link.name()),
+        })?;
+    }
+    let rendered_before = rig.as_deref().map_or(0, CameraRig::rendered);
     let mut messages: Vec<LinkMessage> = Vec::new();
     let mut m = link.receive()?;
     link.drain_messages(m.time_s, &mut messages);
@@ -168,6 +196,7 @@ pub fn run(
         measurement: fed.as_ref().unwrap_or(&m),
         truth: &m,
         scene: scene.as_ref(),
+        frames: None,
     })?;
     let max_ticks = source.tick_limit().unwrap_or(spec.max_ticks);
     let mut noise = spec.action_noise;
@@ -180,11 +209,36 @@ pub fn run(
         }
         let t = k as f64 * spec.dt_s;
         stack.keep_in_front_of(scene.as_ref().and_then(|s| s.obstacle_face_x));
+        // The images of observation k: begun now (the state after the last step), read back
+        // before the first consumer that needs them.
+        let (source_frames, frame_use) = match rig.as_deref() {
+            None => (false, FrameUse::None),
+            Some(_) => (
+                source.wants_frames(k),
+                observers
+                    .iter()
+                    .map(|o| o.wants_frames(k))
+                    .min()
+                    .unwrap_or(FrameUse::None),
+            ),
+        };
+        let rendered = source_frames || frame_use != FrameUse::None;
+        let decided_frames = source_frames || frame_use == FrameUse::Decided;
+        if rendered && let Some(r) = rig.as_deref_mut() {
+            r.begin(&*link, k, m.time_s)?;
+            if source_frames {
+                r.finish()?;
+            }
+        }
         let observation = Observation {
             time_s: t,
             measurement: fed.as_ref().unwrap_or(&m),
             truth: &m,
             scene: scene.as_ref(),
+            frames: rig
+                .as_deref()
+                .filter(|_| source_frames)
+                .map(CameraRig::frames),
         };
         let (action, record, ee_reference) = match source.next(k, &observation, stack)? {
             Step::Act {
@@ -211,6 +265,13 @@ pub fn run(
                 break;
             }
         };
+        if decided_frames && let Some(r) = rig.as_deref_mut() {
+            r.finish()?;
+        }
+        let frames = rig
+            .as_deref()
+            .filter(|_| decided_frames)
+            .map(CameraRig::frames);
         for o in observers.iter_mut() {
             o.decided(&Decided {
                 k,
@@ -219,6 +280,7 @@ pub fn run(
                 action: action.as_ref(),
                 record: &record,
                 ee_reference: &ee_reference,
+                frames,
             })?;
         }
         let setpoint = record.setpoint(link.level())?;
@@ -244,6 +306,9 @@ pub fn run(
             }
         }
         ticks += 1;
+        if rendered && let Some(r) = rig.as_deref_mut() {
+            r.finish()?;
+        }
         scene = link.task();
         messages.clear();
         link.drain_messages(m.time_s, &mut messages);
@@ -255,6 +320,7 @@ pub fn run(
             scene_observed: observed,
             link_messages: &messages,
             task_state: None,
+            frames: rig.as_deref().filter(|_| rendered).map(CameraRig::frames),
         };
         let mut stop = None;
         for o in observers.iter_mut() {
@@ -279,11 +345,20 @@ pub fn run(
             None => {}
         }
     }
+    // A frame still in flight (a flight that ended before the step): drained, not shown.
+    let frames_rendered = match rig {
+        Some(r) => {
+            r.finish()?;
+            r.rendered() - rendered_before
+        }
+        None => 0,
+    };
     Ok(FlightEnd {
         end,
         ticks,
         last_time_s: m.time_s,
         estimator: estimate.as_ref().map(StateEstimate::summary),
+        frames_rendered,
     })
 }
 

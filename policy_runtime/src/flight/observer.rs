@@ -14,6 +14,7 @@ use platform::Measurement;
 use sim_twin::TaskSnapshot;
 
 use super::FlightError;
+use super::cameras::{FrameUse, Frames};
 use crate::flight_log::{FlightLog, TaskState, rotors_saturated};
 use crate::link::LinkMessage;
 use crate::metrics::{CriteriaLatch, TrackingRecord};
@@ -44,6 +45,9 @@ pub struct Decided<'a> {
     pub record: &'a TickRecord,
     /// The end-effector reference of the tick.
     pub ee_reference: &'a Isometry3<f64>,
+    /// The camera images of observation k (the state `measurement` was taken in), when the
+    /// source or an observer asked for them at [`FrameUse::Decided`].
+    pub frames: Option<&'a Frames>,
 }
 
 /// Tick `k` after the link applied it.
@@ -65,6 +69,10 @@ pub struct Stepped<'a> {
     /// The task's state with its latched criteria, filled by [`TaskCriteria`] for the
     /// observers after it (the log).
     pub task_state: Option<TaskState>,
+    /// The camera images of observation k (the state at the tick's start, before this
+    /// step), whenever they were rendered for anyone at tick k. The images after this step
+    /// are those of observation k+1 (the next tick's).
+    pub frames: Option<&'a Frames>,
 }
 
 /// Why an observer stops a flight.
@@ -87,6 +95,13 @@ pub enum Flow {
 
 /// A consumer of a flight's ticks. Every method has a default that does nothing.
 pub trait Observer {
+    /// When this observer needs the camera images of observation `k`; asked before every
+    /// tick of a flight with cameras. Default: never (nothing is rendered for it).
+    fn wants_frames(&self, k: u64) -> FrameUse {
+        let _ = k;
+        FrameUse::None
+    }
+
     /// The start measurement and the link's first messages.
     fn start(&mut self, start: &Start<'_>) -> Result<(), FlightError> {
         let _ = start;
@@ -119,6 +134,15 @@ pub trait Observer {
 }
 
 impl Observer for FlightLog {
+    fn wants_frames(&self, k: u64) -> FrameUse {
+        let every = self.camera_log_every();
+        if every > 0 && k.is_multiple_of(every) {
+            FrameUse::Stepped
+        } else {
+            FrameUse::None
+        }
+    }
+
     fn start(&mut self, start: &Start<'_>) -> Result<(), FlightError> {
         Ok(self.link_messages(start.link_messages)?)
     }
@@ -131,6 +155,13 @@ impl Observer for FlightLog {
     }
 
     fn stepped(&mut self, step: &mut Stepped<'_>) -> Result<Flow, FlightError> {
+        // The images of observation k (time t_k) before the outcome of its step (t_k+1).
+        if let Some(frames) = step.frames {
+            let every = self.camera_log_every();
+            if every > 0 && frames.k.is_multiple_of(every) {
+                self.cameras(frames)?;
+            }
+        }
         self.outcome(step.measurement)?;
         self.link_messages(step.link_messages)?;
         if let Some(state) = &step.task_state {

@@ -13,6 +13,7 @@ use platform::{Measurement, RandomStream, Vehicle};
 use serde::Serialize;
 use sim_twin::{TaskId, TaskSnapshot};
 
+use super::cameras::Frames;
 use crate::stack::{Action, EeTarget, FlightStack, TickRecord};
 use crate::task_policies::{PolicyContext, TaskPolicy, gripper_override, scripted};
 use crate::trajectory::Trajectory;
@@ -28,6 +29,10 @@ pub struct Observation<'a> {
     pub truth: &'a Measurement,
     /// The task scene's state, with a scene.
     pub scene: Option<&'a TaskSnapshot>,
+    /// The camera images of this observation (the state of `truth`), on the ticks where
+    /// [`ActionSource::wants_frames`] asked for them and the flight has cameras; `None`
+    /// otherwise (and at [`ActionSource::start`]).
+    pub frames: Option<&'a Frames>,
 }
 
 /// A source's answer for one tick.
@@ -70,6 +75,14 @@ pub trait ActionSource {
     /// The ticks this source can fly, when it decides (None: the flight's limit).
     fn tick_limit(&self) -> Option<u64> {
         None
+    }
+
+    /// Whether [`Self::next`] of tick `k` needs the camera images of observation k
+    /// ([`Observation::frames`]); asked before every tick of a flight with cameras. Default:
+    /// never (nothing is rendered for the source).
+    fn wants_frames(&self, k: u64) -> bool {
+        let _ = k;
+        false
     }
 
     /// The action of tick `k`.

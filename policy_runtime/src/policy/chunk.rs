@@ -88,7 +88,9 @@ impl ActionChunk {
     /// Why this chunk may not be flown with `layout` executing `steps` actions, if it may
     /// not: a wrong shape, a non-finite value, an unnormalised quaternion.
     pub fn check(&self, layout: ActionLayout, steps: usize) -> Result<(), String> {
-        if self.dim != layout.dim() || self.rows < steps || self.values.len() != self.rows * self.dim
+        if self.dim != layout.dim()
+            || self.rows < steps
+            || self.values.len() != self.rows * self.dim
         {
             return Err(format!(
                 "wrong shape: actions ({}, {}), expected (>= {steps}, {})",
@@ -174,7 +176,11 @@ pub fn interpolate(previous: &[f64], target: &[f64], stride: usize) -> Vec<Vec<f
                 .zip(&target)
                 .map(|(p, a)| p + t * (a - p))
                 .collect();
-            let q = if k == stride { to } else { slerp(&from, &to, t) };
+            let q = if k == stride {
+                to
+            } else {
+                slerp(&from, &to, t)
+            };
             set_quat(&mut v, &q);
             v
         })
@@ -231,7 +237,9 @@ pub fn localised(state: &[f64]) -> Vec<f64> {
 pub fn stride(env_hz: f64, policy_hz: f64) -> Result<usize, String> {
     let ratio = env_hz / policy_hz;
     let rounded = ratio.round();
-    if !(policy_hz.is_finite() && policy_hz > 0.0) || rounded < 1.0 || (ratio - rounded).abs() > 1e-9
+    if !(policy_hz.is_finite() && policy_hz > 0.0)
+        || rounded < 1.0
+        || (ratio - rounded).abs() > 1e-9
     {
         return Err(format!(
             "policy rate {policy_hz} Hz does not divide the control rate {env_hz} Hz"
@@ -300,7 +308,11 @@ mod tests {
             2,
         );
         let eighth = std::f64::consts::FRAC_PI_8;
-        assert!(close(&steps[0][3..7], &[eighth.cos(), 0.0, 0.0, eighth.sin()], EXACT));
+        assert!(close(
+            &steps[0][3..7],
+            &[eighth.cos(), 0.0, 0.0, eighth.sin()],
+            EXACT
+        ));
         for s in &steps {
             assert!((quat_of(s).norm() - 1.0).abs() < EXACT);
         }
@@ -313,7 +325,11 @@ mod tests {
         let anchor = [1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 0.0, 0.25];
         let action = [2.0, 4.0, 6.0, -1.0, 0.0, 0.0, 0.0, -0.5];
         let rel = encode_relative(ActionLayout::Ee, &anchor, &action);
-        assert!(close(&rel, &[1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 0.0, -0.5], EXACT));
+        assert!(close(
+            &rel,
+            &[1.0, 2.0, 3.0, 1.0, 0.0, 0.0, 0.0, -0.5],
+            EXACT
+        ));
         let back = decode_relative(ActionLayout::Ee, &anchor, &rel);
         assert!(close(&back[..3], &action[..3], EXACT));
         assert_eq!(back[7], action[7]);
@@ -371,16 +387,24 @@ mod tests {
         };
         assert_eq!(chunk(vec![good, good]).check(ActionLayout::Ee, 2), Ok(()));
         let short = chunk(vec![good]).check(ActionLayout::Ee, 2).unwrap_err();
-        assert!(short.contains("wrong shape: actions (1, 8), expected (>= 2, 8)"), "{short}");
+        assert!(
+            short.contains("wrong shape: actions (1, 8), expected (>= 2, 8)"),
+            "{short}"
+        );
         let wide = chunk(vec![good]).check(ActionLayout::BaseJoint { arm_joints: 4 }, 1);
         assert!(wide.unwrap_err().contains("expected (>= 1, 12)"));
         let mut nan = good;
         nan[1] = f64::NAN;
-        let e = chunk(vec![good, nan]).check(ActionLayout::Ee, 1).unwrap_err();
+        let e = chunk(vec![good, nan])
+            .check(ActionLayout::Ee, 1)
+            .unwrap_err();
         assert!(e.contains("non-finite value NaN at actions[1, 1]"), "{e}");
         let mut long = good;
         long[3] = 1.1;
         let e = chunk(vec![long]).check(ActionLayout::Ee, 1).unwrap_err();
-        assert!(e.contains("unnormalised quaternion at actions[0, 3..7]: norm 1.100000"), "{e}");
+        assert!(
+            e.contains("unnormalised quaternion at actions[0, 3..7]: norm 1.100000"),
+            "{e}"
+        );
     }
 }

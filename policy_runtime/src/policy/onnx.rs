@@ -141,14 +141,22 @@ pub fn sidecar_path(model: &Path) -> PathBuf {
     PathBuf::from(name)
 }
 
-fn check_stats(what: &str, stats: Option<&Vec<f64>>, len: usize, positive: bool) -> Result<(), String> {
+fn check_stats(
+    what: &str,
+    stats: Option<&Vec<f64>>,
+    len: usize,
+    positive: bool,
+) -> Result<(), String> {
     let Some(v) = stats else {
         return Ok(());
     };
     if v.len() != len {
         return Err(format!("{what}: {} values, expected {len}", v.len()));
     }
-    if let Some(x) = v.iter().find(|x| !x.is_finite() || (positive && **x <= 0.0)) {
+    if let Some(x) = v
+        .iter()
+        .find(|x| !x.is_finite() || (positive && **x <= 0.0))
+    {
         return Err(format!(
             "{what}: {x} is not a finite{} number",
             if positive { " positive" } else { "" }
@@ -173,7 +181,8 @@ impl OnnxPolicy {
         if sidecar.state.keys.is_empty() || state_dim == 0 {
             return Err(side_err("state.keys: no state values".to_owned()));
         }
-        check_stats("state.mean", sidecar.state.mean.as_ref(), state_dim, false).map_err(side_err)?;
+        check_stats("state.mean", sidecar.state.mean.as_ref(), state_dim, false)
+            .map_err(side_err)?;
         check_stats("state.std", sidecar.state.std.as_ref(), state_dim, true).map_err(side_err)?;
         let out = &sidecar.output;
         if out.chunk == 0 || out.dim < 8 {
@@ -204,7 +213,7 @@ impl OnnxPolicy {
             path: model.to_owned(),
             reason,
         };
-        let mut graph = tract_onnx::onnx()
+        let mut graph = onnx()
             .model_for_path(model)
             .map_err(|e| model_err(format!("not a readable ONNX model: {e}")))?;
         let names: Vec<String> = graph
@@ -243,10 +252,7 @@ impl OnnxPolicy {
             graph
                 .set_input_fact(
                     s,
-                    InferenceFact::dt_shape(
-                        f32::datum_type(),
-                        [1, 3, image.height, image.width],
-                    ),
+                    InferenceFact::dt_shape(f32::datum_type(), [1, 3, image.height, image.width]),
                 )
                 .map_err(fact_err)?;
         }
@@ -269,7 +275,7 @@ impl OnnxPolicy {
             .output_outlets()
             .map_err(|e| model_err(e.to_string()))?[output_slot];
         graph
-            .set_output_outlets(&[output])
+            .select_output_outlets(&[output])
             .map_err(|e| model_err(e.to_string()))?;
         let plan = graph
             .into_optimized()
@@ -311,13 +317,20 @@ impl OnnxPolicy {
         let mut inputs: Vec<Option<TValue>> = vec![None; 1 + images.len()];
         let tensor = Tensor::from_shape(&[1, state.len()], state).map_err(|e| e.to_string())?;
         inputs[self.state_slot] = Some(tensor.into());
-        for ((image, spec), &slot) in images.iter().zip(&self.sidecar.images).zip(&self.image_slots) {
+        for ((image, spec), &slot) in images
+            .iter()
+            .zip(&self.sidecar.images)
+            .zip(&self.image_slots)
+        {
             let tensor = Tensor::from_shape(&[1, 3, spec.height, spec.width], image)
                 .map_err(|e| e.to_string())?;
             inputs[slot] = Some(tensor.into());
         }
         let inputs: TVec<TValue> = inputs.into_iter().flatten().collect();
-        let outputs = self.plan.run(inputs).map_err(|e| format!("inference: {e}"))?;
+        let outputs = self
+            .plan
+            .run(inputs)
+            .map_err(|e| format!("inference: {e}"))?;
         let first = outputs.first().ok_or("inference gave no output")?;
         let view = first
             .to_plain_array_view::<f32>()
@@ -409,6 +422,18 @@ impl Policy for OnnxSession {
                             spec.key
                         ))
                     })?;
+                if image.height == 0
+                    || image.width == 0
+                    || image.rgb.len() != image.height * image.width * 3
+                {
+                    return Err(fail(format!(
+                        "image {}: {} bytes for {}x{} RGB",
+                        spec.key,
+                        image.rgb.len(),
+                        image.width,
+                        image.height
+                    )));
+                }
                 Ok(image_tensor(&image.rgb, image.height, image.width, spec))
             })
             .collect::<Result<Vec<_>, PolicyError>>()?;

@@ -64,7 +64,12 @@ impl OpenpiClient {
             let connected =
                 tokio::time::timeout(connect_timeout, tokio_tungstenite::connect_async(url))
                     .await
-                    .map_err(|_| fail(format!("no connection in {} ms", connect_timeout.as_millis())))?
+                    .map_err(|_| {
+                        fail(format!(
+                            "no connection in {} ms",
+                            connect_timeout.as_millis()
+                        ))
+                    })?
                     .map_err(|e| fail(format!("cannot connect: {e}")))?;
             let mut socket = connected.0;
             let first = receive(&mut socket, connect_timeout)
@@ -92,10 +97,10 @@ impl Drop for OpenpiClient {
     fn drop(&mut self) {
         // Close politely (best effort: the server may be gone).
         if let Some(mut socket) = self.socket.take() {
-            let _ = self.runtime.block_on(tokio::time::timeout(
-                Duration::from_millis(200),
-                socket.close(None),
-            ));
+            // The timer is made inside the runtime (its reactor).
+            let _ = self.runtime.block_on(async {
+                tokio::time::timeout(Duration::from_millis(200), socket.close(None)).await
+            });
         }
     }
 }
@@ -115,6 +120,7 @@ async fn receive(
             Some(Ok(Message::Binary(bytes))) => return Ok(bytes.to_vec()),
             Some(Ok(Message::Text(text))) => {
                 let last = text
+                    .as_str()
                     .lines()
                     .rev()
                     .find(|l| !l.trim().is_empty())
@@ -125,8 +131,8 @@ async fn receive(
             }
             Some(Ok(Message::Close(frame))) => {
                 return Err(match frame {
-                    Some(f) if !f.reason.is_empty() => {
-                        format!("the server closed the connection ({})", f.reason)
+                    Some(f) if !f.reason.as_str().is_empty() => {
+                        format!("the server closed the connection ({})", f.reason.as_str())
                     }
                     _ => "the server closed the connection".to_owned(),
                 });
@@ -138,7 +144,8 @@ async fn receive(
 
 impl Policy for OpenpiClient {
     fn query(&mut self, observation: &PolicyObservation<'_>) -> Result<ActionChunk, PolicyError> {
-        let fail = |what: String| PolicyError(format!("policy server {}: {what}", self.url));
+        let url = self.url.clone();
+        let fail = |what: String| PolicyError(format!("policy server {url}: {what}"));
         let frame = encode(&observation_value(observation));
         let timeout = self.query_timeout;
         let socket = self
@@ -204,7 +211,10 @@ pub fn ndarray(dtype: &str, shape: &[usize], data: Vec<u8>) -> Value {
     Value::Map(vec![
         (Value::Binary(b"__ndarray__".to_vec()), Value::Boolean(true)),
         (Value::Binary(b"data".to_vec()), Value::Binary(data)),
-        (Value::Binary(b"dtype".to_vec()), Value::String(dtype.into())),
+        (
+            Value::Binary(b"dtype".to_vec()),
+            Value::String(dtype.into()),
+        ),
         (
             Value::Binary(b"shape".to_vec()),
             Value::Array(shape.iter().map(|&n| Value::from(n as u64)).collect()),
@@ -362,7 +372,10 @@ mod tests {
 
     #[test]
     fn arrays_decode_by_dtype_and_refuse_a_short_buffer() {
-        let f8: Vec<u8> = [0.5f64, -2.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let f8: Vec<u8> = [0.5f64, -2.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
         let v = ndarray("<f8", &[1, 2], f8);
         assert_eq!(ndarray_f64(&v).unwrap(), (vec![1, 2], vec![0.5, -2.0]));
         // float16 1.0 = 0x3c00, −2.0 = 0xc000.
@@ -373,9 +386,15 @@ mod tests {
         let object = ndarray("|O", &[1], vec![0]);
         assert!(ndarray_f64(&object).unwrap_err().contains("not supported"));
         let scalar = Value::Map(vec![
-            (Value::Binary(b"__npgeneric__".to_vec()), Value::Boolean(true)),
+            (
+                Value::Binary(b"__npgeneric__".to_vec()),
+                Value::Boolean(true),
+            ),
             (Value::Binary(b"data".to_vec()), Value::F64(0.25)),
-            (Value::Binary(b"dtype".to_vec()), Value::String("<f8".into())),
+            (
+                Value::Binary(b"dtype".to_vec()),
+                Value::String("<f8".into()),
+            ),
         ]);
         assert_eq!(ndarray_f64(&scalar).unwrap(), (vec![], vec![0.25]));
     }

@@ -10,7 +10,7 @@ use serde::Serialize;
 use super::chunk::{self, ActionLayout, ActionSemantics};
 use super::state::{StateKey, StateReader, wxyz};
 use super::{Policy, PolicyConfig, PolicyImage, PolicyLatency, PolicyObservation};
-use crate::flight::{ActionSource, Observation, SourceError, Step};
+use crate::flight::{ActionSource, Frames, Observation, SourceError, Step};
 use crate::metrics::Stats;
 use crate::stack::{Action, BaseJointTarget, EeTarget, FlightStack, Interface};
 
@@ -169,8 +169,18 @@ impl PolicySource {
         v
     }
 
-    /// Queries the policy on `m`: the chunk's actions, absolute and checked.
-    fn query(&mut self, m: &Measurement) -> Result<Vec<Vec<f64>>, String> {
+    /// Whether the next tick queries the policy, unless a pending chunk arrives first.
+    fn query_due(&self) -> bool {
+        if self.start_failure.is_some() || self.pending.is_some() || self.flown < self.plan.len() {
+            // An arriving chunk starts without a query; a macro action in flight goes on.
+            return false;
+        }
+        self.commanded.is_none() || self.next >= self.config.action_steps
+    }
+
+    /// Queries the policy on `m` and the images of `frames`: the chunk's actions, absolute
+    /// and checked.
+    fn query(&mut self, m: &Measurement, frames: Option<&Frames>) -> Result<Vec<Vec<f64>>, String> {
         let relative = self.semantics == ActionSemantics::Relative;
         let anchor_keys: [StateKey; 2] = match self.layout {
             ActionLayout::Ee => [StateKey::EePos, StateKey::EeQuat],
@@ -192,7 +202,22 @@ impl PolicySource {
                 (k, values)
             })
             .collect();
-        let images: Vec<PolicyImage> = Vec::new();
+        // The reference's adapter sends the EE camera as `ee_image`, the base camera as
+        // `base_image`; a flight without cameras sends none (a state-only policy).
+        let images: Vec<PolicyImage> = frames
+            .into_iter()
+            .flat_map(|f| {
+                [("ee", "ee_image"), ("base", "base_image")]
+                    .into_iter()
+                    .filter_map(move |(camera, key)| f.get(camera).map(|c| (c, key)))
+            })
+            .map(|(c, key)| PolicyImage {
+                key: key.to_owned(),
+                height: c.image.height as usize,
+                width: c.image.width as usize,
+                rgb: c.image.rgb.clone(),
+            })
+            .collect();
         let observation = PolicyObservation {
             state: &state,
             prompt: &self.prompt,
@@ -225,7 +250,9 @@ impl PolicySource {
         let seconds = match self.config.latency {
             PolicyLatency::Frozen => return 0,
             PolicyLatency::Fixed(ms) => ms / 1e3,
-            PolicyLatency::Measured => self.stats.latency_samples_ms.last().copied().unwrap_or(0.0) / 1e3,
+            PolicyLatency::Measured => {
+                self.stats.latency_samples_ms.last().copied().unwrap_or(0.0) / 1e3
+            }
         };
         // A latency is small and non-negative: the cast is exact.
         (seconds / self.dt_s - 1e-9).ceil().max(0.0) as u64
@@ -274,6 +301,11 @@ impl ActionSource for PolicySource {
         self.tick_limit
     }
 
+    fn wants_frames(&self, k: u64) -> bool {
+        // A chunk arriving at k starts without a query.
+        !self.pending.as_ref().is_some_and(|(ready, _)| k >= *ready) && self.query_due()
+    }
+
     fn next(
         &mut self,
         k: u64,
@@ -294,7 +326,7 @@ impl ActionSource for PolicySource {
         if self.flown >= self.plan.len() {
             let first = self.commanded.is_none();
             if self.pending.is_none() && (first || self.next >= self.config.action_steps) {
-                let chunk = match self.query(observation.measurement) {
+                let chunk = match self.query(observation.measurement, observation.frames) {
                     Ok(c) => c,
                     Err(reason) => return Ok(self.fail(reason)),
                 };
@@ -378,7 +410,10 @@ mod tests {
         }
     }
 
-    fn source(latency: PolicyLatency, broken_at: Option<usize>) -> (PolicySource, FlightStack, Arc<Mutex<Vec<Vec<f64>>>>) {
+    fn source(
+        latency: PolicyLatency,
+        broken_at: Option<usize>,
+    ) -> (PolicySource, FlightStack, Arc<Mutex<Vec<Vec<f64>>>>) {
         let vehicle = Vehicle::builtin("ee-only").unwrap();
         let mut config = PolicyConfig::new(PolicyEndpoint::Remote {
             url: "ws://127.0.0.1:9".to_owned(),
@@ -407,7 +442,11 @@ mod tests {
 
     /// Flies `ticks` ticks with the EE measured at x = 0.5, z = 1: each tick's commanded x,
     /// or the failure.
-    fn fly(source: &mut PolicySource, stack: &mut FlightStack, ticks: u64) -> Result<Vec<f64>, String> {
+    fn fly(
+        source: &mut PolicySource,
+        stack: &mut FlightStack,
+        ticks: u64,
+    ) -> Result<Vec<f64>, String> {
         let m = Measurement {
             world_from_ee: Isometry3::translation(0.5, 0.0, 1.0),
             ..Measurement::default()
@@ -417,10 +456,15 @@ mod tests {
             measurement: &m,
             truth: &m,
             scene: None,
+            frames: None,
         };
         source.start(&o).unwrap();
         let mut xs = Vec::new();
         for k in 0..ticks {
+            // The images are asked for exactly on the query ticks (every 48).
+            if source.start_failure.is_none() {
+                assert_eq!(source.wants_frames(k), k % 48 == 0, "tick {k}");
+            }
             match source.next(k, &o, stack).unwrap() {
                 Step::Act {
                     action: Action::Ee(ee),
@@ -451,8 +495,11 @@ mod tests {
         assert_eq!(xs[47], 8.0);
         assert!((xs[48] - (8.0 + 3.0 / 6.0)).abs() < 1e-12);
         assert_eq!(xs[53], 11.0);
-        // Actions 8 and 9 of a chunk are never flown with time frozen.
-        assert!(!xs.contains(&9.0));
+        // Actions 8 and 9 of a chunk are never flown with time frozen: from x = 8 straight
+        // to the next chunk's first action.
+        for j in 1..=6 {
+            assert!((xs[47 + j] - (8.0 + 3.0 * j as f64 / 6.0)).abs() < 1e-12);
+        }
     }
 
     #[test]
@@ -471,7 +518,10 @@ mod tests {
     fn a_non_finite_chunk_fails_the_flight_and_is_never_flown() {
         let (mut s, mut stack, _) = source(PolicyLatency::Frozen, Some(1));
         let why = fly(&mut s, &mut stack, 96).unwrap_err();
-        assert!(why.contains("non-finite value inf at actions[1, 0]"), "{why}");
+        assert!(
+            why.contains("non-finite value inf at actions[1, 0]"),
+            "{why}"
+        );
         assert_eq!(s.stats().failure, Some(why));
         assert_eq!(s.stats().queries, 2);
     }
@@ -506,6 +556,9 @@ mod tests {
         });
         config.policy_hz = 50.0;
         let e = PolicySource::new(&config, &vehicle, Interface::Ee, 120.0, "test").unwrap_err();
-        assert!(e.contains("50 Hz does not divide the control rate 120 Hz"), "{e}");
+        assert!(
+            e.contains("50 Hz does not divide the control rate 120 Hz"),
+            "{e}"
+        );
     }
 }

@@ -59,6 +59,14 @@ pub enum RecordError {
     /// The run metadata is unusable (`config_json` not JSON, a field missing on read-back, …).
     #[error("run metadata: {0}")]
     Metadata(String),
+    /// A camera image could not be encoded.
+    #[error("encoding the image of topic {topic}: {message}")]
+    Image {
+        /// The channel's topic.
+        topic: String,
+        /// The encoder's reason.
+        message: String,
+    },
     /// Reading a file back failed before anything could be returned.
     #[error("reading MCAP data: {0}")]
     Read(#[from] mcap::McapError),

@@ -143,6 +143,84 @@ pub struct FrameTransforms {
     pub transforms: Vec<FrameTransform>,
 }
 
+/// `foxglove.CompressedImage`: an image as PNG or JPEG bytes (base64 in JSON, as
+/// Foxglove's JSON schema has it).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[schemars(
+    rename = "foxglove.CompressedImage",
+    title = "foxglove.CompressedImage"
+)]
+pub struct CompressedImage {
+    /// Time of the image.
+    pub timestamp: Time,
+    /// The camera's frame (ROS optical: +z forward, +x right, +y down).
+    pub frame_id: String,
+    /// The compressed image, base64.
+    #[schemars(extend("contentEncoding" = "base64"))]
+    pub data: String,
+    /// `png` or `jpeg`.
+    pub format: String,
+}
+
+/// `foxglove.CameraCalibration`: a pinhole camera's intrinsics (no distortion: `D` empty).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[schemars(
+    rename = "foxglove.CameraCalibration",
+    title = "foxglove.CameraCalibration"
+)]
+#[allow(non_snake_case)]
+pub struct CameraCalibration {
+    /// Time of the calibration.
+    pub timestamp: Time,
+    /// The camera's frame.
+    pub frame_id: String,
+    /// Image width, px.
+    pub width: u32,
+    /// Image height, px.
+    pub height: u32,
+    /// Distortion model (`plumb_bob`; D empty: none).
+    pub distortion_model: String,
+    /// Distortion coefficients (none).
+    pub D: Vec<f64>,
+    /// Camera matrix K, row-major 3×3: [fx 0 cx; 0 fy cy; 0 0 1], px.
+    pub K: [f64; 9],
+    /// Rectification rotation, row-major 3×3 (identity).
+    pub R: [f64; 9],
+    /// Projection matrix, row-major 3×4: [K | 0].
+    pub P: [f64; 12],
+}
+
+impl CameraCalibration {
+    /// The calibration of a pinhole camera with focal lengths `fx`, `fy` and principal point
+    /// (`cx`, `cy`), px.
+    #[allow(clippy::too_many_arguments)]
+    pub fn pinhole(
+        timestamp: Time,
+        frame_id: impl Into<String>,
+        width: u32,
+        height: u32,
+        [fx, fy, cx, cy]: [f64; 4],
+    ) -> Self {
+        Self {
+            timestamp,
+            frame_id: frame_id.into(),
+            width,
+            height,
+            distortion_model: "plumb_bob".to_owned(),
+            D: Vec::new(),
+            K: [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+            R: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            P: [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+        }
+    }
+}
+
+impl SchemaName for CompressedImage {
+    const SCHEMA_NAME: &'static str = "foxglove.CompressedImage";
+}
+impl SchemaName for CameraCalibration {
+    const SCHEMA_NAME: &'static str = "foxglove.CameraCalibration";
+}
 impl SchemaName for Time {
     const SCHEMA_NAME: &'static str = "foxglove.Time";
 }

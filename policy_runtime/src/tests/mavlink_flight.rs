@@ -205,6 +205,7 @@ fn fixture(vehicle: &Vehicle, config: &TwinConfig, disarm_after: Option<u64>) ->
 
 fn track_config(vehicle: &Vehicle, trajectory: Trajectory, duration_s: f64) -> TrackConfig {
     TrackConfig {
+        cameras: None,
         vehicle: vehicle.clone(),
         controller: profile(vehicle, ControllerKind::Pid).unwrap(),
         trajectory,
@@ -287,6 +288,7 @@ fn a_logged_flight_holds_the_autopilot_state_and_every_frame_an_independent_read
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("mavlink.mcap");
     let config = TrackConfig {
+        cameras: None,
         mcap: Some(path.clone()),
         settle_s: 0.0,
         ..track_config(&vehicle, Trajectory::Step, 0.5)

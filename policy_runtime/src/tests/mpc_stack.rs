@@ -129,6 +129,7 @@ fn fly_step(
             interface: None,
             action_noise: None,
             stop: None,
+            cameras: None,
         },
     )
     .unwrap_or_else(|e| panic!("{e}"));

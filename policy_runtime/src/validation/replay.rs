@@ -596,6 +596,7 @@ pub fn replay_flight(
             interface: None,
             action_noise: None,
             stop: None,
+            cameras: None,
         },
     );
     let flown = match flown {

@@ -365,6 +365,7 @@ fn twin_flight(dir: &Path, name: &str, disturbances: &str, interface: Interface)
     let controller = profile(&vehicle, ControllerKind::Pid).unwrap();
     let path = dir.join(name);
     let config = TrackConfig {
+        cameras: None,
         vehicle,
         controller,
         trajectory: Trajectory::Step,
@@ -585,6 +586,7 @@ fn a_bench_rollout_replays_with_its_scene_and_the_same_task_outcome() {
     let dir = tempfile::tempdir().unwrap();
     let vehicle = Vehicle::builtin("fa-hexa").unwrap();
     let config = crate::bench::BenchConfig {
+        cameras: None,
         controller: profile(&vehicle, ControllerKind::Pid).unwrap(),
         controller_name: "ik-pid".to_owned(),
         vehicle,
