@@ -201,13 +201,13 @@ impl OnnxPolicy {
                 )));
             }
         }
-        if let Some(r) = sidecar.rates {
-            if !(r.policy_hz.is_finite() && r.policy_hz > 0.0) || r.action_steps == 0 {
-                return Err(side_err(format!(
-                    "rates: policy_hz {} and action_steps {} must be positive",
-                    r.policy_hz, r.action_steps
-                )));
-            }
+        if let Some(r) = sidecar.rates
+            && (!(r.policy_hz.is_finite() && r.policy_hz > 0.0) || r.action_steps == 0)
+        {
+            return Err(side_err(format!(
+                "rates: policy_hz {} and action_steps {} must be positive",
+                r.policy_hz, r.action_steps
+            )));
         }
         let model_err = |reason: String| OnnxError {
             path: model.to_owned(),

@@ -303,7 +303,7 @@ impl ActionSource for PolicySource {
 
     fn wants_frames(&self, k: u64) -> bool {
         // A chunk arriving at k starts without a query.
-        !self.pending.as_ref().is_some_and(|(ready, _)| k >= *ready) && self.query_due()
+        self.pending.as_ref().is_none_or(|(ready, _)| k < *ready) && self.query_due()
     }
 
     fn next(
@@ -315,13 +315,13 @@ impl ActionSource for PolicySource {
         if let Some(reason) = self.start_failure.take() {
             return Ok(self.fail(reason));
         }
-        if self.pending.as_ref().is_some_and(|(ready, _)| k >= *ready) {
-            if let Some((_, chunk)) = self.pending.take() {
-                self.chunk = chunk;
-                self.next = 0;
-                // The new chunk starts now, from wherever the setpoint is.
-                self.flown = self.plan.len();
-            }
+        if self.pending.as_ref().is_some_and(|(ready, _)| k >= *ready)
+            && let Some((_, chunk)) = self.pending.take()
+        {
+            self.chunk = chunk;
+            self.next = 0;
+            // The new chunk starts now, from wherever the setpoint is.
+            self.flown = self.plan.len();
         }
         if self.flown >= self.plan.len() {
             let first = self.commanded.is_none();
