@@ -10,6 +10,10 @@
 #   independent reader that counts an MP4's frames.
 # - `pyarrow` and `numpy`, the independent reader of the LeRobot datasets `amstack record`
 #   writes (scripts/dataset_check.py, run by tests/tests/dataset.rs).
+# - `openpi-client` (its `msgpack_numpy` is the wire encoding of openpi's policy server), the
+#   encoding of scripts/openpi_server.py, the policy server tests/tests/policy.rs starts;
+# - `onnx` and `onnxruntime`, which make the test ONNX models (scripts/onnx_model.py) and give
+#   the reference outputs amstack's tract inference is checked against.
 #
 #   AMSTACK_VENV   where the venv lives (default: $HOME/.cache/amstack-venv)
 #   PYTHON         the interpreter that creates it (default: python3; needs its venv module)
@@ -26,10 +30,17 @@ MCAP_VERSION="1.6.0"
 PYMAVLINK_VERSION="2.4.50"
 PYARROW_VERSION="21.0.0"
 IMAGEIO_FFMPEG_VERSION="0.8.1"
+# openpi-client 0.1.2 brings msgpack, numpy, websockets, pillow, dm-tree (all wheels);
+# onnx/onnxruntime ship manylinux wheels (protobuf, ml_dtypes, flatbuffers).
+OPENPI_CLIENT_VERSION="0.1.2"
+ONNXRUNTIME_VERSION="1.32.0"
 PINNED=("mcap==${MCAP_VERSION}" "lz4==4.4.5" "zstandard==0.25.0"
         "pymavlink==${PYMAVLINK_VERSION}" "lxml==6.1.3" "fastcrc==0.5.0"
         "imageio-ffmpeg==${IMAGEIO_FFMPEG_VERSION}"
-        "pyarrow==${PYARROW_VERSION}" "numpy==1.26.4")
+        "pyarrow==${PYARROW_VERSION}" "numpy==1.26.4"
+        "openpi-client==${OPENPI_CLIENT_VERSION}" "msgpack==1.2.4"
+        "websockets==17.4" "onnx==1.23.2" "onnxruntime==${ONNXRUNTIME_VERSION}"
+        "protobuf==7.36.2")
 
 VENV="${AMSTACK_VENV:-$HOME/.cache/amstack-venv}"
 PYTHON="${PYTHON:-python3}"
@@ -50,10 +61,11 @@ installed_version() {
 
 installed() {
     echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink)," \
-         "imageio-ffmpeg $(installed_version imageio-ffmpeg), pyarrow $(installed_version pyarrow)"
+         "imageio-ffmpeg $(installed_version imageio-ffmpeg), pyarrow $(installed_version pyarrow)," \
+         "openpi-client $(installed_version openpi-client), onnxruntime $(installed_version onnxruntime)"
 }
 
-WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, imageio-ffmpeg ${IMAGEIO_FFMPEG_VERSION}, pyarrow ${PYARROW_VERSION}"
+WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, imageio-ffmpeg ${IMAGEIO_FFMPEG_VERSION}, pyarrow ${PYARROW_VERSION}, openpi-client ${OPENPI_CLIENT_VERSION}, onnxruntime ${ONNXRUNTIME_VERSION}"
 if [[ -x "$VPY" && "$(installed)" == "$WANTED" ]]; then
     say "venv $VENV already has $WANTED: nothing to do"
     echo "$VPY"

@@ -11,11 +11,12 @@ use comfy_table::{Table, presets};
 use controllers::{ControllerKind, profile};
 use indicatif::{ProgressBar, ProgressStyle};
 use policy_runtime::Interface;
+use policy_runtime::bench::Termination;
 use policy_runtime::bench::{
     BenchConfig, BenchError, BenchLink, BenchReport, EpisodeLength, RolloutResult, Shard,
     TaskResult, run_bench_shard,
 };
-use policy_runtime::metrics::{Spread, format_or_na};
+use policy_runtime::metrics::{Spread, Stats, format_or_na};
 use policy_runtime::{IpcLinkConfig, LinkError};
 use serde_json::{Value, json};
 use sim_twin::TaskId;
@@ -26,6 +27,7 @@ use crate::bench_results::{
 use crate::cli_error::bad_input;
 use crate::fly::{LinkChoice, link_choice};
 use crate::output::{check_writable, write_json};
+use crate::policy_flags::PolicyFlags;
 use crate::twin_flags::TwinFlags;
 use crate::vehicles::find_vehicle;
 
@@ -104,6 +106,8 @@ pub struct Args {
     pub(crate) twin: TwinFlags,
     #[command(flatten)]
     pub(crate) state: crate::track::StateFlags,
+    #[command(flatten)]
+    pub(crate) policy: PolicyFlags,
     #[command(flatten)]
     pub(crate) cameras: crate::camera_flags::CameraFlags,
     /// Write one MP4 per rollout into DIR (`<task>/rollout-NNN.mp4`): the scene camera (with
@@ -206,6 +210,12 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         },
     };
     let twin = args.twin.twin_config()?;
+    let policy = args.policy.resolve(
+        &vehicle,
+        interface,
+        twin.control_rate_hz,
+        &args.cameras.names(),
+    )?;
     let link = match link_choice(&args.link)? {
         LinkChoice::Twin => BenchLink::InProcess,
         LinkChoice::Ipc(service) => BenchLink::Ipc(IpcLinkConfig {
@@ -256,6 +266,7 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         jobs,
         mcap_dir: args.out.as_ref().map(|d| d.join("rollouts")),
         state_source: args.state.state_source()?,
+        policy,
     })
 }
 
@@ -278,6 +289,29 @@ pub(crate) fn config_json(args: &Args, config: &BenchConfig) -> Result<Value> {
     }))
 }
 
+/// The learned policy's figures over `rollouts`: queries, latency statistics (ms), failed
+/// rollouts and their reasons.
+fn policy_json<'a>(rollouts: impl Iterator<Item = &'a RolloutResult>) -> Value {
+    let mut queries = 0;
+    let mut samples = Vec::new();
+    let mut failures = Vec::new();
+    for r in rollouts {
+        if let Some(p) = &r.policy {
+            queries += p.queries;
+            samples.extend_from_slice(&p.latency_samples_ms);
+            if let Some(why) = &p.failure {
+                failures.push(json!({ "task": r.task.name(), "index": r.index, "reason": why }));
+            }
+        }
+    }
+    json!({
+        "queries": queries,
+        "latency_ms": Stats::of(samples),
+        "policy_failed": failures.len(),
+        "failures": failures,
+    })
+}
+
 fn task_json(t: &TaskResult) -> Value {
     let per_rollout: Vec<Value> = t.rollouts.iter().map(rollout_json).collect();
     task_json_of(&t.summary, &t.criteria, &per_rollout)
@@ -295,6 +329,16 @@ pub(crate) fn results_json(
         .map(|t| (t.task.name().to_owned(), task_json(t)))
         .collect();
     let rollouts: usize = report.tasks.iter().map(|t| t.rollouts.len()).sum();
+    let policy = config.policy.as_ref().map(|p| {
+        let mut value = policy_json(report.tasks.iter().flat_map(|t| &t.rollouts));
+        if let Some(object) = value.as_object_mut() {
+            object.insert("policy".to_owned(), p.endpoint.describe().into());
+            object.insert("policy_hz".to_owned(), p.policy_hz.into());
+            object.insert("action_steps".to_owned(), p.action_steps.into());
+            object.insert("latency_mode".to_owned(), json!(p.latency));
+        }
+        value
+    });
     Ok(json!({
         "schema": RESULTS_SCHEMA,
         "status": if report.interrupted { "interrupted" } else { "completed" },
@@ -302,6 +346,7 @@ pub(crate) fn results_json(
         "config": config_json(args, config)?,
         "tasks": tasks,
         "timing": timing_json(&config.link.name(), report.wall_time_s, &json!(config.jobs), report.env_steps, rollouts),
+        "policy": policy,
     }))
 }
 
@@ -394,7 +439,13 @@ pub fn run(args: &Args) -> Result<()> {
             "{} #{}: {}",
             r.task.name(),
             r.index,
-            if r.success { "success" } else { "fail" }
+            if r.success {
+                "success"
+            } else if r.termination == Termination::PolicyFailed {
+                "policy_failed"
+            } else {
+                "fail"
+            }
         ));
         bar.inc(1);
     };
@@ -427,6 +478,29 @@ pub fn run(args: &Args) -> Result<()> {
             estimates.iter().map(|e| e.fused).sum::<u64>(),
             estimates.iter().map(|e| e.rejected).sum::<u64>(),
         );
+    }
+    if config.policy.is_some() {
+        let p = policy_json(report.tasks.iter().flat_map(|t| &t.rollouts));
+        let ms = |q: &str| {
+            p["latency_ms"][q]
+                .as_f64()
+                .map_or("N/A".to_owned(), |x| format!("{x:.2} ms"))
+        };
+        eprintln!(
+            "policy: {} queries, latency median {}, p99 {}; {} rollout(s) policy_failed",
+            p["queries"],
+            ms("p50"),
+            ms("p99"),
+            p["policy_failed"]
+        );
+        for f in p["failures"].as_array().into_iter().flatten() {
+            eprintln!(
+                "  {} #{}: {}",
+                f["task"].as_str().unwrap_or(""),
+                f["index"],
+                f["reason"].as_str().unwrap_or("")
+            );
+        }
     }
     eprintln!(
         "{} env steps in {:.1} s ({:.0} steps/s, {} thread(s))",

@@ -42,6 +42,9 @@ pub(crate) fn rollout_json(r: &RolloutResult) -> Value {
     if let (Some(v), Some(object)) = (&r.video, value.as_object_mut()) {
         object.insert("video".to_owned(), json!(v));
     }
+    if let (Some(p), Some(object)) = (&r.policy, value.as_object_mut()) {
+        object.insert("policy".to_owned(), json!(p));
+    }
     value
 }
 
@@ -79,6 +82,10 @@ pub(crate) fn task_json_of(
             "tilt_use_rad": spread_json(&s.tilt_use_rad),
             "saturation_rate": spread_json(&s.saturation_rate),
         },
+        "policy_failed": per_rollout
+            .iter()
+            .filter(|r| r["termination"] == "policy_failed")
+            .count(),
         "per_rollout": per_rollout,
     })
 }

@@ -50,6 +50,15 @@ pub(crate) struct CameraFlags {
 }
 
 impl CameraFlags {
+    /// The cameras asked for, as given (`ee`, `base_camera`, …).
+    pub fn names(&self) -> Vec<String> {
+        self.cameras
+            .iter()
+            .flat_map(|l| l.split(','))
+            .map(|n| n.trim().to_owned())
+            .collect()
+    }
+
     /// Whether cameras were asked for.
     pub fn any(&self) -> bool {
         self.cameras.is_some()

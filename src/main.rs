@@ -16,6 +16,7 @@ mod mpc_bench;
 mod output;
 mod platforms;
 mod plot;
+mod policy_flags;
 mod px4_hil;
 mod record;
 mod render_frame;

@@ -123,6 +123,8 @@ impl Args {
             vehicles: self.vehicles.clone(),
             action: None,
             shard: None,
+            // Demonstrations are the task's script: no learned policy.
+            policy: crate::policy_flags::PolicyFlags::default(),
         }
     }
 }

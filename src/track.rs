@@ -72,6 +72,8 @@ pub struct Args {
     #[command(flatten)]
     state: StateFlags,
     #[command(flatten)]
+    pub(crate) policy: crate::policy_flags::PolicyFlags,
+    #[command(flatten)]
     cameras: crate::camera_flags::CameraFlags,
     /// Write an MP4 of the flight: the scene camera (with the EE camera beside it when
     /// --cameras names ee), 30 fps from every 4th step. Needs the ffmpeg program (apt-get
@@ -426,7 +428,7 @@ impl Args {
 
 /// Whether `--trajectory` asks for the task's scripted policy.
 pub(crate) fn is_scripted(args: &Args) -> bool {
-    args.trajectory == SCRIPTED
+    args.trajectory == SCRIPTED || args.policy.policy.is_some()
 }
 
 /// `--trajectory scripted`.
@@ -448,7 +450,7 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
     args.scene.apply(&mut twin)?;
     let Some(task) = twin.task else {
         return Err(bad_input(
-            "--trajectory scripted: name the task whose script to fly with --task (the names of \
+            "--trajectory scripted and --policy: name the task to fly with --task (the names of \
              `amstack bench --help`)",
         ));
     };
@@ -483,6 +485,12 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
         args.controller
     );
     let link_name = link.name();
+    let policy = args.policy.resolve(
+        &vehicle,
+        interface,
+        twin.control_rate_hz,
+        &args.cameras.names(),
+    )?;
     if (args.cameras.any() || args.video.is_some()) && !matches!(link, BenchLink::InProcess) {
         return Err(bad_input(format!(
             "--cameras over {link_name}: the cameras are rendered from the twin in this process; fly with --link twin"
@@ -507,11 +515,16 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
         mcap_dir: None,
         link,
         state_source,
+        policy,
     };
     eprintln!(
-        "flying {}'s scripted policy (seed {}) on {} ({}, {} interface) over {link_name}, \
+        "flying {}'s {} (seed {}) on {} ({}, {} interface) over {link_name}, \
          disturbances: {}",
         task.name(),
+        config.policy.as_ref().map_or_else(
+            || "scripted policy".to_owned(),
+            |p| format!("policy {}", p.endpoint.describe())
+        ),
         config.seed,
         config.vehicle.id,
         config.controller_name,

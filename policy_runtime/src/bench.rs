@@ -37,6 +37,7 @@ use crate::flight::{
 use crate::flight_log::FlightLog;
 use crate::link::LinkError;
 use crate::metrics::{RolloutSummary, RunSummary, summarize_rollout, summarize_run};
+use crate::policy::{PolicyConfig, PolicySource, PolicyStats, task_prompt};
 use crate::record::{McapRecorder, RecordError, RunMetadata};
 use crate::stack::{FlightStack, Interface, StackError};
 use crate::state_source::{EstimateError, EstimatorSummary, StateSource};
@@ -74,6 +75,8 @@ pub struct BenchConfig {
     pub link: BenchLink,
     /// Where the controllers' base state comes from (the measurement, or the estimator).
     pub state_source: StateSource,
+    /// A learned policy instead of the scripted ones (its prompt defaults to the task's).
+    pub policy: Option<PolicyConfig>,
     /// The cameras rendered in each rollout (the in-process twin only), if any.
     pub cameras: Option<CameraConfig>,
 }
@@ -94,6 +97,9 @@ pub enum Termination {
     Diverged,
     /// Stopped on request.
     Interrupted,
+    /// The learned policy failed (unreachable, died, timed out, or answered something that
+    /// must not be flown): the rollout's `policy.failure` says why.
+    PolicyFailed,
 }
 
 /// One rollout's result.
@@ -129,6 +135,9 @@ pub struct RolloutResult {
     /// The rollout's video (with `--video`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub video: Option<PathBuf>,
+    /// The learned policy's queries, latencies and failure (with a policy).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub policy: Option<PolicyStats>,
 }
 
 /// A rollout that could not run at all.
@@ -335,14 +344,30 @@ pub fn run_rollout_with(
         limits_n,
         usize::try_from(task.max_steps(rate_hz)).unwrap_or(0),
     );
-    let mut script = ScriptedTask::new(task, seed, rate_hz, config.episode);
+    let mut scripted = ScriptedTask::new(task, seed, rate_hz, config.episode);
+    let mut learned = match &config.policy {
+        None => None,
+        Some(policy) => Some(
+            PolicySource::new(
+                policy,
+                vehicle,
+                config.interface,
+                rate_hz,
+                task_prompt(task),
+            )
+            .map_err(|message| BenchError::Policy { task, message })?
+            .with_tick_limit(config.episode.max_steps(task, rate_hz, 0)),
+        ),
+    };
     let RolloutHooks {
         source,
         observers: mut extra,
     } = hooks;
-    let source: &mut dyn ActionSource = match source {
-        Some(s) => s,
-        None => &mut script,
+    // A caller's source (a recorder's), else the learned policy, else the task's script.
+    let source: &mut dyn ActionSource = match (source, &mut learned) {
+        (Some(s), _) => s,
+        (None, Some(l)) => l,
+        (None, None) => &mut scripted,
     };
     let flown = {
         // The criteria latch fills the task state the log writes after it.
@@ -392,6 +417,7 @@ pub fn run_rollout_with(
         End::Interrupted => Termination::Interrupted,
         End::NanAction => Termination::NanAction,
         End::Diverged(_) => Termination::Diverged,
+        End::PolicyFailed(_) => Termination::PolicyFailed,
     };
     let success = termination == Termination::Success;
     let reach = arm_reach_m(vehicle);
@@ -414,6 +440,7 @@ pub fn run_rollout_with(
         mcap,
         estimator: flown.estimator,
         video,
+        policy: learned.map(|l| l.stats()),
     })
 }
 

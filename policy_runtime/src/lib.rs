@@ -12,7 +12,9 @@
 //! - **the state source** ([`state_source`]): the measurement, or the estimator fed by
 //!   simulated sensors or by the vehicle's own;
 //! - **the action source** ([`flight::ActionSource`]): a reference trajectory, a task's
-//!   scripted policy ([`task_policies`]), the logged actions of a flight (replay);
+//!   scripted policy ([`task_policies`]), the logged actions of a flight (replay), a learned
+//!   policy — a remote openpi server or an ONNX model — at the 20 Hz chunked interface
+//!   ([`policy`]);
 //! - **the flight stack** ([`stack`]): interface (IK | MPC) → base controller → allocation,
 //!   with saturation fed back; its [`TickRecord`] holds the whole cascade;
 //! - **observers** ([`flight::Observer`]): the MCAP log ([`flight_log`], written by
@@ -35,6 +37,7 @@ pub mod link_channels;
 pub mod mavlink_link;
 mod mavlink_scene;
 pub mod metrics;
+pub mod policy;
 pub mod record;
 pub mod scripted;
 pub mod stack;

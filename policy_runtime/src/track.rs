@@ -303,6 +303,7 @@ pub fn run_track_with_link(
             });
         }
         End::Diverged(why) => return Err(TrackError::Link(LinkError::Diverged(why))),
+        End::PolicyFailed(why) => return Err(TrackError::Config(why)),
     }
     let wall_time_s = started.elapsed().as_secs_f64();
     Ok(TrackResult {

@@ -363,6 +363,7 @@ fn bench(
         mcap_dir: None,
         link: policy_runtime::bench::BenchLink::InProcess,
         state_source: StateSource::Truth,
+        policy: None,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     policy_runtime::bench::run_bench(&config, &|_| {}, &stop).unwrap_or_else(|e| panic!("{e}"))
@@ -439,6 +440,7 @@ fn rollout_camera_images_decode_at_their_size_and_repeat_with_the_seed() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let rollout = |name: &str, with_cameras: bool| {
         let config = policy_runtime::bench::BenchConfig {
+            policy: None,
             cameras: with_cameras.then(|| CameraConfig {
                 cameras: cameras.clone(),
                 visual_dr: render::VisualDr::On,

@@ -28,6 +28,7 @@ fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> Be
         mcap_dir: None,
         link: BenchLink::InProcess,
         state_source: StateSource::Truth,
+        policy: None,
     }
 }
 

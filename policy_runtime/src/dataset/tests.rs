@@ -333,6 +333,7 @@ fn bench_config(vehicle: &str, interface: Interface) -> BenchConfig {
         twin: TwinConfig::default(),
         jobs: 2,
         cameras: None,
+        policy: None,
         episode: EpisodeLength::Script,
         mcap_dir: None,
         link: BenchLink::InProcess,

@@ -7,7 +7,8 @@
 //! ```text
 //! measurement (link) ─► state source: truth | estimator ─► observation (+ task scene,
 //!    + camera images on the ticks a source or observer asks for them: [`crate::cameras`])
-//!    ─► action source (trajectory | scripted task policy | logged actions | …)
+//!    ─► action source (trajectory | scripted task policy | logged actions | learned policy)
+//!       (a source that fails ends the flight `PolicyFailed`, nothing sent)
 //!    ─► action noise (one place, its own random stream) ─► interface (EE ⇄ base + joint)
 //!    ─► flight stack: IK | MPC → base controller → allocation → TickRecord
 //!    ─► observers.decided  (log: /action, the tick's channels; metrics)
@@ -93,6 +94,8 @@ pub enum End {
     NanAction,
     /// The simulation behind the link diverged.
     Diverged(String),
+    /// The action source (a learned policy) failed: the reason.
+    PolicyFailed(String),
 }
 
 /// What a flight did.
@@ -256,6 +259,10 @@ pub fn run(
                 record,
                 ee_reference,
             } => (None, *record, ee_reference),
+            Step::Failed(reason) => {
+                end = End::PolicyFailed(reason);
+                break;
+            }
         };
         if decided_frames && let Some(r) = rig.as_deref_mut() {
             r.finish()?;

@@ -5,7 +5,8 @@
 //!   target of time;
 //! - [`ScriptedTask`]: a task's scripted demonstration (the benchmark's rollouts), built from
 //!   the first observation;
-//! - the logged actions of a flight (`replay`: [`crate::validation::replay`]).
+//! - the logged actions of a flight (`replay`: [`crate::validation::replay`]);
+//! - a learned policy at the chunked interface ([`crate::policy::PolicySource`]).
 
 use nalgebra::Isometry3;
 use platform::{Measurement, RandomStream, Vehicle};
@@ -52,6 +53,10 @@ pub enum Step {
         /// The end-effector reference to log.
         ee_reference: Isometry3<f64>,
     },
+    /// The source cannot go on (a learned policy that failed or answered something that must
+    /// not be flown): the flight ends [`super::End::PolicyFailed`] with the reason, nothing
+    /// sent for this tick.
+    Failed(String),
 }
 
 /// The source could not answer.

@@ -617,6 +617,7 @@ pub fn replay_flight(
     let stopped_early = match flown.end {
         End::Diverged(why) => Some(why),
         End::NanAction => Some("the replayed command was not finite".to_owned()),
+        End::PolicyFailed(why) => Some(why),
         _ => None,
     };
     let replayed = usize::try_from(flown.ticks).unwrap_or(usize::MAX);

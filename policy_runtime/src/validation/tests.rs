@@ -603,6 +603,7 @@ fn a_bench_rollout_replays_with_its_scene_and_the_same_task_outcome() {
         mcap_dir: Some(dir.path().to_path_buf()),
         link: crate::bench::BenchLink::InProcess,
         state_source: crate::StateSource::Truth,
+        policy: None,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     crate::bench::run_bench(&config, &|_| {}, &stop).unwrap();
