@@ -975,3 +975,47 @@ fn track_video_holds_a_frame_every_fourth_step_side_by_side() {
     assert_eq!(v["size"], serde_json::json!([1664, 720]), "{v}");
     assert_eq!(v["fps"].as_f64(), Some(30.0), "{v}");
 }
+
+#[test]
+fn experiment_bad_input_is_one_line_before_anything_runs() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let out_dir = dir.path().join("e");
+    let out_arg = out_dir.display().to_string();
+    let out = amstack(&[
+        "experiment",
+        "embodiment",
+        "--rollouts",
+        "0",
+        "--out",
+        &out_arg,
+    ]);
+    assert_bad_input(&out, &["--rollouts"]);
+    assert!(!out_dir.exists(), "nothing written");
+    std::fs::create_dir_all(&out_dir).unwrap_or_else(|e| panic!("{e}"));
+    std::fs::write(out_dir.join("x"), "keep").unwrap_or_else(|e| panic!("{e}"));
+    let out = amstack(&[
+        "experiment",
+        "embodiment",
+        "--rollouts",
+        "1",
+        "--out",
+        &out_arg,
+    ]);
+    assert_bad_input(&out, &["not empty"]);
+    let out = amstack(&["experiment", "nonsense"]);
+    assert_bad_input(&out, &["nonsense"]);
+}
+
+#[test]
+fn platforms_names_the_reference_hexa_inertia_as_impossible() {
+    let out = amstack(&["platforms"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = stdout(&out);
+    for id in ["fa-hexa", "ua-hexa"] {
+        assert!(
+            text.contains(&format!("warning: {id}: link 'base_link' inertia")),
+            "{text}"
+        );
+    }
+    assert!(!text.contains("warning: ua-quad"), "{text}");
+}
