@@ -63,21 +63,6 @@ enum Command {
     },
 }
 
-fn dir_size(path: &Path) -> u64 {
-    std::fs::read_dir(path)
-        .map(|entries| {
-            entries
-                .flatten()
-                .map(|e| match e.metadata() {
-                    Ok(m) if m.is_dir() => dir_size(&e.path()),
-                    Ok(m) => m.len(),
-                    Err(_) => 0,
-                })
-                .sum()
-        })
-        .unwrap_or(0)
-}
-
 fn open(dir: &Path) -> Result<DatasetReader> {
     if !dir.join("meta/info.json").is_file() {
         return Err(bad_input(format!(
@@ -103,7 +88,7 @@ pub fn run(args: &Args) -> Result<()> {
                 check_writable("--json", p)?;
             }
             let r = open(dir)?;
-            let size = dir_size(dir);
+            let size = crate::output::dir_size(dir);
             let features: Vec<_> = r
                 .spec
                 .features()

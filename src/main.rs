@@ -134,7 +134,12 @@ fn main() -> ExitCode {
         Command::Dataset(args) => dataset_cmd::run(&args),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) => {
+            for warning in vehicles::take_warnings() {
+                eprintln!("amstack: warning: {warning}");
+            }
+            ExitCode::SUCCESS
+        }
         Err(e) => {
             let interrupted = matches!(
                 e.downcast_ref::<policy_runtime::TrackError>(),

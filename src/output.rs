@@ -84,3 +84,19 @@ pub fn significant(v: f64) -> String {
         format!("{v:.3e}")
     }
 }
+
+/// Bytes of every file under `path` (0 where it cannot be read).
+pub(crate) fn dir_size(path: &Path) -> u64 {
+    std::fs::read_dir(path)
+        .map(|entries| {
+            entries
+                .flatten()
+                .map(|e| match e.metadata() {
+                    Ok(m) if m.is_dir() => dir_size(&e.path()),
+                    Ok(m) => m.len(),
+                    Err(_) => 0,
+                })
+                .sum()
+        })
+        .unwrap_or(0)
+}

@@ -1,6 +1,6 @@
 //! `amstack record`: demonstrations of a task's scripted policy as a LeRobot v3.0 dataset.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -141,21 +141,6 @@ fn state_keys(text: &str) -> Result<Vec<StateKey>> {
                 Ok(keys)
             }
         })
-}
-
-fn dir_size(path: &Path) -> u64 {
-    std::fs::read_dir(path)
-        .map(|entries| {
-            entries
-                .flatten()
-                .map(|e| match e.metadata() {
-                    Ok(m) if m.is_dir() => dir_size(&e.path()),
-                    Ok(m) => m.len(),
-                    Err(_) => 0,
-                })
-                .sum()
-        })
-        .unwrap_or(0)
 }
 
 pub fn run(args: &Args) -> Result<()> {
@@ -303,7 +288,7 @@ pub fn run(args: &Args) -> Result<()> {
         e => anyhow::Error::new(e),
     })?;
     bar.finish_and_clear();
-    let size = dir_size(&args.out);
+    let size = crate::output::dir_size(&args.out);
     let summary = json!({
         "dataset": args.out.display().to_string(),
         "task": config.bench.tasks[0].name(),

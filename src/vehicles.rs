@@ -20,12 +20,29 @@ pub fn load_vehicle_file(path: &Path) -> Result<Vehicle> {
         .map_err(|e| bad_input(format!("{label}: urdf: cannot read {urdf_label}: {e}")))?;
     let vehicle = Vehicle::assemble(&label, &file, &urdf_label, &urdf_text)
         .map_err(|e| bad_input(e.to_string()))?;
-    // Loadable but impossible data of a user's vehicle, one line each. The built-in FA-Hexa and
-    // UA-Hexa keep the reference's base inertia, which is one (`amstack platforms` lists it).
-    for warning in vehicle.model.physical_warnings() {
-        eprintln!("amstack: warning: {urdf_label}: {warning}");
+    // Loadable but impossible data of a user's vehicle, one line each, said when the command
+    // has run (a refused command keeps its one-line error). The built-in FA-Hexa and UA-Hexa
+    // keep the reference's base inertia, which is one (`amstack platforms` lists it).
+    if let Ok(mut pending) = WARNINGS.lock() {
+        for warning in vehicle.model.physical_warnings() {
+            let line = format!("{urdf_label}: {warning}");
+            if !pending.contains(&line) {
+                pending.push(line);
+            }
+        }
     }
     Ok(vehicle)
+}
+
+/// Warnings about the vehicle files loaded, for the end of a successful command.
+static WARNINGS: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+
+/// The warnings gathered so far (each once), emptied.
+pub fn take_warnings() -> Vec<String> {
+    WARNINGS
+        .lock()
+        .map(|mut w| std::mem::take(&mut *w))
+        .unwrap_or_default()
 }
 
 /// The built-in vehicles followed by the user's, refusing a user id that is already taken.

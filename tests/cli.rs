@@ -1019,3 +1019,24 @@ fn platforms_names_the_reference_hexa_inertia_as_impossible() {
     }
     assert!(!text.contains("warning: ua-quad"), "{text}");
 }
+
+#[test]
+fn a_user_vehicle_with_an_impossible_inertia_is_flown_with_one_warning_line() {
+    let (_dir, path) = fa_hexa_copy(|toml, urdf| {
+        (
+            toml.replacen("id = \"fa-hexa\"", "id = \"my-hexa\"", 1),
+            urdf,
+        )
+    });
+    let out = amstack(&["platforms", "--vehicle", &path.to_string_lossy()]);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    let warnings: Vec<&str> = err.lines().filter(|l| l.contains("warning")).collect();
+    assert_eq!(warnings.len(), 1, "{err}");
+    assert!(
+        warnings[0].contains("fa-hexa.urdf")
+            && warnings[0].contains("'base_link'")
+            && warnings[0].contains("triangle inequality"),
+        "{err}"
+    );
+}
