@@ -339,15 +339,19 @@ pub(crate) fn results_json(
         }
         value
     });
-    Ok(json!({
+    let mut results = json!({
         "schema": RESULTS_SCHEMA,
         "status": if report.interrupted { "interrupted" } else { "completed" },
         "seed": config.seed,
         "config": config_json(args, config)?,
         "tasks": tasks,
         "timing": timing_json(&config.link.name(), report.wall_time_s, &json!(config.jobs), report.env_steps, rollouts),
-        "policy": policy,
-    }))
+    });
+    // With a learned policy only: the results of a scripted run keep their layout.
+    if let (Some(p), Some(object)) = (policy, results.as_object_mut()) {
+        object.insert("policy".to_owned(), p);
+    }
+    Ok(results)
 }
 
 fn pm(s: &Spread, scale: f64, decimals: usize) -> String {

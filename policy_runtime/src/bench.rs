@@ -469,6 +469,17 @@ impl Drop for WorkerRig {
     }
 }
 
+/// Drops this thread's kept camera rig now. A worker calls it before it ends: dropped with the
+/// thread's other thread-locals instead, the graphics objects may reach for one already gone
+/// (an abort at thread exit).
+pub fn release_worker_rig() {
+    let kept = WORKER_RIG
+        .try_with(|slot| slot.borrow_mut().take())
+        .ok()
+        .flatten();
+    drop(kept);
+}
+
 fn worker_rig(cameras: &CameraConfig, vehicle: &Vehicle) -> Result<WorkerRig, BenchError> {
     let kept = WORKER_RIG
         .try_with(|slot| slot.borrow_mut().take())
@@ -569,6 +580,7 @@ pub fn run_bench_shard(
                         all[k] = Some(result);
                     }
                 }
+                release_worker_rig();
             });
         }
     });

@@ -338,6 +338,7 @@ pub fn record(
                         break;
                     }
                 }
+                crate::bench::release_worker_rig();
             });
         }
         drop(tx);
