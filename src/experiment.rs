@@ -372,13 +372,11 @@ fn base_orientation(log: &Path) -> Result<BaseOrientation> {
     Ok(out)
 }
 
-static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
-
 fn draw_valve(
     path: &Path,
     runs: &[(&str, bool, BaseOrientation)],
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, crate::plot::FONT);
     let root = BitMapBackend::new(path, (1400, 420 * runs.len().max(1) as u32)).into_drawing_area();
     root.fill(&WHITE)?;
     let colors = [

@@ -11,7 +11,7 @@ use plotters::style::FontStyle;
 use policy_runtime::validation::{CompareReport, SignalReport};
 
 /// DejaVu Sans (Bitstream Vera licence, see `assets/fonts/DejaVuSans-LICENSE.txt`).
-static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+pub(crate) static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
 
 /// Signals drawn at most (one panel each).
 const MAX_PANELS: usize = 8;
