@@ -332,6 +332,10 @@ def cmd_failsafe(args):
     if wait_heartbeat(m) is None:
         return {"error": "no heartbeat"}
     out = {}
+    # HEARTBEAT at 20 Hz instead of 1 Hz: the offboard timeout (COM_OF_LOSS_T, 0.5 s) is shorter
+    # than the default heartbeat period, so at 1 Hz the OFFBOARD sample after the stream stops
+    # would be seen in only about half of the runs.
+    out["heartbeat_interval"], _ = command(m, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 50_000)
     # Level, facing east (amstack's reset: yaw 0 = east = PX4 yaw 90°).
     q = (math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4))
     hover = args.hover_thrust

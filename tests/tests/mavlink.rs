@@ -192,6 +192,7 @@ fn offboard_loss_holds_then_lands_then_disarms_without_a_crash() {
             "20",
         ],
     );
+    assert_eq!(r["heartbeat_interval"], "ACCEPTED", "{r}");
     // Offboard needs a setpoint stream; arming in offboard too, refused with the reason.
     assert_eq!(
         r["offboard_without_setpoints"], "TEMPORARILY_REJECTED",
