@@ -57,6 +57,7 @@ for n, r in summary.items():
         s = r["bench"]["tasks"].get(t)
         cells.append(
             "-" if s is None
-            else f"{s['successes']}/{s['rollouts']} ({100 * s['subtask_completion']:.0f} %)"
+            else f"{s['successes']}/{s['rollouts']}"
+            + ("" if s["subtask_completion"] is None else f" ({100 * s['subtask_completion']:.0f} %)")
         )
     print(f"| {n} | " + " | ".join(cells) + " |")
