@@ -26,6 +26,10 @@ pub struct TwinFlags {
     /// Seed of every random draw (noise).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Physics steps per 120 Hz control tick (rotor forces re-applied at the current poses
+    /// before each). Default 4; fewer run faster, at the fidelity measured in docs/speed.md.
+    #[arg(long, value_name = "N")]
+    pub physics_substeps: Option<u32>,
 }
 
 impl TwinFlags {
@@ -44,6 +48,12 @@ impl TwinFlags {
         };
         if let Some(k) = self.ground_effect_k {
             twin.aero.ground_effect_k = k;
+        }
+        if let Some(n) = self.physics_substeps {
+            if n == 0 {
+                return Err(bad_input("--physics-substeps: 0; at least 1 step per tick"));
+            }
+            twin.physics_substeps = n;
         }
         twin.validate()
             .map_err(|e| bad_input(format!("twin: {e}")))?;

@@ -245,6 +245,36 @@ fn missing_files_and_unknown_flags_are_bad_input() {
 }
 
 #[test]
+fn physics_substeps_are_recorded_and_zero_is_bad_input() {
+    assert_bad_input(
+        &amstack(&["track", "--platform", "fa-hexa", "--physics-substeps", "0"]),
+        &["--physics-substeps", "0"],
+    );
+    // The count reaches the twin: a bench run's config.json holds it.
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let out_dir = dir.path().join("run");
+    let out = amstack(&[
+        "bench",
+        "--platform",
+        "fa-hexa",
+        "--task",
+        "toss-ball",
+        "--rollouts",
+        "1",
+        "--physics-substeps",
+        "2",
+        "--out",
+        &out_dir.to_string_lossy(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let config: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("config.json")).unwrap_or_else(|e| panic!("{e}")),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(config["twin"]["physics_substeps"], 2, "{config}");
+}
+
+#[test]
 fn help_teaches_and_succeeds() {
     let out = amstack(&["platforms", "--help"]);
     assert!(out.status.success());

@@ -1,7 +1,8 @@
 //! Twin throughput: control ticks per second of `Twin::step`, single thread, FA-Hexa
 //! hovering at 1 m with every disturbance on (ground and near-wall ray casts against a wall
-//! 0.8 m away), 4 physics substeps per 120 Hz tick. A PID6 and the allocator close the loop
-//! outside the timed part. Run: `cargo bench -p sim_twin --bench twin`.
+//! 0.8 m away), at 4 physics substeps per 120 Hz tick (the default) and at 2 and 1 (the
+//! substep study of docs/speed.md). A PID6 and the allocator close the loop outside the timed
+//! part. Run: `cargo bench -p sim_twin --bench twin`.
 
 use std::time::{Duration, Instant};
 
@@ -13,11 +14,18 @@ use platform::{ActuatorCommand, Vehicle};
 use sim_twin::{Disturbances, Twin, TwinConfig};
 
 fn twin_step(c: &mut Criterion) {
+    for substeps in [4, 2, 1] {
+        twin_step_at(c, substeps);
+    }
+}
+
+fn twin_step_at(c: &mut Criterion, physics_substeps: u32) {
     let Ok(vehicle) = Vehicle::builtin("fa-hexa") else {
         return;
     };
     let config = TwinConfig {
         disturbances: Disturbances::all(),
+        physics_substeps,
         ..TwinConfig::default()
     };
     let make = || -> Option<Twin> {
@@ -40,7 +48,13 @@ fn twin_step(c: &mut Criterion) {
     let target = Isometry3::translation(0.0, 0.0, 1.0);
     let dt = config.control_dt_s();
     let joints = vehicle.initial_configuration();
-    c.bench_function("twin_step/fa-hexa_hover_all_disturbances", |b| {
+    // The default keeps its historical name, so criterion compares it with earlier runs.
+    let name = if physics_substeps == 4 {
+        "twin_step/fa-hexa_hover_all_disturbances".to_owned()
+    } else {
+        format!("twin_step/fa-hexa_hover_all_disturbances_{physics_substeps}_substeps")
+    };
+    c.bench_function(&name, |b| {
         b.iter_custom(|ticks| {
             let mut stepping = Duration::ZERO;
             for k in 0..ticks {

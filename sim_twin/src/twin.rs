@@ -44,16 +44,18 @@ const GRAVITY_MPS2: f64 = platform::GRAVITY_MPS2;
 /// A rotor's force for the current tick, in its own frame (so it turns with the rotor
 /// during substeps), and where it is mounted.
 #[derive(Debug, Clone, Copy)]
-struct RotorForce {
+pub(crate) struct RotorForce {
     /// The body the force acts on and the rotor frame in it: the rotor's own link, or, for a
     /// tilting rotor pushing as commanded, the base with the rotor at its α = 0 position
     /// turned to the commanded angle.
-    body: RigidBodyHandle,
-    body_from_rotor: Isometry3<f64>,
+    pub(crate) body: RigidBodyHandle,
+    pub(crate) body_from_rotor: Isometry3<f64>,
     /// The physical mount (its own link), for the measured-tilt model.
     mount: (RigidBodyHandle, Isometry3<f64>),
-    force_in_rotor: Vector3<f64>,
-    reaction_sign: f64,
+    pub(crate) force_in_rotor: Vector3<f64>,
+    pub(crate) reaction_sign: f64,
+    /// Configuration index of a tilting rotor's hinge (resolved from its name once).
+    tilt_dof: Option<usize>,
 }
 
 /// The simulator twin of one vehicle.
@@ -61,8 +63,8 @@ pub struct Twin {
     vehicle: Vehicle,
     config: TwinConfig,
     world: PhysicsWorld,
-    body: VehicleBody,
-    rotors: Vec<RotorForce>,
+    pub(crate) body: VehicleBody,
+    pub(crate) rotors: Vec<RotorForce>,
     actuator: Option<RotorActuator>,
     rng: ChaCha8Rng,
     observation_bias: Vec<f64>,
@@ -211,12 +213,18 @@ impl Twin {
                     TwinError::Vehicle(format!("rotor link '{}' is not in the model", r.link))
                 })?;
                 let (body, body_from_rotor) = body.of_link(link);
+                let tilt_dof = r
+                    .tilt
+                    .as_ref()
+                    .and_then(|t| vehicle.model.joint_id(&t.joint))
+                    .and_then(|j| vehicle.model.joints[j].dof);
                 Ok(RotorForce {
                     body,
                     body_from_rotor,
                     mount: (body, body_from_rotor),
                     force_in_rotor: Vector3::zeros(),
                     reaction_sign: r.spin.sign(),
+                    tilt_dof,
                 })
             })
             .collect()
@@ -436,11 +444,8 @@ impl Twin {
             (force.body, force.body_from_rotor) = match self.config.tilt_thrust {
                 TiltThrust::Measured => force.mount,
                 TiltThrust::Commanded => {
-                    let commanded = self
-                        .vehicle
-                        .model
-                        .joint_id(&tilt.joint)
-                        .and_then(|j| self.vehicle.model.joints[j].dof)
+                    let commanded = force
+                        .tilt_dof
                         .and_then(|d| joint_targets.get(d).copied())
                         .unwrap_or(0.0)
                         .clamp(tilt.limits_rad.0, tilt.limits_rad.1);
