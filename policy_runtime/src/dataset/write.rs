@@ -24,6 +24,7 @@ use super::layout::{
     VIDEO_FILES_SIZE_IN_MB, data_file, episodes_file, next_file,
 };
 use super::read::DatasetReader;
+use super::shard::{DecidedAttempt, ShardPart};
 use super::stats::{FeatureStats, QUANTILES, StatsKind, sample_indices};
 
 /// One episode's frames, as recorded.
@@ -158,6 +159,7 @@ pub struct DatasetWriter {
     sources: Vec<Value>,
     recording: Value,
     data_file_limit_bytes: u64,
+    shard: Option<ShardPart>,
 }
 
 impl DatasetWriter {
@@ -183,9 +185,53 @@ impl DatasetWriter {
             sources: Vec::new(),
             recording,
             data_file_limit_bytes: DATA_FILES_SIZE_IN_MB * 1024 * 1024,
+            shard: None,
         };
         writer.write_info()?;
         Ok(writer)
+    }
+
+    /// Makes the new dataset a shard of a recording (`info.json` `ambench.shard`): every
+    /// attempt [`DatasetWriter::decide`]s is noted in it, saved or not.
+    pub fn with_shard(mut self, shard: ShardPart) -> Result<Self, DatasetError> {
+        self.shard = Some(shard);
+        self.write_info()?;
+        Ok(self)
+    }
+
+    /// The shard this dataset is (None: a whole recording).
+    pub fn shard(&self) -> Option<&ShardPart> {
+        self.shard.as_ref()
+    }
+
+    /// Decides an attempt: writes its episode if `episode` is given (see
+    /// [`DatasetWriter::write_episode`]); a shard also notes the attempt, saved or not.
+    /// Returns whether the episode was written.
+    pub fn decide(
+        &mut self,
+        attempt: u64,
+        success: bool,
+        episode: Option<EpisodeFrames>,
+    ) -> Result<bool, DatasetError> {
+        let saved = episode.is_some();
+        if let Some(shard) = &mut self.shard {
+            shard.attempts.push(DecidedAttempt {
+                attempt,
+                success,
+                saved,
+            });
+        }
+        let written = match episode {
+            Some(e) => self.write_episode(e),
+            None if self.shard.is_some() => self.write_info(),
+            None => Ok(()),
+        };
+        if written.is_err() {
+            if let Some(shard) = &mut self.shard {
+                shard.attempts.pop();
+            }
+        }
+        written.map(|()| saved)
     }
 
     /// Opens the dataset in `root` to append after its last complete episode (lerobot's
@@ -212,6 +258,7 @@ impl DatasetWriter {
         }
         let features = spec.features();
         let stats = reader.stats_for(&features);
+        let shard = ShardPart::from_info(&reader.info)?;
         let last = reader.episodes.last();
         let next_data = last.map_or((0, 0), |e| next_file(e.data.0, e.data.1));
         let meta_file = last.map_or((0, 0), |e| next_file(e.meta.0, e.meta.1));
@@ -231,6 +278,7 @@ impl DatasetWriter {
             sources: reader.sources.clone(),
             recording: reader.recording.clone(),
             data_file_limit_bytes: DATA_FILES_SIZE_IN_MB * 1024 * 1024,
+            shard,
         })
     }
 
@@ -250,8 +298,12 @@ impl DatasetWriter {
         self.total_frames
     }
 
-    /// One past the last attempt of the episodes written (where a resumed recording goes on).
+    /// One past the last attempt of the episodes written (where a resumed recording goes on);
+    /// a shard: its attempt after the last it decided.
     pub fn next_attempt(&self) -> u64 {
+        if let Some(shard) = &self.shard {
+            return shard.next_attempt();
+        }
         self.sources
             .iter()
             .filter_map(|s| s.get("attempt").and_then(Value::as_u64))
@@ -575,6 +627,9 @@ impl DatasetWriter {
         };
         ambench.push(("recording".into(), J::V(self.recording.clone())));
         ambench.push(("episodes".into(), J::V(Value::Array(self.sources.clone()))));
+        if let Some(shard) = &self.shard {
+            ambench.push(("shard".into(), J::V(shard.to_json())));
+        }
         let info = J::obj([
             ("codebase_version", J::V(json!(CODEBASE_VERSION))),
             ("robot_type", J::V(json!(self.spec.robot_type))),
