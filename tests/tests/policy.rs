@@ -512,3 +512,65 @@ fn a_sharded_run_of_a_learned_policy_merges_to_the_unsharded_results() {
     assert_eq!(merged["policy"]["policy"], whole["policy"]["policy"]);
     assert_eq!(without_wall_clock(&merged), without_wall_clock(&whole));
 }
+
+/// The train-here pipeline, tiny: `scripts/pipeline.sh` records 2 NDT demonstrations on the
+/// FA-Hexa, trains the behaviour-cloning MLP (scikit-learn), exports ONNX, and flies it in
+/// process (tract) and served over openpi's protocol (onnxruntime). The chain works — the
+/// model loads, rollouts run and query it, the results parse — whatever the success rate of a
+/// policy of 2 demonstrations.
+#[test]
+fn the_record_train_evaluate_pipeline_runs_end_to_end() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let out = dir.path().join("pipeline");
+    let run = Command::new("bash")
+        .arg(scripts_dir().join("pipeline.sh"))
+        .args(["--episodes", "2", "--rollouts", "2", "--jobs", "2", "--out"])
+        .arg(&out)
+        .env("AMSTACK", amstack())
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        run.status.success(),
+        "pipeline.sh failed:\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let read = |name: &str| -> Value {
+        let text =
+            std::fs::read_to_string(out.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"))
+    };
+    let train = read("train.json");
+    assert_eq!(train["episodes"], 2, "{train}");
+    assert!(
+        train["onnx_vs_sklearn_max_abs"]
+            .as_f64()
+            .is_some_and(|e| e < 1e-4),
+        "{train}"
+    );
+    let sidecar = read("policy.onnx.json");
+    assert_eq!(sidecar["output"]["dim"], 8);
+    for path in ["onnx", "remote"] {
+        let results = read(&format!("bench-{path}.json"));
+        let task = &results["tasks"]["ndt"];
+        assert_eq!(task["rollouts"], 2, "{path}: {results}");
+        assert_eq!(task["policy_failed"], 0, "{path}: {results}");
+        for r in task["per_rollout"].as_array().into_iter().flatten() {
+            // At least the first query, then one every 48 ticks flown.
+            let steps = r["executed_steps"].as_u64().unwrap_or(0);
+            let queries = r["policy"]["queries"].as_u64().unwrap_or(0);
+            assert!(
+                steps > 0 && queries >= 1 && queries >= steps / TICKS_PER_QUERY,
+                "{path}: {r}"
+            );
+        }
+        assert!(
+            results["policy"]["latency_ms"]["p50"].as_f64().is_some(),
+            "{path}"
+        );
+    }
+    let summary = read("summary.json");
+    assert!(
+        summary["remote"]["success_rate"].as_f64().is_some(),
+        "{summary}"
+    );
+}
