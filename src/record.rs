@@ -251,6 +251,26 @@ pub fn run(args: &Args) -> Result<()> {
         }
         let writer = DatasetWriter::resume(&args.out, spec)
             .map_err(|e| bad_input(format!("--resume {}: {e}", args.out.display())))?;
+        let repaired = writer.repaired();
+        if repaired.any() {
+            eprintln!(
+                "record: --resume {}: dropped what the last run left of an unfinished episode ({} data rows, {} episode rows, {} task(s){}{})",
+                args.out.display(),
+                repaired.data_rows,
+                repaired.episode_rows,
+                repaired.tasks,
+                if repaired.files_removed.is_empty() {
+                    String::new()
+                } else {
+                    format!("; removed {}", repaired.files_removed.join(", "))
+                },
+                if repaired.stats_suspect() {
+                    "; statistics recomputed"
+                } else {
+                    ""
+                },
+            );
+        }
         let info = std::fs::read_to_string(args.out.join("meta/info.json")).unwrap_or_default();
         let info: Value = serde_json::from_str(&info).unwrap_or(Value::Null);
         let stored = &info["ambench"]["recording"];

@@ -30,6 +30,7 @@ pub mod layout;
 mod openpi;
 mod read;
 mod recorder;
+mod repair;
 mod shard;
 pub mod stats;
 mod validate;
@@ -46,6 +47,7 @@ pub use self::recorder::{
     Attempt, QuantizedActions, RecordConfig, RecordError, RecordReport, RecordedActions, Recorder,
     record,
 };
+pub use self::repair::Repair;
 pub use self::shard::{
     DecidedAttempt, RECORD_SHARD_ASSIGNMENT, ShardMerge, ShardPart, is_shard, merge_shards,
 };

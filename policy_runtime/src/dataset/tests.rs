@@ -639,3 +639,70 @@ fn shards_that_are_not_one_recordings_split_are_refused() {
     assert!(!is_shard(whole.path()) && is_shard(&p0));
     assert!(err(&[p0, whole.path().to_owned()]).contains("not a shard of a recording"));
 }
+
+/// Copies every file of `from` (a snapshot of the dataset's `meta/`) back over `to`.
+fn restore(from: &[(String, Vec<u8>)], to: &Path, only: &dyn Fn(&str) -> bool) {
+    for (rel, bytes) in from {
+        if only(rel) {
+            std::fs::write(to.join(rel), bytes).unwrap();
+        }
+    }
+}
+
+#[test]
+fn resume_drops_what_a_crash_between_data_and_metadata_left() {
+    // Crash points: right after the data file (the episode's rows only), and right before
+    // info.json (its rows, its meta/episodes row, its task and its statistics written).
+    let cams = [("ee".to_owned(), 4, 4)];
+    let is_meta = |rel: &str| rel.starts_with("meta/");
+    let is_info = |rel: &str| rel == "meta/info.json";
+    for (name, committed_files) in [
+        ("after the data file", &is_meta as &dyn Fn(&str) -> bool),
+        ("before info.json", &is_info),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let mut w = DatasetWriter::create(dir.path(), spec(&cams), Value::Null).unwrap();
+        w.write_episode(episode(0, 4, "press", 1)).unwrap();
+        w.write_episode(episode(1, 3, "press", 1)).unwrap();
+        let before = files(dir.path());
+        // The third episode, of another task, then the crash: what was committed before it
+        // is put back (the files written after the crash point never were).
+        w.write_episode(episode(2, 5, "open", 1)).unwrap();
+        drop(w);
+        restore(&before, dir.path(), committed_files);
+        let problems = validate(dir.path());
+        assert!(!problems.is_empty(), "{name}: the crash is visible");
+        let mut w = DatasetWriter::resume(dir.path(), spec(&cams)).unwrap();
+        let repaired = w.repaired().clone();
+        assert_eq!(repaired.data_rows, 5, "{name}: {repaired:?}");
+        assert_eq!(
+            (repaired.episode_rows, repaired.tasks),
+            if committed_files("meta/episodes") {
+                (0, 0)
+            } else {
+                (1, 1)
+            },
+            "{name}"
+        );
+        assert!(
+            validate(dir.path()).is_empty(),
+            "{name}: {:#?}",
+            validate(dir.path())
+        );
+        assert_eq!((w.episodes(), w.frames()), (2, 7), "{name}");
+        // The statistics are the two committed episodes' again.
+        let stats = std::fs::read(dir.path().join("meta/stats.json")).unwrap();
+        let committed = before.iter().find(|f| f.0 == "meta/stats.json").unwrap();
+        assert!(stats == committed.1, "{name}: stats.json");
+        // And the recording goes on, valid.
+        w.write_episode(episode(2, 5, "open", 1)).unwrap();
+        assert!(
+            validate(dir.path()).is_empty(),
+            "{name}: {:#?}",
+            validate(dir.path())
+        );
+        let mut r = DatasetReader::open(dir.path()).unwrap();
+        assert_eq!(r.episode(2).unwrap().state, episode(2, 5, "open", 1).state);
+        assert_eq!(r.tasks, vec!["press", "open"]);
+    }
+}

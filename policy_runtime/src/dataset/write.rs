@@ -24,6 +24,7 @@ use super::layout::{
     VIDEO_FILES_SIZE_IN_MB, data_file, episodes_file, next_file,
 };
 use super::read::DatasetReader;
+use super::repair::{Repair, drop_uncommitted};
 use super::shard::{DecidedAttempt, ShardPart};
 use super::stats::{FeatureStats, QUANTILES, StatsKind, sample_indices};
 
@@ -160,6 +161,7 @@ pub struct DatasetWriter {
     recording: Value,
     data_file_limit_bytes: u64,
     shard: Option<ShardPart>,
+    repaired: Repair,
 }
 
 impl DatasetWriter {
@@ -186,6 +188,7 @@ impl DatasetWriter {
             recording,
             data_file_limit_bytes: DATA_FILES_SIZE_IN_MB * 1024 * 1024,
             shard: None,
+            repaired: Repair::default(),
         };
         writer.write_info()?;
         Ok(writer)
@@ -236,25 +239,18 @@ impl DatasetWriter {
 
     /// Opens the dataset in `root` to append after its last complete episode (lerobot's
     /// resume: new episodes go to a new data file and a new episodes file). `spec` must be
-    /// the dataset's.
+    /// the dataset's. What a run that died mid-episode left uncommitted (rows, files, a
+    /// task, statistics: see [`DatasetWriter::repaired`]) is dropped first.
     pub fn resume(root: &Path, spec: DatasetSpec) -> Result<Self, DatasetError> {
+        if let Ok(reader) = DatasetReader::open(root) {
+            if reader.spec != spec {
+                return Err(Self::other_spec(&reader.spec, &spec));
+            }
+        }
+        let repaired = drop_uncommitted(root)?;
         let reader = DatasetReader::open(root)?;
         if reader.spec != spec {
-            return Err(DatasetError::invalid(
-                "meta/info.json",
-                format!(
-                    "the dataset records {} (state {:?}, action {}, images {:?}); this recording \
-                     would add {} (state {:?}, action {}, images {:?})",
-                    reader.spec.robot_type,
-                    reader.spec.state_keys,
-                    reader.spec.action_semantics.name(),
-                    reader.spec.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
-                    spec.robot_type,
-                    spec.state_keys,
-                    spec.action_semantics.name(),
-                    spec.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
-                ),
-            ));
+            return Err(Self::other_spec(&reader.spec, &spec));
         }
         let features = spec.features();
         let stats = reader.stats_for(&features);
@@ -262,7 +258,7 @@ impl DatasetWriter {
         let last = reader.episodes.last();
         let next_data = last.map_or((0, 0), |e| next_file(e.data.0, e.data.1));
         let meta_file = last.map_or((0, 0), |e| next_file(e.meta.0, e.meta.1));
-        Ok(Self {
+        let mut writer = Self {
             root: root.to_owned(),
             schema: data_schema(&features),
             features,
@@ -279,7 +275,69 @@ impl DatasetWriter {
             recording: reader.recording.clone(),
             data_file_limit_bytes: DATA_FILES_SIZE_IN_MB * 1024 * 1024,
             shard,
-        })
+            repaired,
+        };
+        if writer.repaired.stats_suspect() {
+            writer.recompute_stats(reader)?;
+        }
+        Ok(writer)
+    }
+
+    /// What [`DatasetWriter::resume`] dropped (nothing: the last run ended cleanly).
+    pub fn repaired(&self) -> &Repair {
+        &self.repaired
+    }
+
+    /// `stats.json` again from the committed episodes, folded in order as they were written.
+    fn recompute_stats(&mut self, mut reader: DatasetReader) -> Result<(), DatasetError> {
+        let mut all: Option<Vec<FeatureStats>> = None;
+        let rows = reader.episodes.clone();
+        for row in &rows {
+            let mut frames = reader.episode(row.index)?;
+            frames.finish_images(self.spec.state_dim)?;
+            let len = frames.len(self.spec.state_dim);
+            let task_index = self
+                .tasks
+                .iter()
+                .position(|t| *t == frames.task)
+                .unwrap_or(0) as i64;
+            let stats = self.episode_stats(&frames, len, row.index, row.from, task_index);
+            all = Some(match all {
+                None => stats,
+                Some(all) => all
+                    .iter()
+                    .zip(&stats)
+                    .filter_map(|(a, b)| FeatureStats::aggregate(&[a, b]))
+                    .collect(),
+            });
+        }
+        if let Some(all) = &all {
+            write_atomic(
+                &self.root,
+                "meta/stats.json",
+                &self.stats_json(all).pretty(),
+            )?;
+        }
+        self.stats = all;
+        Ok(())
+    }
+
+    fn other_spec(had: &DatasetSpec, spec: &DatasetSpec) -> DatasetError {
+        DatasetError::invalid(
+            "meta/info.json",
+            format!(
+                "the dataset records {} (state {:?}, action {}, images {:?}); this recording \
+                     would add {} (state {:?}, action {}, images {:?})",
+                had.robot_type,
+                had.state_keys,
+                had.action_semantics.name(),
+                had.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
+                spec.robot_type,
+                spec.state_keys,
+                spec.action_semantics.name(),
+                spec.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
+            ),
+        )
     }
 
     /// Sets the size past which a data file is closed (tests: small files).
@@ -487,7 +545,7 @@ impl DatasetWriter {
         RecordBatch::try_new(self.schema.clone(), columns).map_err(DatasetError::arrow("data"))
     }
 
-    fn episode_stats(
+    pub(crate) fn episode_stats(
         &self,
         episode: &EpisodeFrames,
         len: usize,
@@ -784,7 +842,7 @@ fn stats_column(
 /// `meta/tasks.parquet` as pandas writes lerobot's tasks frame: the prompt as the frame's
 /// index (`__index_level_0__`, with the `pandas` metadata that makes it the index again) and
 /// `task_index`.
-fn tasks_parquet(tasks: &[String]) -> Result<Vec<u8>, DatasetError> {
+pub(crate) fn tasks_parquet(tasks: &[String]) -> Result<Vec<u8>, DatasetError> {
     let rel = "meta/tasks.parquet";
     let pandas = json!({
         "index_columns": ["__index_level_0__"],
