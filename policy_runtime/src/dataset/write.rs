@@ -229,10 +229,8 @@ impl DatasetWriter {
             None if self.shard.is_some() => self.write_info(),
             None => Ok(()),
         };
-        if written.is_err() {
-            if let Some(shard) = &mut self.shard {
-                shard.attempts.pop();
-            }
+        if let (Err(_), Some(shard)) = (&written, &mut self.shard) {
+            shard.attempts.pop();
         }
         written.map(|()| saved)
     }
@@ -242,10 +240,11 @@ impl DatasetWriter {
     /// the dataset's. What a run that died mid-episode left uncommitted (rows, files, a
     /// task, statistics: see [`DatasetWriter::repaired`]) is dropped first.
     pub fn resume(root: &Path, spec: DatasetSpec) -> Result<Self, DatasetError> {
-        if let Ok(reader) = DatasetReader::open(root) {
-            if reader.spec != spec {
-                return Err(Self::other_spec(&reader.spec, &spec));
-            }
+        // Another recording's dataset is refused before anything in it is touched.
+        if let Ok(reader) = DatasetReader::open(root)
+            && reader.spec != spec
+        {
+            return Err(Self::other_spec(&reader.spec, &spec));
         }
         let repaired = drop_uncommitted(root)?;
         let reader = DatasetReader::open(root)?;
