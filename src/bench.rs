@@ -22,8 +22,8 @@ use serde_json::{Value, json};
 use sim_twin::TaskId;
 
 use crate::bench_results::{
-    PolicyRollout, RESULTS_SCHEMA, check_out_dir, policy_block, rollout_json, task_json_of,
-    timing_json,
+    PolicyRollout, RESULTS_SCHEMA, check_out_dir, policy_block, policy_setup_json, rollout_json,
+    task_json_of, timing_json,
 };
 use crate::cli_error::bad_input;
 use crate::fly::{LinkChoice, link_choice};
@@ -288,18 +288,6 @@ pub(crate) fn config_json(args: &Args, config: &BenchConfig) -> Result<Value> {
         "disturbances": args.twin.disturbances,
         "twin": serde_json::to_value(&config.twin)?,
     }))
-}
-
-/// The learned policy's setup as the results record it (Null: the task's script).
-pub(crate) fn policy_setup_json(config: &BenchConfig) -> Value {
-    config.policy.as_ref().map_or(Value::Null, |p| {
-        json!({
-            "policy": p.endpoint.describe(),
-            "policy_hz": p.policy_hz,
-            "action_steps": p.action_steps,
-            "latency_mode": p.latency,
-        })
-    })
 }
 
 fn task_json(t: &TaskResult) -> Value {

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use anyhow::Result;
-use policy_runtime::bench::RolloutResult;
+use policy_runtime::bench::{BenchConfig, RolloutResult};
 use policy_runtime::metrics::{RunSummary, Spread, Stats};
 use serde_json::{Value, json};
 
@@ -46,6 +46,18 @@ pub(crate) fn rollout_json(r: &RolloutResult) -> Value {
         object.insert("policy".to_owned(), json!(p));
     }
     value
+}
+
+/// The learned policy's setup as the results record it (Null: the task's script).
+pub(crate) fn policy_setup_json(config: &BenchConfig) -> Value {
+    config.policy.as_ref().map_or(Value::Null, |p| {
+        json!({
+            "policy": p.endpoint.describe(),
+            "policy_hz": p.policy_hz,
+            "action_steps": p.action_steps,
+            "latency_mode": p.latency,
+        })
+    })
 }
 
 /// One rollout's learned-policy figures, for the run-level `policy` block.

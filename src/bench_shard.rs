@@ -21,8 +21,8 @@ use serde_json::{Value, json};
 use sim_twin::TaskId;
 
 use crate::bench_results::{
-    PolicyRollout, RESULTS_SCHEMA, check_out_dir, policy_block, rollout_json, task_json_of,
-    timing_json,
+    PolicyRollout, RESULTS_SCHEMA, check_out_dir, policy_block, policy_setup_json, rollout_json,
+    task_json_of, timing_json,
 };
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_bytes, write_json};
@@ -170,7 +170,7 @@ pub(crate) fn part_json(
         ),
     });
     // With a learned policy only (a scripted run's parts keep their layout).
-    let policy = crate::bench::policy_setup_json(config);
+    let policy = policy_setup_json(config);
     if let (false, Some(object)) = (policy.is_null(), part.as_object_mut()) {
         object.insert("policy".to_owned(), policy);
     }
