@@ -114,6 +114,17 @@ fn merge_shard_parts(dirs: &[PathBuf], out: &Path) -> Result<()> {
     Ok(())
 }
 
+/// A video dataset where a command still reads its images from the data files.
+fn refuse_video(r: &DatasetReader, dir: &Path, what: &str) -> Result<()> {
+    if r.spec.video {
+        return Err(bad_input(format!(
+            "{}: a video dataset (record --video): {what} does not decode videos yet; record without --video for it",
+            dir.display()
+        )));
+    }
+    Ok(())
+}
+
 fn open(dir: &Path) -> Result<DatasetReader> {
     if !dir.join("meta/info.json").is_file() {
         return Err(bad_input(format!(
@@ -223,7 +234,7 @@ pub fn run(args: &Args) -> Result<()> {
             target_hz,
         } => {
             for d in dirs {
-                let _ = open(d)?;
+                refuse_video(&open(d)?, d, "export-openpi")?;
             }
             fresh_out(out)?;
             let mut progress = |e: u64| eprint!("\rexport-openpi: {e} episodes");
@@ -247,7 +258,7 @@ pub fn run(args: &Args) -> Result<()> {
         }
         Command::Merge { dirs, out } => {
             for d in dirs {
-                let _ = open(d)?;
+                refuse_video(&open(d)?, d, "merge")?;
             }
             let shards: Vec<&PathBuf> = dirs.iter().filter(|d| is_shard(d)).collect();
             if !shards.is_empty() {

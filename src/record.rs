@@ -115,6 +115,12 @@ pub struct Args {
     /// with `amstack dataset merge`.
     #[arg(long, value_name = "I/N")]
     shard: Option<String>,
+    /// Store the cameras as MP4 video features (LeRobot's `video` dtype:
+    /// videos/observation.images.<camera>/chunk-CCC/file-FFF.mp4, one file per episode,
+    /// H.264) instead of PNG images in the data files. Needs --cameras and the ffmpeg program
+    /// (apt-get install ffmpeg, or AMSTACK_FFMPEG=PATH).
+    #[arg(long)]
+    video: bool,
     /// Episodes this shard records [default: ceil(--episodes / N)].
     #[arg(long, value_name = "K", requires = "shard")]
     shard_episodes: Option<u64>,
@@ -226,8 +232,22 @@ pub fn run(args: &Args) -> Result<()> {
                 .collect()
         })
         .unwrap_or_default();
-    let spec = DatasetSpec::new(&bench.vehicle, &keys, semantics, rate as u32, &cameras);
-    let recording = json!({
+    let ffmpeg = if args.video {
+        if cameras.is_empty() {
+            return Err(bad_input(
+                "--video: name the cameras to store as videos (--cameras ee[,base])",
+            ));
+        }
+        Some(
+            policy_runtime::video::ffmpeg_program()
+                .map_err(|e| bad_input(format!("--video: {e}")))?,
+        )
+    } else {
+        None
+    };
+    let spec = DatasetSpec::new(&bench.vehicle, &keys, semantics, rate as u32, &cameras)
+        .with_video(args.video);
+    let mut recording = json!({
         "task": bench.tasks[0].name(),
         "platform": bench.vehicle.id,
         "controller": bench.controller_name,
@@ -241,8 +261,15 @@ pub fn run(args: &Args) -> Result<()> {
         "twin": serde_json::to_value(&bench.twin)?,
         "actions": "float32, rounded before the stack flies them",
     });
+    // Only with videos: the recordings made before --video keep their block (and resume).
+    if let (true, Some(object)) = (args.video, recording.as_object_mut()) {
+        object.insert(
+            "video".to_owned(),
+            json!({"codec": "h264", "encoder": "ffmpeg libx264"}),
+        );
+    }
     let non_empty = std::fs::read_dir(&args.out).is_ok_and(|mut d| d.next().is_some());
-    let mut writer = if non_empty {
+    let writer = if non_empty {
         if !args.resume {
             return Err(bad_input(format!(
                 "--out {}: not empty (pass --resume to append to the dataset in it)",
@@ -329,6 +356,10 @@ pub fn run(args: &Args) -> Result<()> {
             Some(part) => writer.with_shard(part)?,
             None => writer,
         }
+    };
+    let mut writer = match ffmpeg {
+        Some(program) => writer.with_ffmpeg(program),
+        None => writer,
     };
     let first_attempt = writer.next_attempt();
     let already = writer.episodes();

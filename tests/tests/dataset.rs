@@ -281,3 +281,79 @@ fn three_recorded_shards_merged_are_the_unsharded_dataset_file_by_file() {
     }
     assert!(!Path::new("/tmp/x-never").exists());
 }
+
+#[test]
+fn a_video_dataset_has_one_mp4_per_episode_that_ffmpeg_decodes_to_its_frames() {
+    // The encoder: the static ffmpeg of the venv's imageio-ffmpeg (no Debian ffmpeg needed).
+    let exe = Command::new(python())
+        .args([
+            "-c",
+            "import imageio_ffmpeg; print(imageio_ffmpeg.get_ffmpeg_exe())",
+        ])
+        .output()
+        .unwrap();
+    let ffmpeg = String::from_utf8_lossy(&exe.stdout).trim().to_owned();
+    assert!(
+        exe.status.success() && !ffmpeg.is_empty(),
+        "no imageio-ffmpeg"
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let record = |dir: &Path| {
+        let out = Command::new(amstack())
+            .args([
+                "record",
+                "--task",
+                "press-button",
+                "--episodes",
+                "2",
+                "--seed",
+                "3",
+                "--cameras",
+                "ee",
+                "--video",
+                "--jobs",
+                "2",
+                "--out",
+            ])
+            .arg(dir)
+            .env("AMSTACK_FFMPEG", &ffmpeg)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    let dir = tmp.path().join("video");
+    record(&dir);
+    let d = dir.to_str().unwrap();
+    let validated = ok(&["dataset", "validate", d]);
+    assert!(validated.contains("valid (2 episodes"), "{validated}");
+    let info = ok(&["dataset", "info", d]);
+    assert!(
+        info.lines()
+            .any(|l| l.contains("observation.images.ee_camera") && l.contains("video")),
+        "{info}"
+    );
+    for f in 0..2 {
+        let mp4 = dir.join(format!(
+            "videos/observation.images.ee_camera/chunk-000/file-{f:03}.mp4"
+        ));
+        assert!(mp4.is_file(), "{}", mp4.display());
+    }
+    // pyarrow reads the files, imageio-ffmpeg decodes every MP4: its frames are the
+    // episode's, and the row's timestamps span them.
+    let report = check(&dir, None);
+    assert_eq!(report["episodes"], 2);
+    assert_eq!(report["video_frames"], report["frames"], "{report}");
+    // Same flags, same bytes (the encoder runs single-threaded, bit-exact).
+    let again = tmp.path().join("again");
+    record(&again);
+    assert!(files(&dir) == files(&again), "a second recording differs");
+    // What does not decode videos yet says so on one line.
+    let out = run(&["dataset", "merge", d, "--out", "/tmp/x-never-video"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("a video dataset"), "{stderr}");
+}

@@ -34,6 +34,7 @@ mod repair;
 mod shard;
 pub mod stats;
 mod validate;
+mod video;
 mod write;
 
 pub use self::error::DatasetError;
@@ -42,7 +43,7 @@ pub use self::layout::{
     image_key, state_vector, task_prompt,
 };
 pub use self::openpi::{OpenpiExport, export_openpi};
-pub use self::read::{DatasetReader, EpisodeRow};
+pub use self::read::{DatasetReader, EpisodeRow, EpisodeVideo};
 pub use self::recorder::{
     Attempt, QuantizedActions, RecordConfig, RecordError, RecordReport, RecordedActions, Recorder,
     record,

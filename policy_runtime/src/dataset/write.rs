@@ -21,12 +21,13 @@ use super::DatasetError;
 use super::json::J;
 use super::layout::{
     CHUNKS_SIZE, CODEBASE_VERSION, DATA_FILES_SIZE_IN_MB, DATA_PATH, DatasetSpec, Dtype, Feature,
-    VIDEO_FILES_SIZE_IN_MB, data_file, episodes_file, next_file,
+    VIDEO_FILES_SIZE_IN_MB, VIDEO_PATH, data_file, episodes_file, next_file, video_file,
 };
 use super::read::DatasetReader;
 use super::repair::{Repair, drop_uncommitted};
 use super::shard::{DecidedAttempt, ShardPart};
 use super::stats::{FeatureStats, QUANTILES, StatsKind, sample_indices};
+use super::video::encode_episode;
 
 /// One episode's frames, as recorded.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -130,6 +131,8 @@ struct EpisodeMeta {
     from: u64,
     stats: Vec<FeatureStats>,
     meta: (u64, u64),
+    /// Its video files' (chunk, file), with `record --video`.
+    video: Option<(u64, u64)>,
 }
 
 /// The data file being filled.
@@ -162,6 +165,8 @@ pub struct DatasetWriter {
     data_file_limit_bytes: u64,
     shard: Option<ShardPart>,
     repaired: Repair,
+    ffmpeg: Option<PathBuf>,
+    next_video: (u64, u64),
 }
 
 impl DatasetWriter {
@@ -189,6 +194,8 @@ impl DatasetWriter {
             data_file_limit_bytes: DATA_FILES_SIZE_IN_MB * 1024 * 1024,
             shard: None,
             repaired: Repair::default(),
+            ffmpeg: None,
+            next_video: (0, 0),
         };
         writer.write_info()?;
         Ok(writer)
@@ -275,11 +282,22 @@ impl DatasetWriter {
             data_file_limit_bytes: DATA_FILES_SIZE_IN_MB * 1024 * 1024,
             shard,
             repaired,
+            ffmpeg: None,
+            next_video: last
+                .and_then(|e| e.videos.first())
+                .map_or((0, 0), |v| next_file(v.file.0, v.file.1)),
         };
         if writer.repaired.stats_suspect() {
             writer.recompute_stats(reader)?;
         }
         Ok(writer)
+    }
+
+    /// The ffmpeg program that encodes the videos of a video dataset (`record --video`).
+    #[must_use]
+    pub fn with_ffmpeg(mut self, program: PathBuf) -> Self {
+        self.ffmpeg = Some(program);
+        self
     }
 
     /// What [`DatasetWriter::resume`] dropped (nothing: the last run ended cleanly).
@@ -418,6 +436,27 @@ impl DatasetWriter {
         let batch = self.episode_batch(&episode, len, index, from, task_index)?;
         let stats = self.episode_stats(&episode, len, index, from, task_index);
 
+        // A video dataset's camera streams first: one MP4 per camera (not counted until the
+        // metadata says so).
+        let video_at = if self.spec.video {
+            let ffmpeg = self.ffmpeg.clone().ok_or_else(|| {
+                bad("a video dataset needs the ffmpeg program to encode its cameras".into())
+            })?;
+            let at = self.next_video;
+            for ((key, _, _), frames) in self.spec.images.iter().zip(&episode.images) {
+                encode_episode(
+                    &ffmpeg,
+                    &self.root,
+                    &video_file(key, at.0, at.1),
+                    frames,
+                    self.spec.fps,
+                )?;
+            }
+            Some(at)
+        } else {
+            None
+        };
+
         // The data file: this episode joins the open one, or opens the next.
         let avg = self
             .data
@@ -467,6 +506,7 @@ impl DatasetWriter {
             from,
             stats: stats.clone(),
             meta: self.meta_file,
+            video: video_at,
         });
         let rel = episodes_file(self.meta_file.0, self.meta_file.1);
         if let Err(e) = self.write_episodes_meta(&rel) {
@@ -492,6 +532,9 @@ impl DatasetWriter {
             &self.stats_json(&aggregated).pretty(),
         )?;
         self.stats = Some(aggregated);
+        if let Some(at) = video_at {
+            self.next_video = next_file(at.0, at.1);
+        }
         self.total_episodes += 1;
         self.total_frames += len as u64;
         self.sources.push(json!({
@@ -514,7 +557,7 @@ impl DatasetWriter {
         let fps = self.spec.fps;
         let mut columns: Vec<ArrayRef> = Vec::with_capacity(self.features.len());
         let mut camera = 0;
-        for f in &self.features {
+        for f in self.features.iter().filter(|f| f.dtype != Dtype::Video) {
             let column: ArrayRef = match f.key.as_str() {
                 "observation.state" => fixed_f32(&episode.state, self.spec.state_dim),
                 "action" => fixed_f32(&episode.action, self.spec.action_dim),
@@ -638,6 +681,24 @@ impl DatasetWriter {
         push("data/file_index", ints(&|r| r.data.1));
         push("dataset_from_index", ints(&|r| r.from));
         push("dataset_to_index", ints(&|r| r.from + r.length));
+        if self.spec.video {
+            let fps = f64::from(self.spec.fps);
+            for (key, _, _) in &self.spec.images {
+                let at = |r: &EpisodeMeta| r.video.unwrap_or((0, 0));
+                push(&format!("videos/{key}/chunk_index"), ints(&|r| at(r).0));
+                push(&format!("videos/{key}/file_index"), ints(&|r| at(r).1));
+                push(
+                    &format!("videos/{key}/from_timestamp"),
+                    Arc::new(Float64Array::from_iter_values(rows.iter().map(|_| 0.0))),
+                );
+                push(
+                    &format!("videos/{key}/to_timestamp"),
+                    Arc::new(Float64Array::from_iter_values(
+                        rows.iter().map(|r| r.length as f64 / fps),
+                    )),
+                );
+            }
+        }
         for (i, f) in self.features.iter().enumerate() {
             let per: Vec<&FeatureStats> = rows.iter().map(|r| &r.stats[i]).collect();
             let kind = per.first().map_or(StatsKind::Float, |s| s.kind);
@@ -709,13 +770,20 @@ impl DatasetWriter {
                 }),
             ),
             ("data_path", J::V(json!(DATA_PATH))),
-            ("video_path", J::V(Value::Null)),
+            (
+                "video_path",
+                J::V(if self.spec.video {
+                    json!(VIDEO_PATH)
+                } else {
+                    Value::Null
+                }),
+            ),
             (
                 "features",
                 J::obj(
                     self.features
                         .iter()
-                        .map(|f| (f.key.clone(), J::V(f.info()))),
+                        .map(|f| (f.key.clone(), J::V(f.info(self.spec.fps)))),
                 ),
             ),
             ("ambench", J::Obj(ambench)),
@@ -728,11 +796,13 @@ impl DatasetWriter {
 /// float32, `Image` structs, scalars), with the `huggingface` metadata `datasets` writes.
 pub(crate) fn data_schema(features: &[Feature]) -> Arc<Schema> {
     let mut hf = Vec::new();
+    // Videos live in their MP4 files, not in the data files.
     let fields: Vec<Field> = features
         .iter()
+        .filter(|f| f.dtype != Dtype::Video)
         .map(|f| {
             let (dt, hf_feature) = match (f.dtype, f.shape.as_slice()) {
-                (Dtype::Image, _) => (image_type(), json!({"_type": "Image"})),
+                (Dtype::Image | Dtype::Video, _) => (image_type(), json!({"_type": "Image"})),
                 (Dtype::Float32, [1]) => (
                     DataType::Float32,
                     json!({"dtype": "float32", "_type": "Value"}),
@@ -942,6 +1012,7 @@ pub fn merge(
         .first()
         .ok_or_else(|| DatasetError::invalid("merge", "no dataset to merge"))?;
     let spec = DatasetReader::open(first)?.spec;
+    super::video::refuse_video(first, &spec, "merge")?;
     let mut writer: Option<DatasetWriter> = None;
     let mut recordings = Vec::new();
     for src in sources {
