@@ -2,7 +2,9 @@
 """Independent check of a LeRobot v3.0 dataset written by `amstack record` (and of its
 `amstack dataset export-openpi` output), with pyarrow and numpy only: code that is not ours
 reads every file and checks that info.json, meta/tasks.parquet, meta/episodes/*.parquet and
-meta/stats.json agree with the data.
+meta/stats.json agree with the data. The MP4 files of a video dataset (`record --video`) are
+decoded with imageio-ffmpeg's ffmpeg: each episode's file has its frames (count, size, fps) and
+its row's from/to timestamps span them.
 
     dataset_check.py DIR [--openpi OUT] [--json]
 
@@ -150,8 +152,56 @@ def check_dataset(root, problems, report):
                 if png_size(item["bytes"]) != (w, h):
                     problems.append(f"data: {key} is not a {w}x{h} PNG")
                     break
+    videos = [k for k, ft in feats.items() if ft["dtype"] == "video"]
+    if videos:
+        check_videos(root, info, videos, ep_rows, stats, problems, report)
     return {"info": info, "tasks": tasks, "state": state, "action": action, "episodes": ep_rows,
             "tables": tables, "order": order}
+
+
+def check_videos(root, info, videos, ep_rows, stats, problems, report):
+    import imageio_ffmpeg
+
+    fps = info["fps"]
+    template = info.get("video_path") or ""
+    decoded = 0
+    for key in videos:
+        ft = info["features"][key]
+        h, w, _ = ft["shape"]
+        vi = ft.get("info", {})
+        if vi.get("video.fps") != fps or vi.get("video.height") != h or vi.get("video.width") != w:
+            problems.append(f"info.json: {key}.info {vi} does not say {w}x{h} at {fps} fps")
+        s = stats.get(key, {})
+        if np.array(s.get("mean")).shape != (3, 1, 1):
+            problems.append(f"stats.json: {key} is not per channel (3,1,1)")
+        for r in ep_rows:
+            e = r["episode_index"]
+            c, f = r[f"videos/{key}/chunk_index"], r[f"videos/{key}/file_index"]
+            t0, t1 = r[f"videos/{key}/from_timestamp"], r[f"videos/{key}/to_timestamp"]
+            path = os.path.join(root, template.format(video_key=key, chunk_index=c, file_index=f))
+            if not os.path.isfile(path):
+                problems.append(f"episode {e}: {path} is missing")
+                continue
+            reader = imageio_ffmpeg.read_frames(path)
+            meta = next(reader)
+            frames = 0
+            for frame in reader:
+                if len(frame) != h * w * 3:
+                    problems.append(f"{path}: a frame of {len(frame)} bytes, not {w}x{h} RGB")
+                    break
+                frames += 1
+            if tuple(meta["size"]) != (w, h) or abs(meta["fps"] - fps) > 1e-6:
+                problems.append(f"{path}: {meta['size']} at {meta['fps']} fps, not {w}x{h} at {fps}")
+            # The episode's frames in the file: [from, to) at fps.
+            first, last = round(t0 * fps), round(t1 * fps)
+            if not (abs(t0 * fps - first) < 1e-6 and abs(t1 * fps - last) < 1e-6
+                    and last - first == r["length"] and last <= frames):
+                problems.append(f"episode {e}: {key} spans {t0}..{t1} s of a {frames}-frame file, "
+                                f"its length is {r['length']}")
+            if frames != r["length"]:
+                problems.append(f"episode {e}: {path} has {frames} frames, the episode {r['length']}")
+            decoded += frames
+    report["video_frames"] = decoded
 
 
 def check_openpi(out, src, problems, report):

@@ -15,6 +15,11 @@
 # - `onnx` and `onnxruntime`, which make the test ONNX models (scripts/onnx_model.py) and give
 #   the reference outputs amstack's tract inference is checked against.
 #
+# - `scikit-learn` (with scipy, joblib, threadpoolctl), the behaviour-cloning trainer of
+#   scripts/train_policy.py (record -> train -> evaluate, tests/tests/policy.rs): an MLP on 2
+#   CPU cores in seconds, exported to ONNX with the `onnx` helper API. +202 MB installed (measured),
+#   where PyTorch's CPU wheels are ~10x that.
+#
 #   AMSTACK_VENV   where the venv lives (default: $HOME/.cache/amstack-venv)
 #   PYTHON         the interpreter that creates it (default: python3; needs its venv module)
 #
@@ -34,13 +39,16 @@ IMAGEIO_FFMPEG_VERSION="0.8.1"
 # onnx/onnxruntime ship manylinux wheels (protobuf, ml_dtypes, flatbuffers).
 OPENPI_CLIENT_VERSION="0.1.2"
 ONNXRUNTIME_VERSION="1.32.0"
+SKLEARN_VERSION="1.9.1"
 PINNED=("mcap==${MCAP_VERSION}" "lz4==4.4.5" "zstandard==0.25.0"
         "pymavlink==${PYMAVLINK_VERSION}" "lxml==6.1.3" "fastcrc==0.5.0"
         "imageio-ffmpeg==${IMAGEIO_FFMPEG_VERSION}"
         "pyarrow==${PYARROW_VERSION}" "numpy==1.26.4"
         "openpi-client==${OPENPI_CLIENT_VERSION}" "msgpack==1.2.4"
         "websockets==17.4" "onnx==1.23.2" "onnxruntime==${ONNXRUNTIME_VERSION}"
-        "protobuf==7.36.2")
+        "protobuf==7.36.2"
+        "scikit-learn==${SKLEARN_VERSION}" "scipy==1.17.1" "joblib==1.6.0" "threadpoolctl==3.8.0"
+        "narwhals==2.29.0" "cloudpickle==3.1.3")
 
 VENV="${AMSTACK_VENV:-$HOME/.cache/amstack-venv}"
 PYTHON="${PYTHON:-python3}"
@@ -62,10 +70,11 @@ installed_version() {
 installed() {
     echo "mcap $(installed_version mcap), pymavlink $(installed_version pymavlink)," \
          "imageio-ffmpeg $(installed_version imageio-ffmpeg), pyarrow $(installed_version pyarrow)," \
-         "openpi-client $(installed_version openpi-client), onnxruntime $(installed_version onnxruntime)"
+         "openpi-client $(installed_version openpi-client), onnxruntime $(installed_version onnxruntime)," \
+         "scikit-learn $(installed_version scikit-learn)"
 }
 
-WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, imageio-ffmpeg ${IMAGEIO_FFMPEG_VERSION}, pyarrow ${PYARROW_VERSION}, openpi-client ${OPENPI_CLIENT_VERSION}, onnxruntime ${ONNXRUNTIME_VERSION}"
+WANTED="mcap ${MCAP_VERSION}, pymavlink ${PYMAVLINK_VERSION}, imageio-ffmpeg ${IMAGEIO_FFMPEG_VERSION}, pyarrow ${PYARROW_VERSION}, openpi-client ${OPENPI_CLIENT_VERSION}, onnxruntime ${ONNXRUNTIME_VERSION}, scikit-learn ${SKLEARN_VERSION}"
 if [[ -x "$VPY" && "$(installed)" == "$WANTED" ]]; then
     say "venv $VENV already has $WANTED: nothing to do"
     echo "$VPY"

@@ -16,13 +16,14 @@ use policy_runtime::bench::{
     BenchConfig, BenchError, BenchLink, BenchReport, EpisodeLength, RolloutResult, Shard,
     TaskResult, run_bench_shard,
 };
-use policy_runtime::metrics::{Spread, Stats, format_or_na};
+use policy_runtime::metrics::{Spread, format_or_na};
 use policy_runtime::{IpcLinkConfig, LinkError};
 use serde_json::{Value, json};
 use sim_twin::TaskId;
 
 use crate::bench_results::{
-    RESULTS_SCHEMA, check_out_dir, rollout_json, task_json_of, timing_json,
+    PolicyRollout, RESULTS_SCHEMA, check_out_dir, policy_block, policy_setup_json, rollout_json,
+    task_json_of, timing_json,
 };
 use crate::cli_error::bad_input;
 use crate::fly::{LinkChoice, link_choice};
@@ -289,29 +290,6 @@ pub(crate) fn config_json(args: &Args, config: &BenchConfig) -> Result<Value> {
     }))
 }
 
-/// The learned policy's figures over `rollouts`: queries, latency statistics (ms), failed
-/// rollouts and their reasons.
-fn policy_json<'a>(rollouts: impl Iterator<Item = &'a RolloutResult>) -> Value {
-    let mut queries = 0;
-    let mut samples = Vec::new();
-    let mut failures = Vec::new();
-    for r in rollouts {
-        if let Some(p) = &r.policy {
-            queries += p.queries;
-            samples.extend_from_slice(&p.latency_samples_ms);
-            if let Some(why) = &p.failure {
-                failures.push(json!({ "task": r.task.name(), "index": r.index, "reason": why }));
-            }
-        }
-    }
-    json!({
-        "queries": queries,
-        "latency_ms": Stats::of(samples),
-        "policy_failed": failures.len(),
-        "failures": failures,
-    })
-}
-
 fn task_json(t: &TaskResult) -> Value {
     let per_rollout: Vec<Value> = t.rollouts.iter().map(rollout_json).collect();
     task_json_of(&t.summary, &t.criteria, &per_rollout)
@@ -329,15 +307,15 @@ pub(crate) fn results_json(
         .map(|t| (t.task.name().to_owned(), task_json(t)))
         .collect();
     let rollouts: usize = report.tasks.iter().map(|t| t.rollouts.len()).sum();
-    let policy = config.policy.as_ref().map(|p| {
-        let mut value = policy_json(report.tasks.iter().flat_map(|t| &t.rollouts));
-        if let Some(object) = value.as_object_mut() {
-            object.insert("policy".to_owned(), p.endpoint.describe().into());
-            object.insert("policy_hz".to_owned(), p.policy_hz.into());
-            object.insert("action_steps".to_owned(), p.action_steps.into());
-            object.insert("latency_mode".to_owned(), json!(p.latency));
-        }
-        value
+    let policy = config.policy.as_ref().map(|_| {
+        policy_block(
+            &policy_setup_json(config),
+            report
+                .tasks
+                .iter()
+                .flat_map(|t| &t.rollouts)
+                .filter_map(PolicyRollout::of),
+        )
     });
     let mut results = json!({
         "schema": RESULTS_SCHEMA,
@@ -484,7 +462,14 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     if config.policy.is_some() {
-        let p = policy_json(report.tasks.iter().flat_map(|t| &t.rollouts));
+        let p = policy_block(
+            &Value::Null,
+            report
+                .tasks
+                .iter()
+                .flat_map(|t| &t.rollouts)
+                .filter_map(PolicyRollout::of),
+        );
         let ms = |q: &str| {
             p["latency_ms"][q]
                 .as_f64()

@@ -4,8 +4,8 @@
 use std::path::Path;
 
 use anyhow::Result;
-use policy_runtime::bench::RolloutResult;
-use policy_runtime::metrics::{RunSummary, Spread};
+use policy_runtime::bench::{BenchConfig, RolloutResult};
+use policy_runtime::metrics::{RunSummary, Spread, Stats};
 use serde_json::{Value, json};
 
 use crate::cli_error::bad_input;
@@ -44,6 +44,73 @@ pub(crate) fn rollout_json(r: &RolloutResult) -> Value {
     }
     if let (Some(p), Some(object)) = (&r.policy, value.as_object_mut()) {
         object.insert("policy".to_owned(), json!(p));
+    }
+    value
+}
+
+/// The learned policy's setup as the results record it (Null: the task's script).
+pub(crate) fn policy_setup_json(config: &BenchConfig) -> Value {
+    config.policy.as_ref().map_or(Value::Null, |p| {
+        json!({
+            "policy": p.endpoint.describe(),
+            "policy_hz": p.policy_hz,
+            "action_steps": p.action_steps,
+            "latency_mode": p.latency,
+        })
+    })
+}
+
+/// One rollout's learned-policy figures, for the run-level `policy` block.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct PolicyRollout<'a> {
+    pub task: &'a str,
+    pub index: usize,
+    pub queries: u64,
+    pub latency_samples_ms: &'a [f64],
+    pub failure: Option<&'a str>,
+}
+
+impl<'a> PolicyRollout<'a> {
+    /// The figures of a rollout flown by a learned policy (None: a scripted one).
+    pub(crate) fn of(r: &'a RolloutResult) -> Option<Self> {
+        r.policy.as_ref().map(|p| Self {
+            task: r.task.name(),
+            index: r.index,
+            queries: p.queries,
+            latency_samples_ms: &p.latency_samples_ms,
+            failure: p.failure.as_deref(),
+        })
+    }
+}
+
+/// The run-level `policy` block: `setup` (the endpoint, `policy_hz`, `action_steps`,
+/// `latency_mode`; an object, or Null for none) and, over `rollouts` in run order, the
+/// queries, the latency statistics of every query (ms), the failed rollouts and their
+/// reasons. `amstack bench` and `amstack bench merge` build it alike.
+pub(crate) fn policy_block<'a>(
+    setup: &Value,
+    rollouts: impl Iterator<Item = PolicyRollout<'a>>,
+) -> Value {
+    let mut queries = 0;
+    let mut samples = Vec::new();
+    let mut failures = Vec::new();
+    for r in rollouts {
+        queries += r.queries;
+        samples.extend_from_slice(r.latency_samples_ms);
+        if let Some(why) = r.failure {
+            failures.push(json!({ "task": r.task, "index": r.index, "reason": why }));
+        }
+    }
+    let mut value = json!({
+        "queries": queries,
+        "latency_ms": Stats::of(samples),
+        "policy_failed": failures.len(),
+        "failures": failures,
+    });
+    if let (Some(object), Some(setup)) = (value.as_object_mut(), setup.as_object()) {
+        for (k, v) in setup {
+            object.insert(k.clone(), v.clone());
+        }
     }
     value
 }

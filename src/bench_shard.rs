@@ -13,13 +13,16 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use comfy_table::{Table, presets};
-use policy_runtime::bench::{BenchConfig, BenchReport, SHARD_ASSIGNMENT, Shard, rollout_log_path};
+use policy_runtime::bench::{
+    BenchConfig, BenchReport, SHARD_ASSIGNMENT, Shard, first_difference, rollout_log_path,
+};
 use policy_runtime::metrics::{RolloutSummary, format_or_na, summarize_run};
 use serde_json::{Value, json};
 use sim_twin::TaskId;
 
 use crate::bench_results::{
-    RESULTS_SCHEMA, check_out_dir, rollout_json, task_json_of, timing_json,
+    PolicyRollout, RESULTS_SCHEMA, check_out_dir, policy_block, policy_setup_json, rollout_json,
+    task_json_of, timing_json,
 };
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_bytes, write_json};
@@ -130,16 +133,21 @@ pub(crate) fn part_json(
         .iter()
         .flat_map(|t| &t.rollouts)
         .map(|r| {
-            Ok(json!({
+            let mut entry = json!({
                 "task": r.task.name(),
                 "index": r.index,
                 "summary": serde_json::to_value(&r.summary)?,
                 "result": rollout_json(r),
-            }))
+            });
+            // A learned policy's every query time: the merge's run-level statistics.
+            if let (Some(p), Some(object)) = (&r.policy, entry.as_object_mut()) {
+                object.insert("latency_samples_ms".to_owned(), json!(p.latency_samples_ms));
+            }
+            Ok(entry)
         })
         .collect::<Result<Vec<Value>>>()?;
     let expected = shard.rollouts(&config.tasks, config.rollouts).len();
-    Ok(json!({
+    let mut part = json!({
         "schema": PART_SCHEMA,
         "part_of": PART_OF,
         "status": if report.interrupted { "interrupted" } else { "completed" },
@@ -160,7 +168,13 @@ pub(crate) fn part_json(
             report.env_steps,
             rollouts.len(),
         ),
-    }))
+    });
+    // With a learned policy only (a scripted run's parts keep their layout).
+    let policy = policy_setup_json(config);
+    if let (false, Some(object)) = (policy.is_null(), part.as_object_mut()) {
+        object.insert("policy".to_owned(), policy);
+    }
+    Ok(part)
 }
 
 /// Writes a part to `out/part.json` and/or `json`.
@@ -238,29 +252,6 @@ fn read_part(arg: &Path) -> Result<Part> {
     })
 }
 
-/// The first field (a dotted path) where `a` and `b` differ, with both values.
-fn first_difference(a: &Value, b: &Value, path: &str) -> Option<(String, Value, Value)> {
-    match (a, b) {
-        (Value::Object(x), Value::Object(y)) => {
-            let keys: std::collections::BTreeSet<&String> = x.keys().chain(y.keys()).collect();
-            keys.into_iter().find_map(|k| {
-                first_difference(
-                    x.get(k).unwrap_or(&Value::Null),
-                    y.get(k).unwrap_or(&Value::Null),
-                    &format!("{path}.{k}"),
-                )
-            })
-        }
-        (Value::Array(x), Value::Array(y)) if x.len() == y.len() => x
-            .iter()
-            .zip(y)
-            .enumerate()
-            .find_map(|(i, (p, q))| first_difference(p, q, &format!("{path}[{i}]"))),
-        _ if a == b => None,
-        _ => Some((path.to_owned(), a.clone(), b.clone())),
-    }
-}
-
 /// One rollout of a part: its task position, index, and entry.
 type Held<'a> = BTreeMap<(usize, usize), (&'a Part, &'a Value)>;
 
@@ -271,7 +262,7 @@ fn check_parts(parts: &[Part]) -> Result<(Vec<TaskId>, Held<'_>)> {
         return Err(bad_input("bench merge: name at least one part"));
     };
     for p in &parts[1..] {
-        for key in ["seed", "config"] {
+        for key in ["seed", "config", "policy"] {
             if let Some((field, a, b)) = first_difference(&first.doc[key], &p.doc[key], key) {
                 return Err(bad_input(format!(
                     "parts of different runs: {} has {field} = {a}, {} has {b}",
@@ -483,7 +474,7 @@ fn merge(args: &MergeArgs) -> Result<()> {
             })
         })
         .collect();
-    let results = json!({
+    let mut results = json!({
         "schema": RESULTS_SCHEMA,
         "status": "completed",
         "seed": first.doc["seed"],
@@ -491,6 +482,35 @@ fn merge(args: &MergeArgs) -> Result<()> {
         "tasks": tasks_json,
         "timing": timing,
     });
+    // A learned policy's run-level block, rebuilt from the rollouts as `bench` builds it.
+    if first.doc["policy"].is_object() {
+        let mut samples: Vec<Vec<f64>> = Vec::with_capacity(held.len());
+        for ((position, index), (part, r)) in &held {
+            let s: Vec<f64> =
+                serde_json::from_value(r["latency_samples_ms"].clone()).map_err(|e| {
+                    bad_input(format!(
+                        "{}: {} #{index}: latency_samples_ms: {e}",
+                        part.file.display(),
+                        tasks[*position].name()
+                    ))
+                })?;
+            samples.push(s);
+        }
+        let rollouts = held
+            .iter()
+            .zip(&samples)
+            .map(|(((position, index), (_, r)), s)| PolicyRollout {
+                task: tasks[*position].name(),
+                index: *index,
+                queries: r["result"]["policy"]["queries"].as_u64().unwrap_or(0),
+                latency_samples_ms: s,
+                failure: r["result"]["policy"]["failure"].as_str(),
+            });
+        let block = policy_block(&first.doc["policy"], rollouts);
+        if let Some(object) = results.as_object_mut() {
+            object.insert("policy".to_owned(), block);
+        }
+    }
     check_out_dir(&args.out)?;
     for (task, index, source) in &sources {
         let target = rollout_log_path(&out_logs, *task, *index);

@@ -3,7 +3,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use policy_runtime::dataset::{DatasetReader, export_openpi, merge, validate};
+use policy_runtime::dataset::{
+    DatasetError, DatasetReader, export_openpi, is_shard, merge, merge_shards, validate,
+};
 use serde_json::json;
 
 use crate::cli_error::bad_input;
@@ -52,15 +54,75 @@ enum Command {
     },
     /// Merge datasets of several tasks (the same features) into one multi-task dataset:
     /// episodes re-indexed in the order given, tasks numbered as they appear, statistics
-    /// aggregated.
+    /// aggregated. Or merge the shards of one recording (`amstack record --shard I/N`, in any
+    /// order) into exactly the dataset the unsharded recording writes: they must be of one
+    /// recording, each shard once, and hold every attempt the unsharded run decides.
     Merge {
-        /// The dataset folders.
+        /// The dataset folders (datasets, or every shard of one recording).
         #[arg(value_name = "DIR", required = true)]
         dirs: Vec<PathBuf>,
         /// The merged dataset's folder (must not exist or be empty).
         #[arg(long, value_name = "OUT")]
         out: PathBuf,
     },
+}
+
+fn merge_shard_parts(dirs: &[PathBuf], out: &Path) -> Result<()> {
+    // Checked before anything is written: refused merges leave no --out behind.
+    if std::fs::read_dir(out).is_ok_and(|mut d| d.next().is_some()) {
+        return Err(bad_input(format!("--out {}: not empty", out.display())));
+    }
+    let existed = out.exists();
+    let mut progress = |e: u64| eprint!("\rmerge: {e} episodes");
+    let merged = merge_shards(dirs, out, &mut progress);
+    let merged = match merged {
+        Ok(m) => m,
+        Err(e) => {
+            if !existed {
+                let _ = std::fs::remove_dir_all(out);
+            }
+            return Err(match e {
+                DatasetError::Invalid { .. } => bad_input(e.to_string()),
+                e => anyhow::Error::new(e),
+            });
+        }
+    };
+    eprintln!();
+    println!(
+        "merged {} shards of a recording: {} episodes, {} frames ({} attempts decided{}) in {}",
+        dirs.len(),
+        merged.writer.episodes(),
+        merged.writer.frames(),
+        merged.attempts,
+        if merged.extra > 0 {
+            format!(
+                "; {} episodes of the shards past the run's last left out",
+                merged.extra
+            )
+        } else {
+            String::new()
+        },
+        out.display()
+    );
+    if merged.writer.episodes() < merged.wanted {
+        anyhow::bail!(
+            "{} of the {} episodes: the recording's attempts were exhausted (as the unsharded run's)",
+            merged.writer.episodes(),
+            merged.wanted
+        );
+    }
+    Ok(())
+}
+
+/// A video dataset where a command still reads its images from the data files.
+fn refuse_video(r: &DatasetReader, dir: &Path, what: &str) -> Result<()> {
+    if r.spec.video {
+        return Err(bad_input(format!(
+            "{}: a video dataset (record --video): {what} does not decode videos yet; record without --video for it",
+            dir.display()
+        )));
+    }
+    Ok(())
 }
 
 fn open(dir: &Path) -> Result<DatasetReader> {
@@ -109,6 +171,10 @@ pub fn run(args: &Args) -> Result<()> {
                 "features": features,
                 "bytes": size,
                 "recording": r.recording,
+                "shard": r.info["ambench"].get("shard").map(|s| json!({
+                    "index": s["index"], "count": s["count"], "run": s["run"],
+                    "attempts_decided": s["attempts"].as_array().map_or(0, Vec::len),
+                })),
             });
             println!(
                 "{}: LeRobot {} dataset of {} ({}), {} episodes, {} frames at {} fps ({:.1} s), {:.1} MB",
@@ -126,6 +192,15 @@ pub fn run(args: &Args) -> Result<()> {
                 println!("  {:<32} {:<8} {:?}", f.key, f.dtype.name(), f.shape);
             }
             println!("  state keys: {}", r.spec.state_keys.join(" "));
+            if let Some(shard) = value["shard"].as_object() {
+                println!(
+                    "  shard {}/{} of a recording of {} episodes ({} attempts decided): merge the shards with `amstack dataset merge`",
+                    shard["index"],
+                    shard["count"],
+                    shard["run"]["episodes"],
+                    shard["attempts_decided"]
+                );
+            }
             for (i, t) in r.tasks.iter().enumerate() {
                 println!("  task {i}: {t}");
             }
@@ -159,7 +234,7 @@ pub fn run(args: &Args) -> Result<()> {
             target_hz,
         } => {
             for d in dirs {
-                let _ = open(d)?;
+                refuse_video(&open(d)?, d, "export-openpi")?;
             }
             fresh_out(out)?;
             let mut progress = |e: u64| eprint!("\rexport-openpi: {e} episodes");
@@ -183,12 +258,23 @@ pub fn run(args: &Args) -> Result<()> {
         }
         Command::Merge { dirs, out } => {
             for d in dirs {
-                let _ = open(d)?;
+                refuse_video(&open(d)?, d, "merge")?;
+            }
+            let shards: Vec<&PathBuf> = dirs.iter().filter(|d| is_shard(d)).collect();
+            if !shards.is_empty() {
+                if let Some(whole) = dirs.iter().find(|d| !is_shard(d)) {
+                    return Err(bad_input(format!(
+                        "{} is a shard of a recording, {} is not: merge the shards of one recording first, then the datasets",
+                        shards[0].display(),
+                        whole.display()
+                    )));
+                }
+                return merge_shard_parts(dirs, out);
             }
             fresh_out(out)?;
             let mut progress = |e: u64| eprint!("\rmerge: {e} episodes");
             let w = merge(dirs, out, &mut progress).map_err(|e| match e {
-                policy_runtime::dataset::DatasetError::Invalid { .. } => bad_input(e.to_string()),
+                DatasetError::Invalid { .. } => bad_input(e.to_string()),
                 e => anyhow::Error::new(e),
             })?;
             eprintln!();

@@ -7,9 +7,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use policy_runtime::Interface;
+use policy_runtime::bench::first_difference;
 use policy_runtime::dataset::{
-    ActionSemantics, Attempt, DatasetSpec, DatasetWriter, RecordConfig, RecordError, StateKey,
-    record,
+    ActionSemantics, Attempt, DatasetSpec, DatasetWriter, RecordConfig, RecordError, ShardPart,
+    StateKey, record,
 };
 use serde_json::{Value, json};
 
@@ -34,6 +35,17 @@ LeRobotDataset(repo_id, root=DIR)); `amstack dataset info|validate|export-openpi
 on it. Same flags, same seed: the same bytes, whatever --jobs. An episode is written whole or
 not at all: a run that dies leaves a valid dataset, and --resume goes on after its last
 episode with the same attempts an uninterrupted run would have made.
+
+Shards: --shard I/N records only the attempts a with a mod N = I (0-based; --shard env/N
+takes I from SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX), in order, until the shard holds
+its quota (--shard-episodes, default ceil(--episodes / N)) or its attempts below
+--max-attempts are made. Every shard is given the same flags otherwise. `amstack dataset merge
+PART... --out DIR` checks the parts are the shards of one recording, each once, and writes
+exactly the dataset the unsharded recording writes (the same bytes). When a task fails often,
+one shard may need more episodes than its quota: the merge names it, and `--resume
+--shard-episodes K` on that shard runs it on.
+  amstack record --platform fa-hexa --task press-button --episodes 80 --shard 0/4 --out part0
+  amstack dataset merge part0 part1 part2 part3 --out data/press-button
 
 State keys: ee_pos ee_quat gripper_width base_pos base_quat base_lin_vel base_ang_vel
 arm_joint_pos arm_joint_vel.
@@ -98,6 +110,20 @@ pub struct Args {
     /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
     #[arg(long = "vehicle", value_name = "FILE.toml")]
     vehicles: Vec<PathBuf>,
+    /// Record only shard I (0-based) of N of the attempts (attempt a belongs to shard a mod
+    /// N); `env/N` reads I from SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX. Merge the shards
+    /// with `amstack dataset merge`.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<String>,
+    /// Store the cameras as MP4 video features (LeRobot's `video` dtype:
+    /// videos/observation.images.<camera>/chunk-CCC/file-FFF.mp4, one file per episode,
+    /// H.264) instead of PNG images in the data files. Needs --cameras and the ffmpeg program
+    /// (apt-get install ffmpeg, or AMSTACK_FFMPEG=PATH).
+    #[arg(long)]
+    video: bool,
+    /// Episodes this shard records [default: ceil(--episodes / N)].
+    #[arg(long, value_name = "K", requires = "shard")]
+    shard_episodes: Option<u64>,
 }
 
 impl Args {
@@ -162,6 +188,27 @@ pub fn run(args: &Args) -> Result<()> {
         return Err(bad_input("--max-attempts 0: make at least one attempt"));
     }
     let keys = state_keys(&args.state_keys)?;
+    let shard = match &args.shard {
+        Some(spec) => Some(crate::bench_shard::parse_shard(spec, &|v| {
+            std::env::var(v).ok()
+        })?),
+        None => None,
+    };
+    if args.shard_episodes == Some(0) {
+        return Err(bad_input("--shard-episodes 0: record at least one episode"));
+    }
+    // What every shard of the run shares beyond the recording block.
+    let shard_part = shard.map(|s| {
+        ShardPart::new(
+            s.index as u64,
+            s.count as u64,
+            json!({
+                "episodes": args.episodes,
+                "max_attempts": max_attempts,
+                "save_failed": args.save_failed,
+            }),
+        )
+    });
     let semantics = match bench.interface {
         Interface::Ee => ActionSemantics::EeAbsolute,
         Interface::BaseJoint => ActionSemantics::BaseJointAbsolute,
@@ -185,8 +232,22 @@ pub fn run(args: &Args) -> Result<()> {
                 .collect()
         })
         .unwrap_or_default();
-    let spec = DatasetSpec::new(&bench.vehicle, &keys, semantics, rate as u32, &cameras);
-    let recording = json!({
+    let ffmpeg = if args.video {
+        if cameras.is_empty() {
+            return Err(bad_input(
+                "--video: name the cameras to store as videos (--cameras ee[,base])",
+            ));
+        }
+        Some(
+            policy_runtime::video::ffmpeg_program()
+                .map_err(|e| bad_input(format!("--video: {e}")))?,
+        )
+    } else {
+        None
+    };
+    let spec = DatasetSpec::new(&bench.vehicle, &keys, semantics, rate as u32, &cameras)
+        .with_video(args.video);
+    let mut recording = json!({
         "task": bench.tasks[0].name(),
         "platform": bench.vehicle.id,
         "controller": bench.controller_name,
@@ -200,8 +261,15 @@ pub fn run(args: &Args) -> Result<()> {
         "twin": serde_json::to_value(&bench.twin)?,
         "actions": "float32, rounded before the stack flies them",
     });
+    // Only with videos: the recordings made before --video keep their block (and resume).
+    if let (true, Some(object)) = (args.video, recording.as_object_mut()) {
+        object.insert(
+            "video".to_owned(),
+            json!({"codec": "h264", "encoder": "ffmpeg libx264"}),
+        );
+    }
     let non_empty = std::fs::read_dir(&args.out).is_ok_and(|mut d| d.next().is_some());
-    let mut writer = if non_empty {
+    let writer = if non_empty {
         if !args.resume {
             return Err(bad_input(format!(
                 "--out {}: not empty (pass --resume to append to the dataset in it)",
@@ -210,14 +278,70 @@ pub fn run(args: &Args) -> Result<()> {
         }
         let writer = DatasetWriter::resume(&args.out, spec)
             .map_err(|e| bad_input(format!("--resume {}: {e}", args.out.display())))?;
+        let repaired = writer.repaired();
+        if repaired.any() {
+            eprintln!(
+                "record: --resume {}: dropped what the last run left of an unfinished episode ({} data rows, {} episode rows, {} task(s){}{})",
+                args.out.display(),
+                repaired.data_rows,
+                repaired.episode_rows,
+                repaired.tasks,
+                if repaired.files_removed.is_empty() {
+                    String::new()
+                } else {
+                    format!("; removed {}", repaired.files_removed.join(", "))
+                },
+                if repaired.stats_suspect() {
+                    "; statistics recomputed"
+                } else {
+                    ""
+                },
+            );
+        }
         let info = std::fs::read_to_string(args.out.join("meta/info.json")).unwrap_or_default();
         let info: Value = serde_json::from_str(&info).unwrap_or(Value::Null);
         let stored = &info["ambench"]["recording"];
-        if *stored != recording {
+        if let Some((field, was, now)) = first_difference(stored, &recording, "recording") {
             return Err(bad_input(format!(
-                "--resume {}: the dataset was recorded with {stored}; these flags give {recording}",
+                "--resume {}: the dataset was recorded with {field} = {was}; these flags give {now}",
                 args.out.display()
             )));
+        }
+        match (writer.shard(), &shard_part) {
+            (None, None) => {}
+            (Some(had), Some(now)) => {
+                let differs = if (had.index, had.count) == (now.index, now.count) {
+                    first_difference(&had.run, &now.run, "shard.run")
+                } else {
+                    Some((
+                        "shard".to_owned(),
+                        json!(format!("{}/{}", had.index, had.count)),
+                        json!(format!("{}/{}", now.index, now.count)),
+                    ))
+                };
+                if let Some((field, was, now)) = differs {
+                    return Err(bad_input(format!(
+                        "--resume {}: the shard was recorded with {field} = {was}; these flags give {now}",
+                        args.out.display()
+                    )));
+                }
+            }
+            (Some(had), None) => {
+                return Err(bad_input(format!(
+                    "--resume {}: the dataset is shard {}/{} of a recording; resume it with --shard {}/{}",
+                    args.out.display(),
+                    had.index,
+                    had.count,
+                    had.index,
+                    had.count
+                )));
+            }
+            (None, Some(_)) => {
+                return Err(bad_input(format!(
+                    "--resume {}: the dataset is a whole recording, not a shard (drop --shard)",
+                    args.out.display()
+                )));
+            }
         }
         writer
     } else {
@@ -227,20 +351,39 @@ pub fn run(args: &Args) -> Result<()> {
                 args.out.display()
             ))
         })?;
-        DatasetWriter::create(&args.out, spec, recording)?
+        let writer = DatasetWriter::create(&args.out, spec, recording)?;
+        match shard_part {
+            Some(part) => writer.with_shard(part)?,
+            None => writer,
+        }
+    };
+    let mut writer = match ffmpeg {
+        Some(program) => writer.with_ffmpeg(program),
+        None => writer,
     };
     let first_attempt = writer.next_attempt();
     let already = writer.episodes();
+    // A shard: its quota of episodes, and its attempts among the run's 0..max_attempts.
+    let (target, attempt_step, attempt_end) = match shard {
+        Some(s) => (
+            args.shard_episodes
+                .unwrap_or_else(|| args.episodes.div_ceil(s.count as u64)),
+            s.count as u64,
+            max_attempts,
+        ),
+        None => (args.episodes, 1, first_attempt.saturating_add(max_attempts)),
+    };
     let config = RecordConfig {
         bench,
-        episodes: args.episodes,
-        max_attempts,
+        episodes: target,
         save_failed: args.save_failed,
         state_keys: keys,
         first_attempt,
+        attempt_step,
+        attempt_end,
     };
     eprintln!(
-        "record: {} on {} ({}, {} interface), seed {}, {} thread(s), disturbances: {}; {} episode(s) wanted, {} in {} already, attempts {}..{}",
+        "record: {} on {} ({}, {} interface), seed {}, {} thread(s), disturbances: {}; {} episode(s) wanted{}, {} in {} already, attempts {}..{}{}",
         config.bench.tasks[0].name(),
         config.bench.vehicle.id,
         config.bench.controller_name,
@@ -248,17 +391,26 @@ pub fn run(args: &Args) -> Result<()> {
         config.bench.seed,
         config.bench.jobs,
         args.twin.disturbances,
-        args.episodes,
+        target,
+        shard.map_or(String::new(), |s| format!(
+            " (shard {s} of a recording of {})",
+            args.episodes
+        )),
         already,
         args.out.display(),
         first_attempt,
-        first_attempt + max_attempts,
+        attempt_end,
+        if attempt_step > 1 {
+            format!(" every {attempt_step}")
+        } else {
+            String::new()
+        },
     );
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
-    let bar = ProgressBar::new(args.episodes);
-    bar.set_position(already.min(args.episodes));
+    let bar = ProgressBar::new(target);
+    bar.set_position(already.min(target));
     bar.set_style(
         ProgressStyle::with_template(
             "{elapsed_precise} [{bar:30}] {pos}/{len} episodes ({eta} left) {msg}",
@@ -300,7 +452,8 @@ pub fn run(args: &Args) -> Result<()> {
         "dataset_episodes": writer.episodes(),
         "dataset_frames": writer.frames(),
         "dataset_bytes": size,
-        "status": if report.interrupted { "interrupted" } else if writer.episodes() >= args.episodes { "completed" } else { "attempts exhausted" },
+        "status": if report.interrupted { "interrupted" } else if writer.episodes() >= target { "completed" } else { "attempts exhausted" },
+        "shard": shard.map(|s| s.to_string()),
         "timing": {
             "wall_time_s": report.wall_time_s,
             "jobs": config.bench.jobs,
@@ -331,11 +484,11 @@ pub fn run(args: &Args) -> Result<()> {
     if report.interrupted {
         return Err(anyhow::Error::new(crate::bench::Interrupted));
     }
-    if writer.episodes() < args.episodes {
+    if writer.episodes() < target {
         anyhow::bail!(
             "{} of the {} episodes after {} attempts (raise --max-attempts, or --save-failed)",
             writer.episodes(),
-            args.episodes,
+            target,
             report.attempts
         );
     }

@@ -28,7 +28,7 @@ use serde::Serialize;
 use sim_twin::{TaskId, TwinConfig, TwinError};
 
 pub use self::episode::BenchLink;
-pub use self::shard::{ASSIGNMENT as SHARD_ASSIGNMENT, Shard, ShardError};
+pub use self::shard::{ASSIGNMENT as SHARD_ASSIGNMENT, Shard, ShardError, first_difference};
 use crate::cameras::{CameraConfig, CameraRig};
 use crate::flight::{
     ActionNoise, ActionSource, BenchMetrics, End, FlightError, FlightSpec, Observer, ScriptedTask,

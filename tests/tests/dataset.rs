@@ -159,3 +159,201 @@ fn bad_input_is_one_line_and_exit_2() {
         assert!(stderr.contains(needle), "{args:?}: {stderr}");
     }
 }
+
+/// Every file under `dir`, by relative path, with its bytes.
+fn files(dir: &Path) -> std::collections::BTreeMap<std::path::PathBuf, Vec<u8>> {
+    let mut found = std::collections::BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).unwrap().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                let rel = path.strip_prefix(dir).unwrap().to_path_buf();
+                found.insert(rel, std::fs::read(&path).unwrap());
+            }
+        }
+    }
+    found
+}
+
+#[test]
+fn three_recorded_shards_merged_are_the_unsharded_dataset_file_by_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let record = [
+        "record",
+        "--task",
+        "press-button",
+        "--episodes",
+        "4",
+        "--seed",
+        "9",
+        "--cameras",
+        "ee",
+        "--jobs",
+        "1",
+    ];
+    let whole = tmp.path().join("whole");
+    let mut args = record.to_vec();
+    let w = whole.to_str().unwrap();
+    args.extend(["--out", w]);
+    ok(&args);
+    // Shard 0 from the flag, 1 from a Slurm array index, 2 from a Kubernetes Indexed Job's.
+    let parts: Vec<String> = (0..3)
+        .map(|i| tmp.path().join(format!("part{i}")).display().to_string())
+        .collect();
+    for (i, (spec, env)) in [
+        ("0/3", None),
+        ("env/3", Some(("SLURM_ARRAY_TASK_ID", "1"))),
+        ("env/3", Some(("JOB_COMPLETION_INDEX", "2"))),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let mut args = record.to_vec();
+        args.extend(["--shard", spec, "--out", &parts[i]]);
+        let mut cmd = Command::new(amstack());
+        cmd.args(&args)
+            .env_remove("SLURM_ARRAY_TASK_ID")
+            .env_remove("JOB_COMPLETION_INDEX");
+        if let Some((k, v)) = env {
+            cmd.env(k, v);
+        }
+        let out = cmd.output().unwrap();
+        assert!(
+            out.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        // Each shard is a valid dataset of its quota (ceil(4 / 3) = 2 episodes).
+        let validated = ok(&["dataset", "validate", &parts[i]]);
+        assert!(validated.contains("valid (2 episodes"), "{validated}");
+    }
+    let info: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(Path::new(&parts[1]).join("meta/info.json")).unwrap(),
+    )
+    .unwrap();
+    let attempts: Vec<u64> = info["ambench"]["shard"]["attempts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["attempt"].as_u64().unwrap())
+        .collect();
+    assert_eq!(attempts, [1, 4], "shard 1/3 holds attempts a mod 3 = 1");
+    let merged = tmp.path().join("merged");
+    let m = merged.to_str().unwrap();
+    let said = ok(&[
+        "dataset", "merge", &parts[2], &parts[0], &parts[1], "--out", m,
+    ]);
+    assert!(
+        said.contains("4 episodes") && said.contains("2 episodes of the shards past"),
+        "{said}"
+    );
+    let (a, b) = (files(&whole), files(&merged));
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (path, bytes) in &a {
+        assert!(b[path] == *bytes, "{} differs", path.display());
+    }
+    // A missing shard and a whole dataset among shards are refused on one line, exit 2.
+    for (args, needle) in [
+        (
+            vec![
+                "dataset",
+                "merge",
+                &parts[0],
+                &parts[2],
+                "--out",
+                "/tmp/x-never",
+            ],
+            "shard 1/3 missing",
+        ),
+        (
+            vec!["dataset", "merge", &parts[0], w, "--out", "/tmp/x-never"],
+            "is not: merge the shards",
+        ),
+    ] {
+        let out = run(&args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert_eq!(stderr.trim().lines().count(), 1, "{args:?}: {stderr}");
+        assert!(stderr.contains(needle), "{args:?}: {stderr}");
+    }
+    assert!(!Path::new("/tmp/x-never").exists());
+}
+
+#[test]
+fn a_video_dataset_has_one_mp4_per_episode_that_ffmpeg_decodes_to_its_frames() {
+    // The encoder: the static ffmpeg of the venv's imageio-ffmpeg (no Debian ffmpeg needed).
+    let exe = Command::new(python())
+        .args([
+            "-c",
+            "import imageio_ffmpeg; print(imageio_ffmpeg.get_ffmpeg_exe())",
+        ])
+        .output()
+        .unwrap();
+    let ffmpeg = String::from_utf8_lossy(&exe.stdout).trim().to_owned();
+    assert!(
+        exe.status.success() && !ffmpeg.is_empty(),
+        "no imageio-ffmpeg"
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let record = |dir: &Path| {
+        let out = Command::new(amstack())
+            .args([
+                "record",
+                "--task",
+                "press-button",
+                "--episodes",
+                "2",
+                "--seed",
+                "3",
+                "--cameras",
+                "ee",
+                "--video",
+                "--jobs",
+                "2",
+                "--out",
+            ])
+            .arg(dir)
+            .env("AMSTACK_FFMPEG", &ffmpeg)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    let dir = tmp.path().join("video");
+    record(&dir);
+    let d = dir.to_str().unwrap();
+    let validated = ok(&["dataset", "validate", d]);
+    assert!(validated.contains("valid (2 episodes"), "{validated}");
+    let info = ok(&["dataset", "info", d]);
+    assert!(
+        info.lines()
+            .any(|l| l.contains("observation.images.ee_camera") && l.contains("video")),
+        "{info}"
+    );
+    for f in 0..2 {
+        let mp4 = dir.join(format!(
+            "videos/observation.images.ee_camera/chunk-000/file-{f:03}.mp4"
+        ));
+        assert!(mp4.is_file(), "{}", mp4.display());
+    }
+    // pyarrow reads the files, imageio-ffmpeg decodes every MP4: its frames are the
+    // episode's, and the row's timestamps span them.
+    let report = check(&dir, None);
+    assert_eq!(report["episodes"], 2);
+    assert_eq!(report["video_frames"], report["frames"], "{report}");
+    // Same flags, same bytes (the encoder runs single-threaded, bit-exact).
+    let again = tmp.path().join("again");
+    record(&again);
+    assert!(files(&dir) == files(&again), "a second recording differs");
+    // What does not decode videos yet says so on one line.
+    let out = run(&["dataset", "merge", d, "--out", "/tmp/x-never-video"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("a video dataset"), "{stderr}");
+}

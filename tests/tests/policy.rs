@@ -441,3 +441,136 @@ fn a_remote_policy_sees_the_cameras_images_on_query_ticks() {
         assert_eq!(q["keys"].get("am_bench/base_image"), None);
     }
 }
+
+/// `v` without its `timing` and without every `latency_ms` (wall-clock figures).
+fn without_wall_clock(v: &Value) -> Value {
+    match v {
+        Value::Object(m) => Value::Object(
+            m.iter()
+                .filter(|(k, _)| *k != "timing" && *k != "latency_ms")
+                .map(|(k, x)| (k.clone(), without_wall_clock(x)))
+                .collect(),
+        ),
+        Value::Array(a) => Value::Array(a.iter().map(without_wall_clock).collect()),
+        x => x.clone(),
+    }
+}
+
+#[test]
+fn a_sharded_run_of_a_learned_policy_merges_to_the_unsharded_results() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let model = dir.path().join("relative.onnx");
+    let made = Command::new(python())
+        .arg(scripts_dir().join("onnx_model.py"))
+        .args(["make", "--horizon", "8", "--semantics", "relative", "--out"])
+        .arg(&model)
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    let policy = format!("onnx:{}", model.display());
+    let run = [
+        "--rollouts",
+        "3",
+        "--episode-length",
+        "1",
+        "--policy",
+        &policy,
+    ];
+    let whole = bench(dir.path(), "whole", &run);
+    let mut parts = Vec::new();
+    for i in 0..2 {
+        let shard = format!("{i}/2");
+        let mut args = run.to_vec();
+        args.extend(["--shard", &shard]);
+        let part = bench(dir.path(), &format!("part{i}"), &args);
+        assert_eq!(part["policy"]["policy_hz"].as_f64(), Some(20.0), "{part}");
+        parts.push(dir.path().join(format!("part{i}.json")));
+    }
+    let merged_dir = dir.path().join("merged");
+    let out = Command::new(amstack())
+        .args(["bench", "merge"])
+        .args(&parts)
+        .arg("--out")
+        .arg(&merged_dir)
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let merged: Value =
+        serde_json::from_slice(&std::fs::read(merged_dir.join("results.json")).unwrap_or_default())
+            .unwrap_or_else(|e| panic!("{e}"));
+    // 1 s: 3 queries per rollout.
+    assert_eq!(merged["policy"]["queries"], 9, "{merged}");
+    assert_eq!(merged["policy"]["latency_ms"]["count"], 9, "{merged}");
+    assert_eq!(merged["policy"]["policy"], whole["policy"]["policy"]);
+    assert_eq!(without_wall_clock(&merged), without_wall_clock(&whole));
+}
+
+/// The train-here pipeline, tiny: `scripts/pipeline.sh` records 2 NDT demonstrations on the
+/// FA-Hexa, trains the behaviour-cloning MLP (scikit-learn), exports ONNX, and flies it in
+/// process (tract) and served over openpi's protocol (onnxruntime). The chain works — the
+/// model loads, rollouts run and query it, the results parse — whatever the success rate of a
+/// policy of 2 demonstrations.
+#[test]
+fn the_record_train_evaluate_pipeline_runs_end_to_end() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let out = dir.path().join("pipeline");
+    let run = Command::new("bash")
+        .arg(scripts_dir().join("pipeline.sh"))
+        .args(["--episodes", "2", "--rollouts", "2", "--jobs", "2", "--out"])
+        .arg(&out)
+        .env("AMSTACK", amstack())
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        run.status.success(),
+        "pipeline.sh failed:\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let read = |name: &str| -> Value {
+        let text =
+            std::fs::read_to_string(out.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"))
+    };
+    let train = read("train.json");
+    assert_eq!(train["episodes"], 2, "{train}");
+    assert!(
+        train["onnx_vs_sklearn_max_abs"]
+            .as_f64()
+            .is_some_and(|e| e < 1e-4),
+        "{train}"
+    );
+    let sidecar = read("policy.onnx.json");
+    assert_eq!(sidecar["output"]["dim"], 8);
+    for path in ["onnx", "remote"] {
+        let results = read(&format!("bench-{path}.json"));
+        let task = &results["tasks"]["ndt"];
+        assert_eq!(task["rollouts"], 2, "{path}: {results}");
+        assert_eq!(task["policy_failed"], 0, "{path}: {results}");
+        for r in task["per_rollout"].as_array().into_iter().flatten() {
+            // At least the first query, then one every 48 ticks flown.
+            let steps = r["executed_steps"].as_u64().unwrap_or(0);
+            let queries = r["policy"]["queries"].as_u64().unwrap_or(0);
+            assert!(
+                steps > 0 && queries >= 1 && queries >= steps / TICKS_PER_QUERY,
+                "{path}: {r}"
+            );
+        }
+        assert!(
+            results["policy"]["latency_ms"]["p50"].as_f64().is_some(),
+            "{path}"
+        );
+    }
+    let summary = read("summary.json");
+    assert!(
+        summary["remote"]["success_rate"].as_f64().is_some(),
+        "{summary}"
+    );
+}

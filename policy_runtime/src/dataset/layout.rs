@@ -14,8 +14,18 @@ pub const CODEBASE_VERSION: &str = "v3.0";
 pub const CHUNKS_SIZE: u64 = 1000;
 /// A data file is closed once it would grow past this many MB (lerobot's default).
 pub const DATA_FILES_SIZE_IN_MB: u64 = 100;
-/// lerobot's default for video files (written to `info.json`; amstack writes images).
+/// lerobot's default for video files (written to `info.json`; amstack writes one video file
+/// per episode and camera).
 pub const VIDEO_FILES_SIZE_IN_MB: u64 = 200;
+/// Path template of the video files (`record --video`).
+pub const VIDEO_PATH: &str = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4";
+/// The video codec `record --video` encodes (ffmpeg's libx264, yuv420p).
+pub const VIDEO_CODEC: &str = "h264";
+
+/// `videos/KEY/chunk-CCC/file-FFF.mp4`.
+pub fn video_file(key: &str, chunk: u64, file: u64) -> String {
+    format!("videos/{key}/chunk-{chunk:03}/file-{file:03}.mp4")
+}
 /// Path template of the data files.
 pub const DATA_PATH: &str = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet";
 
@@ -47,6 +57,8 @@ pub enum Dtype {
     Int64,
     /// An image: PNG bytes in the Parquet file (`datasets.Image`), uint8 HWC when decoded.
     Image,
+    /// A camera stream stored as MP4 video files (`videos/…`), uint8 HWC frames when decoded.
+    Video,
 }
 
 impl Dtype {
@@ -56,6 +68,7 @@ impl Dtype {
             Self::Float32 => "float32",
             Self::Int64 => "int64",
             Self::Image => "image",
+            Self::Video => "video",
         }
     }
 }
@@ -93,9 +106,22 @@ impl Feature {
         self.len() == 0
     }
 
-    /// Its `info.json` entry.
-    pub fn info(&self) -> Value {
-        json!({ "dtype": self.dtype.name(), "shape": self.shape, "names": self.names })
+    /// Its `info.json` entry (lerobot's `info` block for a video at `fps`).
+    pub fn info(&self, fps: u32) -> Value {
+        let mut v = json!({ "dtype": self.dtype.name(), "shape": self.shape, "names": self.names });
+        if self.dtype == Dtype::Video {
+            v["info"] = json!({
+                "video.height": self.shape.first(),
+                "video.width": self.shape.get(1),
+                "video.codec": VIDEO_CODEC,
+                "video.pix_fmt": "yuv420p",
+                "video.is_depth_map": false,
+                "video.fps": fps,
+                "video.channels": 3,
+                "has_audio": false,
+            });
+        }
+        v
     }
 }
 
@@ -248,6 +274,8 @@ pub struct DatasetSpec {
     pub action_dim: usize,
     /// Cameras recorded: (feature key, height, width).
     pub images: Vec<(String, usize, usize)>,
+    /// The cameras are stored as MP4 videos (dtype `video`), not as images in the data files.
+    pub video: bool,
 }
 
 impl DatasetSpec {
@@ -274,7 +302,15 @@ impl DatasetSpec {
                 .iter()
                 .map(|(name, h, w)| (image_key(name), *h, *w))
                 .collect(),
+            video: false,
         }
+    }
+
+    /// The same spec with the cameras stored as MP4 videos.
+    #[must_use]
+    pub fn with_video(mut self, video: bool) -> Self {
+        self.video = video;
+        self
     }
 
     /// Every feature, in lerobot's order: the recorded ones, then timestamp, frame_index,
@@ -301,7 +337,11 @@ impl DatasetSpec {
         for (key, h, w) in &self.images {
             features.push(Feature {
                 key: key.clone(),
-                dtype: Dtype::Image,
+                dtype: if self.video {
+                    Dtype::Video
+                } else {
+                    Dtype::Image
+                },
                 shape: vec![*h, *w, 3],
                 names: Some(vec!["height".into(), "width".into(), "channels".into()]),
             });
@@ -360,8 +400,11 @@ impl DatasetSpec {
             })
             .unwrap_or_default();
         let mut images = Vec::new();
+        let mut videos = 0;
         for (key, f) in features {
-            if f.get("dtype").and_then(Value::as_str) == Some("image") {
+            let dtype = f.get("dtype").and_then(Value::as_str);
+            videos += usize::from(dtype == Some("video"));
+            if dtype == Some("image") || dtype == Some("video") {
                 let shape: Vec<usize> = f
                     .get("shape")
                     .and_then(Value::as_array)
@@ -380,6 +423,12 @@ impl DatasetSpec {
                 images.push((key.clone(), h, w));
             }
         }
+        if videos != 0 && videos != images.len() {
+            return Err(bad(format!(
+                "features: {videos} video and {} image cameras (amstack reads one kind)",
+                images.len() - videos
+            )));
+        }
         Ok(Self {
             fps: info
                 .get("fps")
@@ -397,6 +446,7 @@ impl DatasetSpec {
             action_semantics: semantics,
             action_dim: dim("action")?,
             images,
+            video: videos > 0,
         })
     }
 }

@@ -19,6 +19,8 @@
 //! - [`stats`]: lerobot's statistics;
 //! - [`DatasetWriter`], [`DatasetReader`]; [`validate`]; [`export_openpi`] (the v2.1 layout
 //!   of openpi at 20 Hz); [`merge`];
+//! - [`merge_shards`]: the shards of a recording (`record --shard I/N`, [`ShardPart`]) merged
+//!   into the dataset the unsharded recording writes;
 //! - [`Recorder`]: the flight observer that makes the frames, [`RecordedActions`] the source
 //!   that flies them again.
 
@@ -28,8 +30,11 @@ pub mod layout;
 mod openpi;
 mod read;
 mod recorder;
+mod repair;
+mod shard;
 pub mod stats;
 mod validate;
+mod video;
 mod write;
 
 pub use self::error::DatasetError;
@@ -38,10 +43,14 @@ pub use self::layout::{
     image_key, state_vector, task_prompt,
 };
 pub use self::openpi::{OpenpiExport, export_openpi};
-pub use self::read::{DatasetReader, EpisodeRow};
+pub use self::read::{DatasetReader, EpisodeRow, EpisodeVideo};
 pub use self::recorder::{
     Attempt, QuantizedActions, RecordConfig, RecordError, RecordReport, RecordedActions, Recorder,
     record,
+};
+pub use self::repair::Repair;
+pub use self::shard::{
+    DecidedAttempt, RECORD_SHARD_ASSIGNMENT, ShardMerge, ShardPart, is_shard, merge_shards,
 };
 pub use self::validate::validate;
 pub use self::write::{DatasetWriter, EpisodeFrames, EpisodeSource, decode_png, encode_png, merge};

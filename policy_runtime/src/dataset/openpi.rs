@@ -59,6 +59,7 @@ pub fn export_openpi(
         .first()
         .ok_or_else(|| DatasetError::invalid("export-openpi", "no dataset to export"))?;
     let spec = DatasetReader::open(first)?.spec;
+    super::video::refuse_video(first, &spec, "export-openpi")?;
     if target_hz == 0 || spec.fps % target_hz != 0 {
         return Err(DatasetError::invalid(
             "export-openpi",
@@ -315,7 +316,11 @@ pub fn export_openpi(
         ("video_path", J::V(Value::Null)),
         (
             "features",
-            J::obj(features.iter().map(|f| (f.key.clone(), J::V(f.info())))),
+            J::obj(
+                features
+                    .iter()
+                    .map(|f| (f.key.clone(), J::V(f.info(target_hz)))),
+            ),
         ),
         (
             "ambench",

@@ -4,8 +4,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use arrow::array::{
-    Array, AsArray, BinaryArray, FixedSizeListArray, Float32Array, Int64Array, ListArray,
-    StringArray, StructArray,
+    Array, AsArray, BinaryArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
+    ListArray, StringArray, StructArray,
 };
 use arrow::datatypes::{Float32Type, Int64Type};
 use arrow::record_batch::RecordBatch;
@@ -34,6 +34,22 @@ pub struct EpisodeRow {
     pub to: u64,
     /// `meta/episodes/chunk_index`, `meta/episodes/file_index`.
     pub meta: (u64, u64),
+    /// Per video feature: (key, `videos/KEY/chunk_index`, `file_index`, `from_timestamp`,
+    /// `to_timestamp`); empty without videos.
+    pub videos: Vec<EpisodeVideo>,
+}
+
+/// Where an episode's frames of one video feature are.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeVideo {
+    /// The feature (`observation.images.ee_camera`).
+    pub key: String,
+    /// Chunk and file of its MP4 (`videos/KEY/chunk-CCC/file-FFF.mp4`).
+    pub file: (u64, u64),
+    /// The episode's first frame's timestamp in the file, s.
+    pub from_timestamp: f64,
+    /// One frame past its last, s.
+    pub to_timestamp: f64,
 }
 
 /// A dataset opened for reading.
@@ -129,6 +145,10 @@ impl DatasetReader {
         }
         reader.tasks = read_tasks(root)?;
         reader.episodes = read_episodes(root)?;
+        if reader.spec.video {
+            let keys: Vec<String> = reader.spec.images.iter().map(|i| i.0.clone()).collect();
+            read_episode_videos(root, &keys, &mut reader.episodes)?;
+        }
         Ok(reader)
     }
 
@@ -140,7 +160,7 @@ impl DatasetReader {
             .iter()
             .map(|f| {
                 let kind = match f.dtype {
-                    Dtype::Image => StatsKind::Image,
+                    Dtype::Image | Dtype::Video => StatsKind::Image,
                     Dtype::Int64 => StatsKind::Int,
                     Dtype::Float32 => StatsKind::Float,
                 };
@@ -193,9 +213,11 @@ impl DatasetReader {
             let task = column::<Int64Array>(batch, "task_index", &file)?;
             let state = fixed_values(batch, "observation.state", &file)?;
             let action = fixed_values(batch, "action", &file)?;
+            // A video dataset's frames are in its MP4 files, not here.
             let images = spec
                 .images
                 .iter()
+                .filter(|_| !spec.video)
                 .map(|(key, _, _)| image_bytes(batch, key, &file))
                 .collect::<Result<Vec<_>, _>>()?;
             for r in 0..batch.num_rows() {
@@ -331,12 +353,63 @@ fn read_episodes(root: &Path) -> Result<Vec<EpisodeRow>, DatasetError> {
                     from: from[r],
                     to: to[r],
                     meta: (mc[r], mf[r]),
+                    videos: Vec::new(),
                 });
             }
         }
     }
     rows.sort_by_key(|r| r.index);
     Ok(rows)
+}
+
+/// The `videos/KEY/…` columns of the episodes files, into `rows` (sorted by index).
+fn read_episode_videos(
+    root: &Path,
+    keys: &[String],
+    rows: &mut [EpisodeRow],
+) -> Result<(), DatasetError> {
+    let dir = root.join("meta/episodes");
+    let mut files: Vec<PathBuf> = Vec::new();
+    for chunk in std::fs::read_dir(&dir).map_err(DatasetError::io(&dir))? {
+        let chunk = chunk.map_err(DatasetError::io(&dir))?.path();
+        if chunk.is_dir() {
+            for f in std::fs::read_dir(&chunk).map_err(DatasetError::io(&chunk))? {
+                let f = f.map_err(DatasetError::io(&chunk))?.path();
+                if f.extension().is_some_and(|e| e == "parquet") {
+                    files.push(f);
+                }
+            }
+        }
+    }
+    for path in files {
+        let rel = path
+            .strip_prefix(root)
+            .unwrap_or(&path)
+            .display()
+            .to_string();
+        for batch in read_parquet(&path)? {
+            let index = ints(&batch, "episode_index", &rel)?;
+            for key in keys {
+                let chunk = ints(&batch, &format!("videos/{key}/chunk_index"), &rel)?;
+                let file = ints(&batch, &format!("videos/{key}/file_index"), &rel)?;
+                let from =
+                    column::<Float64Array>(&batch, &format!("videos/{key}/from_timestamp"), &rel)?;
+                let to =
+                    column::<Float64Array>(&batch, &format!("videos/{key}/to_timestamp"), &rel)?;
+                for r in 0..batch.num_rows() {
+                    if let Some(row) = rows.iter_mut().find(|x| x.index == index[r]) {
+                        row.videos.push(EpisodeVideo {
+                            key: key.clone(),
+                            file: (chunk[r], file[r]),
+                            from_timestamp: from.value(r),
+                            to_timestamp: to.value(r),
+                        });
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Columns by name, each a list of rows of values.

@@ -230,17 +230,19 @@ pub struct RecordConfig {
     /// The rollouts (platform, controller, interface, twin, episode length, jobs); its
     /// first task is recorded.
     pub bench: BenchConfig,
-    /// Episodes the dataset should hold at the end.
+    /// Episodes the dataset should hold at the end (a shard: its quota).
     pub episodes: u64,
-    /// Attempts (rollouts) of this run at most.
-    pub max_attempts: u64,
     /// Save failed episodes too.
     pub save_failed: bool,
     /// The observation state's keys.
     pub state_keys: Vec<StateKey>,
-    /// The first attempt's index (its seed is the run seed + it); after a resume, one past
-    /// the last attempt the dataset holds.
+    /// The first attempt's index (its seed is the run seed + it); after a resume, the one
+    /// after the last attempt the dataset holds (or, a shard, decided).
     pub first_attempt: u64,
+    /// The attempts made are `first_attempt + j · attempt_step` (1; a shard of n: n).
+    pub attempt_step: u64,
+    /// Attempts are below this index.
+    pub attempt_end: u64,
 }
 
 /// One attempt, when its episode was saved or dropped.
@@ -289,7 +291,7 @@ pub enum RecordError {
 type Outcome = Result<(Attempt, Option<EpisodeFrames>), BenchError>;
 
 /// Records episodes of `config.bench.tasks[0]` into `writer` until it holds
-/// `config.episodes` or `config.max_attempts` attempts were made: attempts run on
+/// `config.episodes` or the attempts up to `config.attempt_end` were made: attempts run on
 /// `config.bench.jobs` threads, and are written in attempt order, so the dataset does not
 /// depend on the number of threads. `on_attempt` sees each attempt as it is decided; `stop`
 /// ends the run between episodes (what was written stays valid).
@@ -306,8 +308,8 @@ pub fn record(
         .first()
         .ok_or_else(|| DatasetError::invalid("record", "no task to record"))?;
     let mut report = RecordReport::default();
-    let last = config.first_attempt.saturating_add(config.max_attempts);
-    let next = AtomicU64::new(config.first_attempt);
+    let step = config.attempt_step.max(1);
+    let next = AtomicU64::new(0);
     let done = AtomicBool::new(writer.episodes() >= config.episodes);
     let env_steps = AtomicU64::new(0);
     let action_dim = writer.spec().action_dim;
@@ -326,8 +328,9 @@ pub fn record(
                     if done.load(Ordering::Relaxed) || stop.load(Ordering::Relaxed) {
                         break;
                     }
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    if i >= last {
+                    let j = next.fetch_add(1, Ordering::Relaxed);
+                    let i = config.first_attempt.saturating_add(j.saturating_mul(step));
+                    if i >= config.attempt_end {
                         break;
                     }
                     let outcome = attempt(config, task, i, action_dim, stop);
@@ -348,7 +351,7 @@ pub fn record(
         for (i, outcome) in rx {
             pending.insert(i, outcome);
             while let Some(outcome) = pending.remove(&want) {
-                want += 1;
+                want += step;
                 if done.load(Ordering::Relaxed) {
                     continue;
                 }
@@ -364,14 +367,18 @@ pub fn record(
                 }
                 report.attempts += 1;
                 report.successes += u64::from(a.success);
-                if let Some(episode) = episode.filter(|_| a.success || config.save_failed) {
-                    if let Err(e) = writer.write_episode(episode) {
+                let kept = episode.filter(|_| a.success || config.save_failed);
+                match writer.decide(a.index, a.success, kept) {
+                    Err(e) => {
                         done.store(true, Ordering::Relaxed);
                         return Err(e.into());
                     }
-                    a.saved = true;
-                    report.saved += 1;
-                    report.frames += a.frames;
+                    Ok(true) => {
+                        a.saved = true;
+                        report.saved += 1;
+                        report.frames += a.frames;
+                    }
+                    Ok(false) => {}
                 }
                 on_attempt(&a);
                 if writer.episodes() >= config.episodes {

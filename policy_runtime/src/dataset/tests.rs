@@ -356,10 +356,11 @@ fn record_into(dir: &Path, config: &BenchConfig, keys: &[StateKey], episodes: u6
     let rc = RecordConfig {
         bench: config.clone(),
         episodes,
-        max_attempts: 10,
         save_failed: false,
         state_keys: keys.to_vec(),
         first_attempt: w.next_attempt(),
+        attempt_step: 1,
+        attempt_end: w.next_attempt() + 10,
     };
     record(&rc, &mut w, &mut |_| {}, &AtomicBool::new(false)).unwrap()
 }
@@ -477,4 +478,231 @@ fn recording_is_the_same_bytes_whatever_the_threads_and_resumes() {
     config.jobs = 2;
     record_into(three.path(), &config, &keys, 3);
     assert_eq!(files(three.path()), a);
+}
+
+/// The episode attempt `a` makes in the shard tests: a few frames, one camera; it fails when
+/// `fails(a)`.
+fn attempt_episode(a: u64, fails: &dyn Fn(u64) -> bool) -> (bool, EpisodeFrames) {
+    let mut e = episode(a, 2 + (a % 4) as usize, "press", 1);
+    e.source.success = !fails(a);
+    (e.source.success, e)
+}
+
+const SHARD_RUN_EPISODES: u64 = 6;
+const SHARD_RUN_MAX_ATTEMPTS: u64 = 20;
+
+fn shard_run() -> Value {
+    json!({"episodes": SHARD_RUN_EPISODES, "max_attempts": SHARD_RUN_MAX_ATTEMPTS, "save_failed": false})
+}
+
+/// What `record` does unsharded: attempts in order until the run's episodes are saved.
+fn record_whole(dir: &Path, fails: &dyn Fn(u64) -> bool) {
+    let mut w =
+        DatasetWriter::create(dir, spec(&[("ee".into(), 4, 4)]), json!({"seed": 3})).unwrap();
+    let mut a = 0;
+    while w.episodes() < SHARD_RUN_EPISODES && a < SHARD_RUN_MAX_ATTEMPTS {
+        let (ok, e) = attempt_episode(a, fails);
+        w.decide(a, ok, ok.then_some(e)).unwrap();
+        a += 1;
+    }
+}
+
+/// What `record --shard index/count` does: its attempts in order until its quota is saved
+/// (resuming the shard in `dir` if there is one).
+fn record_shard(dir: &Path, index: u64, count: u64, quota: u64, fails: &dyn Fn(u64) -> bool) {
+    let spec = spec(&[("ee".into(), 4, 4)]);
+    let mut w = if dir.join("meta/info.json").exists() {
+        DatasetWriter::resume(dir, spec).unwrap()
+    } else {
+        DatasetWriter::create(dir, spec, json!({"seed": 3}))
+            .unwrap()
+            .with_shard(ShardPart::new(index, count, shard_run()))
+            .unwrap()
+    };
+    let mut a = w.next_attempt();
+    while w.episodes() < quota && a < SHARD_RUN_MAX_ATTEMPTS {
+        let (ok, e) = attempt_episode(a, fails);
+        w.decide(a, ok, ok.then_some(e)).unwrap();
+        a += count;
+    }
+}
+
+#[test]
+fn merged_shards_are_the_unsharded_recording_byte_for_byte() {
+    // Attempt 3 fails: the unsharded run keeps attempts 0 1 2 4 5 6; the shards of quota 2
+    // decide 0 3 6 | 1 4 | 2 5.
+    let fails = |a: u64| a == 3;
+    let whole = tempfile::tempdir().unwrap();
+    record_whole(whole.path(), &fails);
+    let root = tempfile::tempdir().unwrap();
+    let parts: Vec<_> = (0..3)
+        .map(|i| root.path().join(format!("part{i}")))
+        .collect();
+    for (i, p) in parts.iter().enumerate() {
+        record_shard(p, i as u64, 3, 2, &fails);
+        assert!(validate(p).is_empty(), "{:#?}", validate(p));
+    }
+    let out = root.path().join("merged");
+    // In any order.
+    let merged = merge_shards(
+        &[parts[2].clone(), parts[0].clone(), parts[1].clone()],
+        &out,
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_eq!(
+        (merged.writer.episodes(), merged.attempts, merged.extra),
+        (6, 7, 0)
+    );
+    assert_eq!(
+        files(&out),
+        files(whole.path()),
+        "the same files, the same bytes"
+    );
+    let r = DatasetReader::open(&out).unwrap();
+    let attempts: Vec<u64> = r
+        .sources
+        .iter()
+        .map(|s| s["attempt"].as_u64().unwrap())
+        .collect();
+    assert_eq!(attempts, [0, 1, 2, 4, 5, 6]);
+}
+
+#[test]
+fn a_shard_short_of_the_runs_attempts_is_named_and_resumed() {
+    // Attempts 0 and 3 fail: shard 0 (quota 2) decides 0 3 6 9, shard 1 only 1 4, but the
+    // run's walk 0..=7 needs shard 1's attempt 7.
+    let fails = |a: u64| a == 0 || a == 3;
+    let whole = tempfile::tempdir().unwrap();
+    record_whole(whole.path(), &fails);
+    let root = tempfile::tempdir().unwrap();
+    let parts: Vec<_> = (0..3)
+        .map(|i| root.path().join(format!("part{i}")))
+        .collect();
+    for (i, p) in parts.iter().enumerate() {
+        record_shard(p, i as u64, 3, 2, &fails);
+    }
+    let out = root.path().join("merged");
+    let err = merge_shards(&parts, &out, &mut |_| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("shard 1/3 decided its attempts up to 4")
+            && err.contains("needs its attempt 7")
+            && err.contains("--shard-episodes 3"),
+        "{err}"
+    );
+    // Run shard 1 on with a larger quota: now the merge is the unsharded run, and shard 0's
+    // attempt 9 (past the run's last) is left out.
+    record_shard(&parts[1], 1, 3, 3, &fails);
+    let _ = std::fs::remove_dir_all(&out);
+    let merged = merge_shards(&parts, &out, &mut |_| {}).unwrap();
+    assert_eq!((merged.attempts, merged.extra), (8, 1));
+    assert_eq!(files(&out), files(whole.path()));
+}
+
+#[test]
+fn shards_that_are_not_one_recordings_split_are_refused() {
+    let fails = |_: u64| false;
+    let root = tempfile::tempdir().unwrap();
+    let part = |name: &str, index: u64, count: u64| {
+        let p = root.path().join(name);
+        record_shard(&p, index, count, 2, &fails);
+        p
+    };
+    let (p0, p1, p2) = (part("p0", 0, 3), part("p1", 1, 3), part("p2", 2, 3));
+    let other_split = part("q1", 1, 2);
+    let out = root.path().join("out");
+    let err = |parts: &[std::path::PathBuf]| {
+        merge_shards(parts, &out, &mut |_| {})
+            .unwrap_err()
+            .to_string()
+    };
+    assert!(err(&[p0.clone(), p2.clone()]).contains("shard 1/3 missing"));
+    assert!(
+        err(&[p0.clone(), p1.clone(), p1.clone(), p2.clone()]).contains("shard 1/3 given twice")
+    );
+    assert!(err(&[p0.clone(), other_split, p2.clone()]).contains("shards of different splits"));
+    // Another recording (another seed).
+    let mut info: Value =
+        serde_json::from_slice(&std::fs::read(p1.join("meta/info.json")).unwrap()).unwrap();
+    info["ambench"]["recording"]["seed"] = json!(4);
+    std::fs::write(p1.join("meta/info.json"), info.to_string()).unwrap();
+    let e = err(&[p0.clone(), p1.clone(), p2.clone()]);
+    assert!(
+        e.contains("shards of different recordings") && e.contains("ambench.recording.seed"),
+        "{e}"
+    );
+    // A whole dataset is not a shard.
+    let whole = tempfile::tempdir().unwrap();
+    record_whole(whole.path(), &fails);
+    assert!(!is_shard(whole.path()) && is_shard(&p0));
+    assert!(err(&[p0, whole.path().to_owned()]).contains("not a shard of a recording"));
+}
+
+/// Copies every file of `from` (a snapshot of the dataset's `meta/`) back over `to`.
+fn restore(from: &[(String, Vec<u8>)], to: &Path, only: &dyn Fn(&str) -> bool) {
+    for (rel, bytes) in from {
+        if only(rel) {
+            std::fs::write(to.join(rel), bytes).unwrap();
+        }
+    }
+}
+
+#[test]
+fn resume_drops_what_a_crash_between_data_and_metadata_left() {
+    // Crash points: right after the data file (the episode's rows only), and right before
+    // info.json (its rows, its meta/episodes row, its task and its statistics written).
+    let cams = [("ee".to_owned(), 4, 4)];
+    let is_meta = |rel: &str| rel.starts_with("meta/");
+    let is_info = |rel: &str| rel == "meta/info.json";
+    for (name, committed_files) in [
+        ("after the data file", &is_meta as &dyn Fn(&str) -> bool),
+        ("before info.json", &is_info),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let mut w = DatasetWriter::create(dir.path(), spec(&cams), Value::Null).unwrap();
+        w.write_episode(episode(0, 4, "press", 1)).unwrap();
+        w.write_episode(episode(1, 3, "press", 1)).unwrap();
+        let before = files(dir.path());
+        // The third episode, of another task, then the crash: what was committed before it
+        // is put back (the files written after the crash point never were).
+        w.write_episode(episode(2, 5, "open", 1)).unwrap();
+        drop(w);
+        restore(&before, dir.path(), committed_files);
+        let problems = validate(dir.path());
+        assert!(!problems.is_empty(), "{name}: the crash is visible");
+        let mut w = DatasetWriter::resume(dir.path(), spec(&cams)).unwrap();
+        let repaired = w.repaired().clone();
+        assert_eq!(repaired.data_rows, 5, "{name}: {repaired:?}");
+        assert_eq!(
+            (repaired.episode_rows, repaired.tasks),
+            if committed_files("meta/episodes") {
+                (0, 0)
+            } else {
+                (1, 1)
+            },
+            "{name}"
+        );
+        assert!(
+            validate(dir.path()).is_empty(),
+            "{name}: {:#?}",
+            validate(dir.path())
+        );
+        assert_eq!((w.episodes(), w.frames()), (2, 7), "{name}");
+        // The statistics are the two committed episodes' again.
+        let stats = std::fs::read(dir.path().join("meta/stats.json")).unwrap();
+        let committed = before.iter().find(|f| f.0 == "meta/stats.json").unwrap();
+        assert!(stats == committed.1, "{name}: stats.json");
+        // And the recording goes on, valid.
+        w.write_episode(episode(2, 5, "open", 1)).unwrap();
+        assert!(
+            validate(dir.path()).is_empty(),
+            "{name}: {:#?}",
+            validate(dir.path())
+        );
+        let mut r = DatasetReader::open(dir.path()).unwrap();
+        assert_eq!(r.episode(2).unwrap().state, episode(2, 5, "open", 1).state);
+        assert_eq!(r.tasks, vec!["press", "open"]);
+    }
 }

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use arrow::array::{FixedSizeListArray, Float32Array, Int64Array};
 
-use super::layout::{Dtype, data_file, episodes_file};
+use super::layout::{Dtype, data_file, episodes_file, video_file};
 use super::read::{
     DatasetReader, column, episode_stats_columns, fixed_values, image_bytes, read_parquet,
 };
@@ -136,9 +136,11 @@ pub fn validate(root: &Path) -> Vec<String> {
                     }
                     cols.push(fixed_values(batch, key, &file)?);
                 }
+                // Videos are not in the data files (their checks are below).
                 let images = spec
                     .images
                     .iter()
+                    .filter(|_| !spec.video)
                     .map(|(k, h, w)| image_bytes(batch, k, &file).map(|c| (k, *h, *w, c)))
                     .collect::<Result<Vec<_>, _>>()?;
                 for r in 0..batch.num_rows() {
@@ -239,13 +241,42 @@ pub fn validate(root: &Path) -> Vec<String> {
                 compare(&mut problems, &format!("meta/stats.json: {key}"), s, &data);
             }
             for (f, s) in features.iter().zip(stats) {
-                if f.dtype == Dtype::Image
+                if matches!(f.dtype, Dtype::Image | Dtype::Video)
                     && (s.min.len() != 3
                         || s.min.iter().chain(&s.max).any(|x| !(0.0..=1.0).contains(x)))
                 {
                     problems.push(format!(
                         "meta/stats.json: {}: not 3 channels in [0, 1]",
                         f.key
+                    ));
+                }
+            }
+        }
+    }
+    // Video features: every episode's file is there and its span is its frames.
+    if spec.video {
+        for r in &rows {
+            for (key, _, _) in &spec.images {
+                let Some(v) = r.videos.iter().find(|v| v.key == *key) else {
+                    problems.push(format!(
+                        "meta/episodes: episode {}: no videos/{key} columns",
+                        r.index
+                    ));
+                    continue;
+                };
+                let file = video_file(key, v.file.0, v.file.1);
+                if !root.join(&file).is_file() {
+                    problems.push(format!(
+                        "meta/episodes: episode {}: {file} is missing",
+                        r.index
+                    ));
+                }
+                let span = v.to_timestamp - v.from_timestamp;
+                let expected = r.length as f64 / fps;
+                if v.from_timestamp < 0.0 || (span - expected).abs() > 1e-9 * (1.0 + expected) {
+                    problems.push(format!(
+                        "meta/episodes: episode {}: videos/{key} spans {}..{} s, its {} frames take {expected} s",
+                        r.index, v.from_timestamp, v.to_timestamp, r.length
                     ));
                 }
             }

@@ -21,10 +21,13 @@ use super::DatasetError;
 use super::json::J;
 use super::layout::{
     CHUNKS_SIZE, CODEBASE_VERSION, DATA_FILES_SIZE_IN_MB, DATA_PATH, DatasetSpec, Dtype, Feature,
-    VIDEO_FILES_SIZE_IN_MB, data_file, episodes_file, next_file,
+    VIDEO_FILES_SIZE_IN_MB, VIDEO_PATH, data_file, episodes_file, next_file, video_file,
 };
 use super::read::DatasetReader;
+use super::repair::{Repair, drop_uncommitted};
+use super::shard::{DecidedAttempt, ShardPart};
 use super::stats::{FeatureStats, QUANTILES, StatsKind, sample_indices};
+use super::video::encode_episode;
 
 /// One episode's frames, as recorded.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -128,6 +131,8 @@ struct EpisodeMeta {
     from: u64,
     stats: Vec<FeatureStats>,
     meta: (u64, u64),
+    /// Its video files' (chunk, file), with `record --video`.
+    video: Option<(u64, u64)>,
 }
 
 /// The data file being filled.
@@ -158,6 +163,10 @@ pub struct DatasetWriter {
     sources: Vec<Value>,
     recording: Value,
     data_file_limit_bytes: u64,
+    shard: Option<ShardPart>,
+    repaired: Repair,
+    ffmpeg: Option<PathBuf>,
+    next_video: (u64, u64),
 }
 
 impl DatasetWriter {
@@ -183,39 +192,79 @@ impl DatasetWriter {
             sources: Vec::new(),
             recording,
             data_file_limit_bytes: DATA_FILES_SIZE_IN_MB * 1024 * 1024,
+            shard: None,
+            repaired: Repair::default(),
+            ffmpeg: None,
+            next_video: (0, 0),
         };
         writer.write_info()?;
         Ok(writer)
     }
 
+    /// Makes the new dataset a shard of a recording (`info.json` `ambench.shard`): every
+    /// attempt [`DatasetWriter::decide`]s is noted in it, saved or not.
+    pub fn with_shard(mut self, shard: ShardPart) -> Result<Self, DatasetError> {
+        self.shard = Some(shard);
+        self.write_info()?;
+        Ok(self)
+    }
+
+    /// The shard this dataset is (None: a whole recording).
+    pub fn shard(&self) -> Option<&ShardPart> {
+        self.shard.as_ref()
+    }
+
+    /// Decides an attempt: writes its episode if `episode` is given (see
+    /// [`DatasetWriter::write_episode`]); a shard also notes the attempt, saved or not.
+    /// Returns whether the episode was written.
+    pub fn decide(
+        &mut self,
+        attempt: u64,
+        success: bool,
+        episode: Option<EpisodeFrames>,
+    ) -> Result<bool, DatasetError> {
+        let saved = episode.is_some();
+        if let Some(shard) = &mut self.shard {
+            shard.attempts.push(DecidedAttempt {
+                attempt,
+                success,
+                saved,
+            });
+        }
+        let written = match episode {
+            Some(e) => self.write_episode(e),
+            None if self.shard.is_some() => self.write_info(),
+            None => Ok(()),
+        };
+        if let (Err(_), Some(shard)) = (&written, &mut self.shard) {
+            shard.attempts.pop();
+        }
+        written.map(|()| saved)
+    }
+
     /// Opens the dataset in `root` to append after its last complete episode (lerobot's
     /// resume: new episodes go to a new data file and a new episodes file). `spec` must be
-    /// the dataset's.
+    /// the dataset's. What a run that died mid-episode left uncommitted (rows, files, a
+    /// task, statistics: see [`DatasetWriter::repaired`]) is dropped first.
     pub fn resume(root: &Path, spec: DatasetSpec) -> Result<Self, DatasetError> {
+        // Another recording's dataset is refused before anything in it is touched.
+        if let Ok(reader) = DatasetReader::open(root)
+            && reader.spec != spec
+        {
+            return Err(Self::other_spec(&reader.spec, &spec));
+        }
+        let repaired = drop_uncommitted(root)?;
         let reader = DatasetReader::open(root)?;
         if reader.spec != spec {
-            return Err(DatasetError::invalid(
-                "meta/info.json",
-                format!(
-                    "the dataset records {} (state {:?}, action {}, images {:?}); this recording \
-                     would add {} (state {:?}, action {}, images {:?})",
-                    reader.spec.robot_type,
-                    reader.spec.state_keys,
-                    reader.spec.action_semantics.name(),
-                    reader.spec.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
-                    spec.robot_type,
-                    spec.state_keys,
-                    spec.action_semantics.name(),
-                    spec.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
-                ),
-            ));
+            return Err(Self::other_spec(&reader.spec, &spec));
         }
         let features = spec.features();
         let stats = reader.stats_for(&features);
+        let shard = ShardPart::from_info(&reader.info)?;
         let last = reader.episodes.last();
         let next_data = last.map_or((0, 0), |e| next_file(e.data.0, e.data.1));
         let meta_file = last.map_or((0, 0), |e| next_file(e.meta.0, e.meta.1));
-        Ok(Self {
+        let mut writer = Self {
             root: root.to_owned(),
             schema: data_schema(&features),
             features,
@@ -231,7 +280,81 @@ impl DatasetWriter {
             sources: reader.sources.clone(),
             recording: reader.recording.clone(),
             data_file_limit_bytes: DATA_FILES_SIZE_IN_MB * 1024 * 1024,
-        })
+            shard,
+            repaired,
+            ffmpeg: None,
+            next_video: last
+                .and_then(|e| e.videos.first())
+                .map_or((0, 0), |v| next_file(v.file.0, v.file.1)),
+        };
+        if writer.repaired.stats_suspect() {
+            writer.recompute_stats(reader)?;
+        }
+        Ok(writer)
+    }
+
+    /// The ffmpeg program that encodes the videos of a video dataset (`record --video`).
+    #[must_use]
+    pub fn with_ffmpeg(mut self, program: PathBuf) -> Self {
+        self.ffmpeg = Some(program);
+        self
+    }
+
+    /// What [`DatasetWriter::resume`] dropped (nothing: the last run ended cleanly).
+    pub fn repaired(&self) -> &Repair {
+        &self.repaired
+    }
+
+    /// `stats.json` again from the committed episodes, folded in order as they were written.
+    fn recompute_stats(&mut self, mut reader: DatasetReader) -> Result<(), DatasetError> {
+        let mut all: Option<Vec<FeatureStats>> = None;
+        let rows = reader.episodes.clone();
+        for row in &rows {
+            let mut frames = reader.episode(row.index)?;
+            frames.finish_images(self.spec.state_dim)?;
+            let len = frames.len(self.spec.state_dim);
+            let task_index = self
+                .tasks
+                .iter()
+                .position(|t| *t == frames.task)
+                .unwrap_or(0) as i64;
+            let stats = self.episode_stats(&frames, len, row.index, row.from, task_index);
+            all = Some(match all {
+                None => stats,
+                Some(all) => all
+                    .iter()
+                    .zip(&stats)
+                    .filter_map(|(a, b)| FeatureStats::aggregate(&[a, b]))
+                    .collect(),
+            });
+        }
+        if let Some(all) = &all {
+            write_atomic(
+                &self.root,
+                "meta/stats.json",
+                &self.stats_json(all).pretty(),
+            )?;
+        }
+        self.stats = all;
+        Ok(())
+    }
+
+    fn other_spec(had: &DatasetSpec, spec: &DatasetSpec) -> DatasetError {
+        DatasetError::invalid(
+            "meta/info.json",
+            format!(
+                "the dataset records {} (state {:?}, action {}, images {:?}); this recording \
+                     would add {} (state {:?}, action {}, images {:?})",
+                had.robot_type,
+                had.state_keys,
+                had.action_semantics.name(),
+                had.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
+                spec.robot_type,
+                spec.state_keys,
+                spec.action_semantics.name(),
+                spec.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
+            ),
+        )
     }
 
     /// Sets the size past which a data file is closed (tests: small files).
@@ -250,8 +373,12 @@ impl DatasetWriter {
         self.total_frames
     }
 
-    /// One past the last attempt of the episodes written (where a resumed recording goes on).
+    /// One past the last attempt of the episodes written (where a resumed recording goes on);
+    /// a shard: its attempt after the last it decided.
     pub fn next_attempt(&self) -> u64 {
+        if let Some(shard) = &self.shard {
+            return shard.next_attempt();
+        }
         self.sources
             .iter()
             .filter_map(|s| s.get("attempt").and_then(Value::as_u64))
@@ -309,6 +436,27 @@ impl DatasetWriter {
         let batch = self.episode_batch(&episode, len, index, from, task_index)?;
         let stats = self.episode_stats(&episode, len, index, from, task_index);
 
+        // A video dataset's camera streams first: one MP4 per camera (not counted until the
+        // metadata says so).
+        let video_at = if self.spec.video {
+            let ffmpeg = self.ffmpeg.clone().ok_or_else(|| {
+                bad("a video dataset needs the ffmpeg program to encode its cameras".into())
+            })?;
+            let at = self.next_video;
+            for ((key, _, _), frames) in self.spec.images.iter().zip(&episode.images) {
+                encode_episode(
+                    &ffmpeg,
+                    &self.root,
+                    &video_file(key, at.0, at.1),
+                    frames,
+                    self.spec.fps,
+                )?;
+            }
+            Some(at)
+        } else {
+            None
+        };
+
         // The data file: this episode joins the open one, or opens the next.
         let avg = self
             .data
@@ -358,6 +506,7 @@ impl DatasetWriter {
             from,
             stats: stats.clone(),
             meta: self.meta_file,
+            video: video_at,
         });
         let rel = episodes_file(self.meta_file.0, self.meta_file.1);
         if let Err(e) = self.write_episodes_meta(&rel) {
@@ -383,6 +532,9 @@ impl DatasetWriter {
             &self.stats_json(&aggregated).pretty(),
         )?;
         self.stats = Some(aggregated);
+        if let Some(at) = video_at {
+            self.next_video = next_file(at.0, at.1);
+        }
         self.total_episodes += 1;
         self.total_frames += len as u64;
         self.sources.push(json!({
@@ -405,7 +557,7 @@ impl DatasetWriter {
         let fps = self.spec.fps;
         let mut columns: Vec<ArrayRef> = Vec::with_capacity(self.features.len());
         let mut camera = 0;
-        for f in &self.features {
+        for f in self.features.iter().filter(|f| f.dtype != Dtype::Video) {
             let column: ArrayRef = match f.key.as_str() {
                 "observation.state" => fixed_f32(&episode.state, self.spec.state_dim),
                 "action" => fixed_f32(&episode.action, self.spec.action_dim),
@@ -435,7 +587,7 @@ impl DatasetWriter {
         RecordBatch::try_new(self.schema.clone(), columns).map_err(DatasetError::arrow("data"))
     }
 
-    fn episode_stats(
+    pub(crate) fn episode_stats(
         &self,
         episode: &EpisodeFrames,
         len: usize,
@@ -529,6 +681,24 @@ impl DatasetWriter {
         push("data/file_index", ints(&|r| r.data.1));
         push("dataset_from_index", ints(&|r| r.from));
         push("dataset_to_index", ints(&|r| r.from + r.length));
+        if self.spec.video {
+            let fps = f64::from(self.spec.fps);
+            for (key, _, _) in &self.spec.images {
+                let at = |r: &EpisodeMeta| r.video.unwrap_or((0, 0));
+                push(&format!("videos/{key}/chunk_index"), ints(&|r| at(r).0));
+                push(&format!("videos/{key}/file_index"), ints(&|r| at(r).1));
+                push(
+                    &format!("videos/{key}/from_timestamp"),
+                    Arc::new(Float64Array::from_iter_values(rows.iter().map(|_| 0.0))),
+                );
+                push(
+                    &format!("videos/{key}/to_timestamp"),
+                    Arc::new(Float64Array::from_iter_values(
+                        rows.iter().map(|r| r.length as f64 / fps),
+                    )),
+                );
+            }
+        }
         for (i, f) in self.features.iter().enumerate() {
             let per: Vec<&FeatureStats> = rows.iter().map(|r| &r.stats[i]).collect();
             let kind = per.first().map_or(StatsKind::Float, |s| s.kind);
@@ -575,6 +745,9 @@ impl DatasetWriter {
         };
         ambench.push(("recording".into(), J::V(self.recording.clone())));
         ambench.push(("episodes".into(), J::V(Value::Array(self.sources.clone()))));
+        if let Some(shard) = &self.shard {
+            ambench.push(("shard".into(), J::V(shard.to_json())));
+        }
         let info = J::obj([
             ("codebase_version", J::V(json!(CODEBASE_VERSION))),
             ("robot_type", J::V(json!(self.spec.robot_type))),
@@ -597,13 +770,20 @@ impl DatasetWriter {
                 }),
             ),
             ("data_path", J::V(json!(DATA_PATH))),
-            ("video_path", J::V(Value::Null)),
+            (
+                "video_path",
+                J::V(if self.spec.video {
+                    json!(VIDEO_PATH)
+                } else {
+                    Value::Null
+                }),
+            ),
             (
                 "features",
                 J::obj(
                     self.features
                         .iter()
-                        .map(|f| (f.key.clone(), J::V(f.info()))),
+                        .map(|f| (f.key.clone(), J::V(f.info(self.spec.fps)))),
                 ),
             ),
             ("ambench", J::Obj(ambench)),
@@ -616,11 +796,13 @@ impl DatasetWriter {
 /// float32, `Image` structs, scalars), with the `huggingface` metadata `datasets` writes.
 pub(crate) fn data_schema(features: &[Feature]) -> Arc<Schema> {
     let mut hf = Vec::new();
+    // Videos live in their MP4 files, not in the data files.
     let fields: Vec<Field> = features
         .iter()
+        .filter(|f| f.dtype != Dtype::Video)
         .map(|f| {
             let (dt, hf_feature) = match (f.dtype, f.shape.as_slice()) {
-                (Dtype::Image, _) => (image_type(), json!({"_type": "Image"})),
+                (Dtype::Image | Dtype::Video, _) => (image_type(), json!({"_type": "Image"})),
                 (Dtype::Float32, [1]) => (
                     DataType::Float32,
                     json!({"dtype": "float32", "_type": "Value"}),
@@ -729,7 +911,7 @@ fn stats_column(
 /// `meta/tasks.parquet` as pandas writes lerobot's tasks frame: the prompt as the frame's
 /// index (`__index_level_0__`, with the `pandas` metadata that makes it the index again) and
 /// `task_index`.
-fn tasks_parquet(tasks: &[String]) -> Result<Vec<u8>, DatasetError> {
+pub(crate) fn tasks_parquet(tasks: &[String]) -> Result<Vec<u8>, DatasetError> {
     let rel = "meta/tasks.parquet";
     let pandas = json!({
         "index_columns": ["__index_level_0__"],
@@ -830,6 +1012,7 @@ pub fn merge(
         .first()
         .ok_or_else(|| DatasetError::invalid("merge", "no dataset to merge"))?;
     let spec = DatasetReader::open(first)?.spec;
+    super::video::refuse_video(first, &spec, "merge")?;
     let mut writer: Option<DatasetWriter> = None;
     let mut recordings = Vec::new();
     for src in sources {
