@@ -6,7 +6,8 @@ Usage: rrd_check.py FILE.mcap [--rrd OUT.rrd] [--expect-transforms] [--expect-sc
 
 Prints one JSON object: per entity path (one per MCAP topic) the Rerun archetypes and
 components it holds and its rows, and per topic whether Rerun understood it ("semantic": an
-archetype other than its raw-bytes fallback `McapMessage`) or kept only raw bytes.
+archetype other than its raw fallback `McapMessage` and the `McapChannel`/`McapSchema` records)
+or kept only raw bytes.
 --expect-transforms: /scene/tf must hold Transform3D rows (Rerun's Foxglove decoder turned
 foxglove.FrameTransforms into transforms). --expect-scene: /scene/static, /scene/dynamic and
 /scene/targets must hold decoded fields (the protobuf decoder's structured SceneUpdate: its
@@ -29,7 +30,9 @@ except ImportError:
           "and use the python it prints", file=sys.stderr)
     sys.exit(2)
 
-RAW = "McapMessage"
+# What Rerun keeps of any channel it does not understand: the raw message and the channel's
+# and schema's own records.
+RAW = {"McapMessage", "McapChannel", "McapSchema"}
 
 
 def column_archetype(field):
@@ -79,7 +82,7 @@ def main(argv):
             if comp and comp not in entry["components"]:
                 entry["components"].append(comp)
     for path, entry in entities.items():
-        entry["semantic"] = any(a != RAW for a in entry["archetypes"])
+        entry["semantic"] = any(a not in RAW for a in entry["archetypes"])
 
     def find(topic):
         # Rerun names an MCAP channel's entity after its topic.

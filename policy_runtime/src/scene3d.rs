@@ -483,3 +483,108 @@ fn frame_transform(
         }),
     }
 }
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, reason = "tests: a failed set-up fails loudly")]
+mod tests {
+    use super::*;
+    use crate::record::{McapRecorder, Recording, RunMetadata};
+    use foxglove::Decode;
+    use platform::{RigidBodyState, RotorReport};
+
+    fn hover(vehicle: &Vehicle, thrust_n: f64) -> Measurement {
+        let mut m = Measurement {
+            base: RigidBodyState::at_rest(Isometry3::translation(1.0, 2.0, 3.0)),
+            joint_positions: vec![0.0; vehicle.model.dof()],
+            joint_velocities: vec![0.0; vehicle.model.dof()],
+            ..Default::default()
+        };
+        m.rotors = (0..vehicle.rotors.rotors.len())
+            .map(|_| RotorReport {
+                commanded_n: thrust_n,
+                realised_n: thrust_n,
+                applied_n: thrust_n,
+                ..Default::default()
+            })
+            .collect();
+        m
+    }
+
+    #[test]
+    fn transforms_chain_every_joint_from_the_measured_base() {
+        let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+        let mut scene = Scene3d::new(&vehicle);
+        let mut m = hover(&vehicle, 0.0);
+        // Turn the first arm joint by 0.5 rad.
+        m.joint_positions[0] = 0.5;
+        let tf = scene.transforms(8_333_333, &m);
+        assert_eq!(tf.transforms.len(), vehicle.model.joints.len() + 1);
+        let root = &tf.transforms[0];
+        assert_eq!((root.parent_frame_id.as_str(), root.child_frame_id.as_str()), ("world", "base_link"));
+        let t = root.translation.as_ref().unwrap();
+        assert_eq!((t.x, t.y, t.z), (1.0, 2.0, 3.0));
+        assert_eq!(root.timestamp.unwrap().nsec(), 8_333_333);
+        let joint = vehicle.model.dof_joint(0);
+        let child = &vehicle.model.links[joint.child].name;
+        let moved = tf
+            .transforms
+            .iter()
+            .find(|t| &t.child_frame_id == child)
+            .unwrap();
+        let q = moved.rotation.unwrap();
+        let expected = joint.parent_from_child(0.5).rotation;
+        assert!((q.w - expected.w).abs() < 1e-12 && (q.x - expected.i).abs() < 1e-12);
+        assert!((expected.angle() - 0.5).abs() < 1e-9 || joint.kind == platform::JointKind::Prismatic);
+    }
+
+    #[test]
+    fn rotor_arrows_are_as_long_as_their_share_of_the_maximum_thrust() {
+        let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+        let scene = Scene3d::new(&vehicle);
+        let half = 0.5 * vehicle.rotors.thrust_max_n;
+        let update = scene.dynamic_scene(0, &hover(&vehicle, half), &[]);
+        assert_eq!(update.entities.len(), vehicle.rotors.rotors.len(), "no scene objects given");
+        for (i, e) in update.entities.iter().enumerate() {
+            assert_eq!(e.id, format!("rotor/{i}/thrust"));
+            assert_eq!(e.frame_id, vehicle.rotors.rotors[i].link);
+            let a = &e.arrows[0];
+            let length = a.shaft_length + a.head_length;
+            assert!((length - 0.5 * ARROW_LENGTH_AT_MAX_THRUST_M).abs() < 1e-12, "{length}");
+            assert_eq!(a.color.unwrap().r, THRUST[0], "not at a limit: green");
+        }
+        // At the maximum: red.
+        let full = scene.dynamic_scene(0, &hover(&vehicle, vehicle.rotors.thrust_max_n), &[]);
+        assert_eq!(full.entities[0].arrows[0].color.unwrap().r, THRUST_SATURATED[0]);
+    }
+
+    #[test]
+    fn the_static_scene_is_due_at_start_and_each_second() {
+        let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+        let mut scene = Scene3d::new(&vehicle);
+        let due: Vec<u64> = (0..250u64)
+            .map(|k| k * 1_000_000_000 / 120)
+            .filter(|&t| scene.static_due(t))
+            .collect();
+        assert_eq!(due, [0, 1_000_000_000, 2_000_000_000]);
+        let update = scene.static_scene(0);
+        assert!(update.entities.iter().any(|e| e.id == "vehicle/base_link" && e.frame_locked));
+    }
+
+    #[test]
+    fn sdk_messages_go_through_the_recorder_and_decode_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("scene.mcap");
+        let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+        let mut scene = Scene3d::new(&vehicle);
+        let m = hover(&vehicle, 3.0);
+        let tf = scene.transforms(0, &m);
+        let mut rec = McapRecorder::create(&path, &RunMetadata::new("fa-hexa", "pid6", 1)).unwrap();
+        let ch = rec.encoded_channel::<FrameTransforms>(SCENE_TF_TOPIC).unwrap();
+        rec.log_encoded(&ch, 0, &tf).unwrap();
+        rec.finish().unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let back = Recording::from_bytes(&bytes).unwrap();
+        let msg = back.messages.iter().find(|m| m.topic == SCENE_TF_TOPIC).unwrap();
+        assert_eq!(FrameTransforms::decode(&msg.data[..]).unwrap(), tf);
+    }
+}
