@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
-"""A Foxglove WebSocket protocol client (subprotocol foxglove.websocket.v1) written against the
-protocol's specification with the `websockets` package -- not Foxglove's code, not amstack's.
+"""A Foxglove WebSocket protocol client written against the protocol's specification with the
+`websockets` package -- not Foxglove's code, not amstack's. It offers the subprotocol
+`foxglove.sdk.v1` (what the Foxglove SDK's server, 0.30, negotiates: the protocol formerly
+named `foxglove.websocket.v1`, same messages, schemas inline in `advertise`).
 
 Usage: foxglove_ws_client.py ws://HOST:PORT [--topics T1,T2,...] [--messages N]
                              [--need TOPIC=N ...] [--stall SECONDS] [--timeout SECONDS]
@@ -31,6 +33,7 @@ import sys
 import websockets
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 SCENE_TOPICS = "/scene/tf,/scene/static,/scene/dynamic,/scene/targets"
 
 
@@ -65,9 +68,9 @@ async def run(args):
     channels = {}  # channel id -> advertise entry
     subscribed = {}  # subscription id -> (topic, decoder)
     times = {}
-    async with websockets.connect(args.url, subprotocols=["foxglove.websocket.v1"],
-                                  max_size=None) as ws:
-        if ws.subprotocol != "foxglove.websocket.v1":
+    async with websockets.connect(args.url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+        report["subprotocol"] = ws.subprotocol
+        if ws.subprotocol not in SUBPROTOCOLS:
             report["errors"].append(f"server chose subprotocol {ws.subprotocol!r}")
             return report
 

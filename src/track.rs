@@ -9,10 +9,10 @@ use anyhow::Result;
 use comfy_table::{Table, presets};
 use controllers::{ControllerConfig, ControllerKind, profile};
 use policy_runtime::LinkError;
-use policy_runtime::live::LiveServer;
 use policy_runtime::bench::{
     BenchConfig, BenchError, BenchLink, EpisodeLength, Termination, run_rollout_logged,
 };
+use policy_runtime::live::LiveServer;
 use policy_runtime::{
     EstimatorSettings, Interface, StateSource, TrackConfig, TrackResult, Trajectory, run_track,
 };

@@ -331,13 +331,11 @@ pub fn run_rollout_with(
     };
     let mut log = match recorder {
         None => None,
-        Some(recorder) => {
-            Some(
-                FlightLog::new(recorder, vehicle)?
-                    .with_rotor_limits(twin_config.disturbances.saturation)
-                    .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
-            )
-        }
+        Some(recorder) => Some(
+            FlightLog::new(recorder, vehicle)?
+                .with_rotor_limits(twin_config.disturbances.saturation)
+                .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
+        ),
     };
     let mut video = match config.cameras.as_ref().and_then(|c| c.video.as_ref()) {
         Some(v) => {

@@ -22,11 +22,11 @@
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
-use std::sync::{Arc, Mutex};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{
     self, Receiver, RecvTimeoutError, Sender, SyncSender, TryRecvError, TrySendError,
 };
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
 use foxglove::{Context, PartialMetadata, RawChannel, Schema, WebSocketServer};
@@ -58,7 +58,8 @@ pub enum LiveError {
 
 /// Parses `--live`'s address (`IP:PORT`; port 0 picks a free one).
 pub fn parse_addr(text: &str) -> Result<SocketAddr, LiveError> {
-    text.parse().map_err(|_| LiveError::Address(text.to_owned()))
+    text.parse()
+        .map_err(|_| LiveError::Address(text.to_owned()))
 }
 
 /// What the live view did.
@@ -344,7 +345,11 @@ mod tests {
         for k in 0..20u64 {
             tap.message(1, k, b"{}");
         }
-        assert_eq!(counters.dropped.load(Ordering::Relaxed), 12, "20 sent, 8 held");
+        assert_eq!(
+            counters.dropped.load(Ordering::Relaxed),
+            12,
+            "20 sent, 8 held"
+        );
     }
 
     #[test]

@@ -387,9 +387,8 @@ impl Scene3d {
                 } else {
                     rotor.link_from_arrow
                 };
-                let at_limit = report.saturated
-                    || (self.thrust_max_n - thrust).abs() < 1e-5
-                    || thrust <= 1e-5;
+                let at_limit =
+                    report.saturated || (self.thrust_max_n - thrust).abs() < 1e-5 || thrust <= 1e-5;
                 let arrow = ArrowPrimitive {
                     pose: pose(&at),
                     shaft_length: 0.8 * length,
@@ -520,7 +519,10 @@ mod tests {
         let tf = scene.transforms(8_333_333, &m);
         assert_eq!(tf.transforms.len(), vehicle.model.joints.len() + 1);
         let root = &tf.transforms[0];
-        assert_eq!((root.parent_frame_id.as_str(), root.child_frame_id.as_str()), ("world", "base_link"));
+        assert_eq!(
+            (root.parent_frame_id.as_str(), root.child_frame_id.as_str()),
+            ("world", "base_link")
+        );
         let t = root.translation.as_ref().unwrap();
         assert_eq!((t.x, t.y, t.z), (1.0, 2.0, 3.0));
         assert_eq!(root.timestamp.unwrap().nsec(), 8_333_333);
@@ -534,7 +536,9 @@ mod tests {
         let q = moved.rotation.unwrap();
         let expected = joint.parent_from_child(0.5).rotation;
         assert!((q.w - expected.w).abs() < 1e-12 && (q.x - expected.i).abs() < 1e-12);
-        assert!((expected.angle() - 0.5).abs() < 1e-9 || joint.kind == platform::JointKind::Prismatic);
+        assert!(
+            (expected.angle() - 0.5).abs() < 1e-9 || joint.kind == platform::JointKind::Prismatic
+        );
     }
 
     #[test]
@@ -543,18 +547,28 @@ mod tests {
         let scene = Scene3d::new(&vehicle);
         let half = 0.5 * vehicle.rotors.thrust_max_n;
         let update = scene.dynamic_scene(0, &hover(&vehicle, half), &[]);
-        assert_eq!(update.entities.len(), vehicle.rotors.rotors.len(), "no scene objects given");
+        assert_eq!(
+            update.entities.len(),
+            vehicle.rotors.rotors.len(),
+            "no scene objects given"
+        );
         for (i, e) in update.entities.iter().enumerate() {
             assert_eq!(e.id, format!("rotor/{i}/thrust"));
             assert_eq!(e.frame_id, vehicle.rotors.rotors[i].link);
             let a = &e.arrows[0];
             let length = a.shaft_length + a.head_length;
-            assert!((length - 0.5 * ARROW_LENGTH_AT_MAX_THRUST_M).abs() < 1e-12, "{length}");
+            assert!(
+                (length - 0.5 * ARROW_LENGTH_AT_MAX_THRUST_M).abs() < 1e-12,
+                "{length}"
+            );
             assert_eq!(a.color.unwrap().r, THRUST[0], "not at a limit: green");
         }
         // At the maximum: red.
         let full = scene.dynamic_scene(0, &hover(&vehicle, vehicle.rotors.thrust_max_n), &[]);
-        assert_eq!(full.entities[0].arrows[0].color.unwrap().r, THRUST_SATURATED[0]);
+        assert_eq!(
+            full.entities[0].arrows[0].color.unwrap().r,
+            THRUST_SATURATED[0]
+        );
     }
 
     #[test]
@@ -567,7 +581,12 @@ mod tests {
             .collect();
         assert_eq!(due, [0, 1_000_000_000, 2_000_000_000]);
         let update = scene.static_scene(0);
-        assert!(update.entities.iter().any(|e| e.id == "vehicle/base_link" && e.frame_locked));
+        assert!(
+            update
+                .entities
+                .iter()
+                .any(|e| e.id == "vehicle/base_link" && e.frame_locked)
+        );
     }
 
     #[test]
@@ -579,12 +598,18 @@ mod tests {
         let m = hover(&vehicle, 3.0);
         let tf = scene.transforms(0, &m);
         let mut rec = McapRecorder::create(&path, &RunMetadata::new("fa-hexa", "pid6", 1)).unwrap();
-        let ch = rec.encoded_channel::<FrameTransforms>(SCENE_TF_TOPIC).unwrap();
+        let ch = rec
+            .encoded_channel::<FrameTransforms>(SCENE_TF_TOPIC)
+            .unwrap();
         rec.log_encoded(&ch, 0, &tf).unwrap();
         rec.finish().unwrap();
         let bytes = std::fs::read(&path).unwrap();
         let back = Recording::from_bytes(&bytes).unwrap();
-        let msg = back.messages.iter().find(|m| m.topic == SCENE_TF_TOPIC).unwrap();
+        let msg = back
+            .messages
+            .iter()
+            .find(|m| m.topic == SCENE_TF_TOPIC)
+            .unwrap();
         assert_eq!(FrameTransforms::decode(&msg.data[..]).unwrap(), tf);
     }
 }

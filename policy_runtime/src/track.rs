@@ -235,13 +235,11 @@ pub fn run_track_with_link(
     };
     let mut log = match recorder {
         None => None,
-        Some(recorder) => {
-            Some(
-                FlightLog::new(recorder, vehicle)?
-                    .with_rotor_limits(config.twin.disturbances.saturation)
-                    .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
-            )
-        }
+        Some(recorder) => Some(
+            FlightLog::new(recorder, vehicle)?
+                .with_rotor_limits(config.twin.disturbances.saturation)
+                .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
+        ),
     };
     let action_noise = if config.twin.disturbances.action_noise {
         ActionNoise::new(

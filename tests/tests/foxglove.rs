@@ -3,7 +3,11 @@
 //! Rerun's MCAP importer), and the live view (`--live`) watched by a WebSocket client written
 //! against the Foxglove WebSocket protocol (Python `websockets`).
 
-#![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests: a failed set-up fails loudly")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "tests: a failed set-up fails loudly"
+)]
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -89,21 +93,33 @@ fn the_log_holds_the_3d_scene_in_foxglove_protobuf_decoded_by_python() {
     let frames = strings(&tf["frames"]);
     assert!(frames.contains(&"world->base_link"), "{frames:?}");
     for i in 0..6 {
-        assert!(frames.contains(&format!("base_link->rotor_{i}").as_str()), "{frames:?}");
+        assert!(
+            frames.contains(&format!("base_link->rotor_{i}").as_str()),
+            "{frames:?}"
+        );
     }
     let statics = &report["decoded"]["/scene/static"];
     let entities = strings(&statics["entities"]);
     assert!(entities.contains(&"vehicle/base_link"), "{entities:?}");
-    assert!(entities.contains(&"scene/fixed"), "floor and wall: {entities:?}");
+    assert!(
+        entities.contains(&"scene/fixed"),
+        "floor and wall: {entities:?}"
+    );
     assert!(
         statics["primitives"]["cubes"].as_u64().unwrap() >= 2,
         "floor and wall are cubes: {statics}"
     );
     let dynamic = &report["decoded"]["/scene/dynamic"];
     let entities = strings(&dynamic["entities"]);
-    assert!(entities.contains(&"scene/objects"), "the button's plunger: {entities:?}");
+    assert!(
+        entities.contains(&"scene/objects"),
+        "the button's plunger: {entities:?}"
+    );
     for i in 0..6 {
-        assert!(entities.contains(&format!("rotor/{i}/thrust").as_str()), "{entities:?}");
+        assert!(
+            entities.contains(&format!("rotor/{i}/thrust").as_str()),
+            "{entities:?}"
+        );
     }
     let targets = strings(&report["decoded"]["/scene/targets"]["entities"]);
     assert_eq!(targets, ["target/ee", "target/base"]);
@@ -129,7 +145,10 @@ fn the_layout_plots_channels_a_press_button_log_has() {
         for p in panel["paths"].as_array().into_iter().flatten() {
             let path = p["value"].as_str().unwrap();
             let topic = path.split('.').next().unwrap();
-            assert!(topics.contains(&topic), "{id}: {path} names no channel of {topics:?}");
+            assert!(
+                topics.contains(&topic),
+                "{id}: {path} names no channel of {topics:?}"
+            );
             named += 1;
         }
         if let Some(scene_topics) = panel["topics"].as_object() {
@@ -140,7 +159,10 @@ fn the_layout_plots_channels_a_press_button_log_has() {
             }
         }
     }
-    assert!(named >= 10, "plots of errors, thrusts and saturation: {named} paths");
+    assert!(
+        named >= 10,
+        "plots of errors, thrusts and saturation: {named} paths"
+    );
     assert_eq!(
         layout["configById"]["Image!ee"]["imageMode"]["imageTopic"],
         "/camera/ee_camera/image"
@@ -153,7 +175,9 @@ fn rerun_python() -> Option<PathBuf> {
     let script = scripts_dir().join("setup-rerun.sh");
     let venv = std::env::var_os("AMSTACK_RERUN_VENV")
         .map(PathBuf::from)
-        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/amstack-rerun-venv")))?;
+        .or_else(|| {
+            std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/amstack-rerun-venv"))
+        })?;
     if !venv.join("bin/python").is_file() && std::env::var("AMSTACK_RERUN").as_deref() != Ok("1") {
         return None;
     }
@@ -165,7 +189,9 @@ fn rerun_python() -> Option<PathBuf> {
         String::from_utf8_lossy(&out.stderr)
     );
     let stdout = String::from_utf8_lossy(&out.stdout);
-    Some(PathBuf::from(stdout.lines().last().unwrap_or_default().trim()))
+    Some(PathBuf::from(
+        stdout.lines().last().unwrap_or_default().trim(),
+    ))
 }
 
 #[test]
@@ -186,7 +212,10 @@ fn rerun_converts_a_press_button_log_into_transforms_and_scene_entities() {
         .output()
         .unwrap();
     let report: Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-        panic!("rrd_check.py: {e}: {}", String::from_utf8_lossy(&out.stderr))
+        panic!(
+            "rrd_check.py: {e}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
     });
     assert!(out.status.success(), "{report}");
     let entities = report["entities"].as_object().unwrap();
@@ -199,16 +228,24 @@ fn rerun_converts_a_press_button_log_into_transforms_and_scene_entities() {
     // The hand-written JSON channels stay raw bytes to Rerun: the reason for the SDK's.
     let json_tf = entities
         .iter()
-        .find(|(path, _)| path.trim_end_matches('/').ends_with("/tf") && !path.contains("scene") && !path.contains("camera"))
+        .find(|(path, _)| {
+            path.trim_end_matches('/').ends_with("/tf")
+                && !path.contains("scene")
+                && !path.contains("camera")
+        })
         .map(|(_, e)| e);
     if let Some(json_tf) = json_tf {
-        assert!(!strings(&json_tf["archetypes"]).contains(&"Transform3D"), "{json_tf}");
+        assert!(
+            !strings(&json_tf["archetypes"]).contains(&"Transform3D"),
+            "{json_tf}"
+        );
     }
 }
 
 fn client(args: &[&str]) -> Command {
     let mut c = Command::new(python());
-    c.arg(scripts_dir().join("foxglove_ws_client.py")).args(args);
+    c.arg(scripts_dir().join("foxglove_ws_client.py"))
+        .args(args);
     c
 }
 
@@ -252,7 +289,10 @@ fn a_live_viewer_receives_the_scene_at_the_tick_rate_and_changes_nothing() {
         .collect()
     };
     let alone = dir.path().join("alone.json");
-    run(&flight(&alone).iter().map(String::as_str).collect::<Vec<_>>());
+    run(&flight(&alone)
+        .iter()
+        .map(String::as_str)
+        .collect::<Vec<_>>());
 
     // Watched by a viewer that reads, and by one that subscribes and stalls.
     let port = free_port();
@@ -260,20 +300,36 @@ fn a_live_viewer_receives_the_scene_at_the_tick_rate_and_changes_nothing() {
     let watched = dir.path().join("watched.json");
     let mut args = flight(&watched);
     args.extend(["--live".to_owned(), addr.clone()]);
-    let mut proc = Proc::start("track --live", &args.iter().map(String::as_str).collect::<Vec<_>>());
+    let mut proc = Proc::start(
+        "track --live",
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+    );
     let line = proc.wait_for("live view: ws://");
     assert!(line.contains(&addr), "{line}");
     let url = format!("ws://{addr}");
-    let slow = client(&[&url, "--stall", "3", "--timeout", "30"]).spawn().unwrap();
-    let out = client(&[&url, "--messages", "60", "--need", "/scene/static=1", "--timeout", "60"])
-        .output()
+    let slow = client(&[&url, "--stall", "3", "--timeout", "30"])
+        .spawn()
         .unwrap();
-    let report: Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-        panic!("client: {e}: {}", String::from_utf8_lossy(&out.stderr))
-    });
+    let out = client(&[
+        &url,
+        "--messages",
+        "60",
+        "--need",
+        "/scene/static=1",
+        "--timeout",
+        "60",
+    ])
+    .output()
+    .unwrap();
+    let report: Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("client: {e}: {}", String::from_utf8_lossy(&out.stderr)));
     assert!(out.status.success(), "{report}");
     let slow = slow.wait_with_output().unwrap();
-    assert!(slow.status.success(), "slow viewer: {}", String::from_utf8_lossy(&slow.stdout));
+    assert!(
+        slow.status.success(),
+        "slow viewer: {}",
+        String::from_utf8_lossy(&slow.stdout)
+    );
     assert!(proc.wait().success(), "{}", proc.stderr());
 
     // What the viewer was told and given.
@@ -281,7 +337,10 @@ fn a_live_viewer_receives_the_scene_at_the_tick_rate_and_changes_nothing() {
     assert_eq!(adv["/scene/tf"]["schemaName"], "foxglove.FrameTransforms");
     assert_eq!(adv["/scene/tf"]["encoding"], "protobuf");
     assert_eq!(adv["/scene/static"]["schemaName"], "foxglove.SceneUpdate");
-    assert_eq!(adv["/rotors"]["schemaName"], "amstack.Rotors", "every log channel streams");
+    assert_eq!(
+        adv["/rotors"]["schemaName"], "amstack.Rotors",
+        "every log channel streams"
+    );
     assert_eq!(adv["/rotors"]["encoding"], "json");
     let tf = &report["received"]["/scene/tf"];
     assert!(tf["count"].as_u64().unwrap() >= 60, "{tf}");

@@ -351,10 +351,12 @@ impl McapRecorder {
         &mut self,
         topic: &str,
     ) -> Result<Channel<T>, RecordError> {
-        let schema = T::get_schema().ok_or_else(|| RecordError::Config(format!(
-            "{topic}: the message type {} has no schema",
-            std::any::type_name::<T>()
-        )))?;
+        let schema = T::get_schema().ok_or_else(|| {
+            RecordError::Config(format!(
+                "{topic}: the message type {} has no schema",
+                std::any::type_name::<T>()
+            ))
+        })?;
         self.register(
             topic,
             &schema.name,
@@ -387,9 +389,8 @@ impl McapRecorder {
             return Ok(self.handle(existing.id, topic));
         }
         let id = if self.file_less {
-            u16::try_from(self.topics.len() + 1).map_err(|_| {
-                RecordError::Config(format!("{topic}: more than 65535 channels"))
-            })?
+            u16::try_from(self.topics.len() + 1)
+                .map_err(|_| RecordError::Config(format!("{topic}: more than 65535 channels")))?
         } else {
             let path = &self.path;
             let writer = Self::writer_of(&mut self.writer, path)?;
