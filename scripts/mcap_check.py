@@ -17,7 +17,11 @@ records, every channel with its schema name, encodings and message count, and ch
   - every foxglove.CompressedImage decodes: base64, then PNG (signature, IHDR, CRCs, the
     inflated IDAT holding exactly height rows of width pixels) or JPEG (SOI/EOI markers); its
     size and a SHA-256 of its bytes per message are reported under "images" (by topic), and a
-    PNG's size must match the width/height of the camera's foxglove.CameraCalibration.
+    PNG's size must match the width/height of the camera's foxglove.CameraCalibration;
+  - every message of a `protobuf` channel (the Foxglove SDK's well-known schemas: the 3D scene)
+    decodes with the message class built from its schema record (a FileDescriptorSet), by
+    Google's `protobuf` package; "decoded" reports per topic the type, the count, and what the
+    messages hold (FrameTransforms: the frames; SceneUpdate: the entity ids and primitives).
 
 Exit status: 0 when every check passes, 1 when one fails or the file is not MCAP, 2 on bad
 usage. --json prints one JSON object instead of text (same content). Run it with the venv that
@@ -41,6 +45,36 @@ except ImportError:  # pragma: no cover - environment problem, not a check failu
     sys.exit(2)
 
 MAX_ERRORS_SHOWN = 20
+
+
+def protobuf_class(schema):
+    """The message class of a protobuf schema record (a serialized FileDescriptorSet)."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+    pool = descriptor_pool.DescriptorPool()
+    for fd in fds.file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+
+
+def summarise_protobuf(entry, message):
+    """Adds what a decoded Foxglove message holds to its topic's entry."""
+    name = message.DESCRIPTOR.full_name
+    if name == "foxglove.FrameTransforms":
+        for t in message.transforms:
+            pair = f"{t.parent_frame_id}->{t.child_frame_id}"
+            if pair not in entry.setdefault("frames", []):
+                entry["frames"].append(pair)
+    elif name == "foxglove.SceneUpdate":
+        prims = entry.setdefault("primitives", {})
+        for e in message.entities:
+            if e.id not in entry.setdefault("entities", []):
+                entry["entities"].append(e.id)
+            for kind in ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts"):
+                n = len(getattr(e, kind))
+                if n:
+                    prims[kind] = prims.get(kind, 0) + n
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # Bytes per pixel of 8-bit PNG colour types: grey, RGB, palette, grey+alpha, RGBA.
@@ -182,8 +216,10 @@ def check(path, expected, require_complete):
         "message_count": 0,
         "summary_statistics": None,
         "images": {},
+        "decoded": {},
         "errors": [],
     }
+    protobuf_classes = {}
     errors = report["errors"]
     schemas, channels, counts = {}, {}, {}
     parsed_schemas = {}
@@ -212,6 +248,30 @@ def check(path, expected, require_complete):
                         continue
                     counts[record.channel_id] += 1
                     report["message_count"] += 1
+                    if channel.message_encoding == "protobuf":
+                        s = schemas.get(channel.schema_id)
+                        if s is None or s.encoding != "protobuf":
+                            errors.append(f"{channel.topic}: protobuf messages without a protobuf schema")
+                            continue
+                        cls = protobuf_classes.get(channel.schema_id)
+                        if cls is None:
+                            try:
+                                cls = protobuf_class(s)
+                            except Exception as e:  # a schema the protobuf package refuses
+                                errors.append(f"schema {s.name}: not a usable FileDescriptorSet: {e}")
+                                cls = False
+                            protobuf_classes[channel.schema_id] = cls
+                        if not cls:
+                            continue
+                        try:
+                            message = cls.FromString(record.data)
+                        except Exception as e:
+                            errors.append(f"{channel.topic} #{record.sequence}: does not decode as {s.name}: {e}")
+                            continue
+                        entry = report["decoded"].setdefault(channel.topic, {"type": s.name, "count": 0})
+                        entry["count"] += 1
+                        summarise_protobuf(entry, message)
+                        continue
                     if channel.message_encoding != "json":
                         continue
                     try:
@@ -318,6 +378,10 @@ def print_text(report):
     for c in report["channels"]:
         p(f"  {c['topic']:<{width}}  {c['schema_name']} ({c['schema_encoding']}, {c['message_encoding']})"
           f"  {c['count']} messages")
+    for topic, d in sorted(report["decoded"].items()):
+        what = ", ".join(f"{k} {len(v) if isinstance(v, list) else v}" for k, v in d.items()
+                         if k not in ("type", "count"))
+        p(f"  decoded {topic}: {d['count']} x {d['type']}" + (f" ({what})" if what else ""))
     p(f"messages: {report['message_count']}")
     for topic, entry in sorted(report["images"].items()):
         p(f"  {topic}: {entry['count']} {entry['format']} images, {entry['width']}x{entry['height']}")

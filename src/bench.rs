@@ -122,6 +122,12 @@ pub struct Args {
     /// Write the results JSON here (also written to --out).
     #[arg(long, value_name = "FILE")]
     pub(crate) json: Option<PathBuf>,
+    /// Stream each rollout in progress live (its log's channels: the 3D scene, transforms,
+    /// every amstack channel) over the Foxglove WebSocket protocol: in Foxglove, "Open
+    /// connection", ws://ADDR. ADDR is IP:PORT [default: 127.0.0.1:8765]. Rollouts never wait
+    /// for a viewer (a full queue drops and counts; printed at the end).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = policy_runtime::live::DEFAULT_LIVE_ADDR)]
+    pub(crate) live: Option<String>,
     /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
     #[arg(long = "vehicle", value_name = "FILE.toml")]
     pub(crate) vehicles: Vec<PathBuf>,
@@ -253,6 +259,7 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
     }
     let cameras = args.cameras.config(&vehicle, args.video.as_deref())?;
     Ok(BenchConfig {
+        live: crate::track::start_live(args.live.as_deref())?,
         cameras,
         link,
         episode,
@@ -431,13 +438,12 @@ pub fn run(args: &Args) -> Result<()> {
         ));
         bar.inc(1);
     };
-    let report =
-        run_bench_shard(&config, shard.unwrap_or(Shard::WHOLE), &on_done, &stop).map_err(|e| {
-            match e {
-                BenchError::Link(LinkError::Refused(_)) => bad_input(e.to_string()),
-                e => anyhow::Error::new(e),
-            }
-        })?;
+    let report = run_bench_shard(&config, shard.unwrap_or(Shard::WHOLE), &on_done, &stop);
+    crate::track::finish_live(config.live.as_deref());
+    let report = report.map_err(|e| match e {
+        BenchError::Link(LinkError::Refused(_)) => bad_input(e.to_string()),
+        e => anyhow::Error::new(e),
+    })?;
     bar.finish_and_clear();
     println!("{}", table(&report));
     let estimates: Vec<_> = report

@@ -130,6 +130,7 @@ impl Args {
     /// The rollouts' flags as `amstack bench` takes them: its setup builds them.
     fn bench_args(&self) -> crate::bench::Args {
         crate::bench::Args {
+            live: None,
             task: self.task.clone(),
             platform: self.platform.clone(),
             controller: self.controller.clone(),

@@ -12,6 +12,7 @@ use policy_runtime::LinkError;
 use policy_runtime::bench::{
     BenchConfig, BenchError, BenchLink, EpisodeLength, Termination, run_rollout_logged,
 };
+use policy_runtime::live::LiveServer;
 use policy_runtime::{
     EstimatorSettings, Interface, StateSource, TrackConfig, TrackResult, Trajectory, run_track,
 };
@@ -86,6 +87,12 @@ pub struct Args {
     /// Write the flight log as MCAP.
     #[arg(long, value_name = "FILE")]
     mcap: Option<PathBuf>,
+    /// Stream the flight log's channels live (the 3D scene, transforms, every amstack
+    /// channel) over the Foxglove WebSocket protocol: open Foxglove, "Open connection",
+    /// ws://ADDR. ADDR is IP:PORT [default: 127.0.0.1:8765]. The flight never waits for a
+    /// viewer: a full queue drops messages and counts them (printed at the end).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = policy_runtime::live::DEFAULT_LIVE_ADDR)]
+    live: Option<String>,
     /// Add a vehicle from its vehicle file (TOML naming a URDF); repeatable.
     #[arg(long = "vehicle", value_name = "FILE.toml")]
     vehicles: Vec<PathBuf>,
@@ -275,7 +282,9 @@ fn config(args: &Args) -> Result<TrackConfig> {
         check_writable("--video", p)?;
     }
     let cameras = args.cameras.config(&vehicle, args.video.as_deref())?;
+    let live = start_live(args.live.as_deref())?;
     Ok(TrackConfig {
+        live,
         cameras,
         vehicle,
         controller,
@@ -289,6 +298,31 @@ fn config(args: &Args) -> Result<TrackConfig> {
         // In the twin the MPC's solves are not timed: results never depend on the wall clock.
         clock: None,
     })
+}
+
+/// Starts `--live ADDR`'s server (bad address: bad input), saying where it serves.
+pub(crate) fn start_live(addr: Option<&str>) -> Result<Option<Arc<LiveServer>>> {
+    let Some(text) = addr else {
+        return Ok(None);
+    };
+    let addr = policy_runtime::live::parse_addr(text).map_err(|e| bad_input(e.to_string()))?;
+    let server = LiveServer::start(addr)?;
+    eprintln!(
+        "live view: ws://{} (Foxglove: Open connection)",
+        server.addr()
+    );
+    Ok(Some(Arc::new(server)))
+}
+
+/// Publishes what is queued, stops the live view and prints what it published and dropped.
+pub(crate) fn finish_live(live: Option<&LiveServer>) {
+    if let Some(live) = live {
+        let stats = live.finish();
+        eprintln!(
+            "live view: {} messages published, {} dropped (queue full)",
+            stats.published, stats.dropped
+        );
+    }
 }
 
 fn cell(x: Option<f64>, scale: f64, decimals: usize) -> String {
@@ -350,7 +384,9 @@ pub(crate) fn run_with(
         } else {
             ControlFlow::Continue(())
         }
-    })?;
+    });
+    finish_live(config.live.as_deref());
+    let result = result?;
     let mut table = Table::new();
     table
         .load_style(presets::ASCII_MARKDOWN)
@@ -501,6 +537,7 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
     }
     let cameras = args.cameras.config(&vehicle, args.video.as_deref())?;
     let config = BenchConfig {
+        live: start_live(args.live.as_deref())?,
         cameras,
         vehicle,
         controller,
@@ -534,7 +571,9 @@ pub(crate) fn run_scripted(args: &Args, link: BenchLink) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
-    let r = run_rollout_logged(&config, task, 0, &stop, args.mcap.as_deref()).map_err(|e| {
+    let r = run_rollout_logged(&config, task, 0, &stop, args.mcap.as_deref());
+    finish_live(config.live.as_deref());
+    let r = r.map_err(|e| {
         // A link that refuses this flight's configuration is bad input, one line (exit 2).
         match e {
             BenchError::Link(LinkError::Refused(_)) => bad_input(e.to_string()),

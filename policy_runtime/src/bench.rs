@@ -79,6 +79,8 @@ pub struct BenchConfig {
     pub policy: Option<PolicyConfig>,
     /// The cameras rendered in each rollout (the in-process twin only), if any.
     pub cameras: Option<CameraConfig>,
+    /// The live view every rollout's log channels stream to as it flies (`--live`), if any.
+    pub live: Option<std::sync::Arc<crate::live::LiveServer>>,
 }
 
 pub use crate::flight::EpisodeLength;
@@ -311,20 +313,29 @@ pub fn run_rollout_with(
         Some(c) => Some(worker_rig(c, vehicle)?),
         None => None,
     };
-    let mut log = match log_path {
-        None => None,
-        Some(path) => {
+    let recorder = match (log_path, &config.live) {
+        (None, None) => None,
+        (None, Some(live)) => Some(McapRecorder::file_less(live.tap())),
+        (Some(path), live) => {
             let run = RunMetadata::new(&vehicle.id, &config.controller_name, seed)
                 .with_interface(config.interface.name())
                 .with_trajectory(format!("task:{}", task.name()))
                 .with_config(&twin_config)?
                 .with_controller_config(&config.controller)?;
-            Some(
-                FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
-                    .with_rotor_limits(twin_config.disturbances.saturation)
-                    .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
-            )
+            let recorder = McapRecorder::create(path, &run)?;
+            Some(match live {
+                Some(live) => recorder.with_tap(live.tap()),
+                None => recorder,
+            })
         }
+    };
+    let mut log = match recorder {
+        None => None,
+        Some(recorder) => Some(
+            FlightLog::new(recorder, vehicle)?
+                .with_rotor_limits(twin_config.disturbances.saturation)
+                .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
+        ),
     };
     let mut video = match config.cameras.as_ref().and_then(|c| c.video.as_ref()) {
         Some(v) => {
@@ -403,7 +414,7 @@ pub fn run_rollout_with(
     };
     let observed = link.task_observed();
     let mcap = match log {
-        Some(log) => Some(log.finish()?.path),
+        Some(log) => Some(log.finish()?.path).filter(|_| log_path.is_some()),
         None => None,
     };
     let video = match video {

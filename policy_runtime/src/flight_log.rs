@@ -21,6 +21,7 @@
 //! | `/camera/<name>/image` | foxglove.CompressedImage | flights with cameras: the camera's PNG every Nth observation |
 //! | `/camera/<name>/calibration` | foxglove.CameraCalibration | its intrinsics (K, P), with each image |
 //! | `/camera/tf` | foxglove.FrameTransforms | world→camera (ROS optical frame), with each image set |
+//! | `/scene/tf`, `/scene/static`, `/scene/dynamic`, `/scene/targets` | foxglove.FrameTransforms, foxglove.SceneUpdate (protobuf, the Foxglove SDK's) | the flight as a 3D scene: [`crate::scene3d`] |
 //!
 //! A link's own channels (the MAVLink link: the last two) are the messages it returns from
 //! [`crate::Link::drain_messages`], written by [`FlightLog::link_messages`].
@@ -45,6 +46,9 @@ use crate::record::foxglove::{
     CameraCalibration, CompressedImage, FrameTransform, FrameTransforms, PoseInFrame, Time,
 };
 use crate::record::{Channel, McapRecorder, RecordError, SchemaName};
+use crate::scene3d::{
+    SCENE_DYNAMIC_TOPIC, SCENE_STATIC_TOPIC, SCENE_TARGETS_TOPIC, SCENE_TF_TOPIC, Scene3d,
+};
 use crate::stack::{Action, BaseJointTarget, EeTarget, TickRecord};
 
 fn v3(v: &nalgebra::Vector3<f64>) -> [f64; 3] {
@@ -485,9 +489,23 @@ struct CameraChannels {
     calibration: Channel<CameraCalibration>,
 }
 
+/// The 3D scene's channels (Foxglove SDK types, protobuf).
+#[derive(Debug)]
+struct SceneChannels {
+    scene: Scene3d,
+    tf: Channel<foxglove::schemas::FrameTransforms>,
+    fixed: Channel<foxglove::schemas::SceneUpdate>,
+    dynamic: Channel<foxglove::schemas::SceneUpdate>,
+    targets: Channel<foxglove::schemas::SceneUpdate>,
+    /// The scene objects' world poses after the last step (the order of the scene's shapes).
+    poses: Vec<Isometry3<f64>>,
+}
+
 /// The open channels of one flight log.
 #[derive(Debug)]
 pub struct FlightLog {
+    /// The 3D scene.
+    scene: SceneChannels,
     recorder: McapRecorder,
     tf: Channel<FrameTransforms>,
     base_pose: Channel<PoseInFrame>,
@@ -533,6 +551,14 @@ impl FlightLog {
     /// Opens every channel on `recorder`.
     pub fn new(mut recorder: McapRecorder, vehicle: &Vehicle) -> Result<Self, RecordError> {
         Ok(Self {
+            scene: SceneChannels {
+                scene: Scene3d::new(vehicle),
+                tf: recorder.encoded_channel(SCENE_TF_TOPIC)?,
+                fixed: recorder.encoded_channel(SCENE_STATIC_TOPIC)?,
+                dynamic: recorder.encoded_channel(SCENE_DYNAMIC_TOPIC)?,
+                targets: recorder.encoded_channel(SCENE_TARGETS_TOPIC)?,
+                poses: Vec::new(),
+            },
             tf: recorder.channel("/tf")?,
             base_pose: recorder.channel("/base/pose")?,
             ee_pose: recorder.channel("/ee/pose")?,
@@ -645,6 +671,33 @@ impl FlightLog {
         logged
     }
 
+    /// The task scene's shapes of this flight (a link's [`crate::Link::camera_scene`]), drawn
+    /// on the 3D scene's channels from the next tick on.
+    pub fn set_scene(&mut self, scene: Vec<sim_twin::SceneVisual>) {
+        self.scene.scene.set_scene(scene);
+        self.scene.poses.clear();
+    }
+
+    /// The scene objects' world poses now (the order of [`Self::set_scene`]'s shapes), drawn
+    /// by the next [`Self::outcome`].
+    pub fn set_scene_poses(&mut self, poses: &[Isometry3<f64>]) {
+        self.scene.poses.clear();
+        self.scene.poses.extend_from_slice(poses);
+    }
+
+    /// Logs the vehicle's frames (`/scene/tf`) at measurement `m`, and the static scene when
+    /// it is due.
+    pub fn scene_frames(&mut self, m: &Measurement) -> Result<(), RecordError> {
+        let t = nanos(m.time_s);
+        let s = &mut self.scene;
+        if s.scene.static_due(t) {
+            self.recorder
+                .log_encoded(&s.fixed, t, &s.scene.static_scene(t))?;
+        }
+        let tf = s.scene.transforms(t, m);
+        self.recorder.log_encoded(&s.tf, t, &tf)
+    }
+
     /// Logs one tick: the measurement it acted on, what it decided, the EE reference.
     pub fn tick(
         &mut self,
@@ -653,6 +706,13 @@ impl FlightLog {
         ee_reference: &Isometry3<f64>,
     ) -> Result<(), RecordError> {
         let t = nanos(m.time_s);
+        self.scene_frames(m)?;
+        let targets = self
+            .scene
+            .scene
+            .targets(t, ee_reference, &record.base_target);
+        self.recorder
+            .log_encoded(&self.scene.targets, t, &targets)?;
         let r = &mut self.recorder;
         let base = m.base.pose();
         r.log(&self.tf, t, &frame_transforms(t, m))?;
@@ -826,6 +886,11 @@ impl FlightLog {
     /// Logs what the rotors and disturbances did over the period that ended at `m.time_s`.
     pub fn outcome(&mut self, m: &Measurement) -> Result<(), RecordError> {
         let t = nanos(m.time_s);
+        let s = &self.scene;
+        let dynamic = s.scene.dynamic_scene(t, m, &s.poses);
+        if !dynamic.entities.is_empty() {
+            self.recorder.log_encoded(&s.dynamic, t, &dynamic)?;
+        }
         if !m.rotors.is_empty() {
             let limits = self.limits_enforced.then_some(self.limits);
             self.recorder.log(&self.rotors, t, &Rotors::of(m, limits))?;

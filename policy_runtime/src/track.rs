@@ -60,6 +60,8 @@ pub struct TrackConfig {
     pub clock: Option<Clock>,
     /// The cameras rendered in the flight (the in-process twin only), if any.
     pub cameras: Option<CameraConfig>,
+    /// The live view the flight's log channels stream to (`--live`), if any.
+    pub live: Option<std::sync::Arc<crate::live::LiveServer>>,
 }
 
 /// The scores of one flight.
@@ -215,20 +217,29 @@ pub fn run_track_with_link(
         ),
         None => None,
     };
-    let mut log = match &config.mcap {
-        None => None,
-        Some(path) => {
+    let recorder = match (&config.mcap, &config.live) {
+        (None, None) => None,
+        (None, Some(live)) => Some(McapRecorder::file_less(live.tap())),
+        (Some(path), live) => {
             let run = RunMetadata::new(&vehicle.id, config.controller.name(), config.twin.seed)
                 .with_interface(config.interface.name())
                 .with_trajectory(config.trajectory.name())
                 .with_config(&config.twin)?
                 .with_controller_config(&config.controller)?;
-            Some(
-                FlightLog::new(McapRecorder::create(path, &run)?, vehicle)?
-                    .with_rotor_limits(config.twin.disturbances.saturation)
-                    .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
-            )
+            let recorder = McapRecorder::create(path, &run)?;
+            Some(match live {
+                Some(live) => recorder.with_tap(live.tap()),
+                None => recorder,
+            })
         }
+    };
+    let mut log = match recorder {
+        None => None,
+        Some(recorder) => Some(
+            FlightLog::new(recorder, vehicle)?
+                .with_rotor_limits(config.twin.disturbances.saturation)
+                .with_camera_log(config.cameras.as_ref().map_or(0, |c| c.log_every)),
+        ),
     };
     let action_noise = if config.twin.disturbances.action_noise {
         ActionNoise::new(
@@ -283,7 +294,7 @@ pub fn run_track_with_link(
     };
     // The log is closed whatever happened (a link that stopped answering, Ctrl-C).
     let mcap = match log {
-        Some(log) => Some(log.finish()?.path),
+        Some(log) => Some(log.finish()?.path).filter(|_| config.mcap.is_some()),
         None => None,
     };
     if let Some(v) = video {

@@ -23,6 +23,7 @@ fn flight(
     let v = vehicle(id);
     let controller = profile(&v, kind).unwrap_or_else(|e| panic!("{id}: {e}"));
     TrackConfig {
+        live: None,
         cameras: None,
         vehicle: v,
         controller,
@@ -349,6 +350,7 @@ fn bench(
 ) -> policy_runtime::bench::BenchReport {
     let v = vehicle(id);
     let config = policy_runtime::bench::BenchConfig {
+        live: None,
         cameras: None,
         controller: profile(&v, kind).unwrap_or_else(|e| panic!("{id}: {e}")),
         controller_name: "test".to_owned(),
@@ -440,6 +442,7 @@ fn rollout_camera_images_decode_at_their_size_and_repeat_with_the_seed() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let rollout = |name: &str, with_cameras: bool| {
         let config = policy_runtime::bench::BenchConfig {
+            live: None,
             policy: None,
             cameras: with_cameras.then(|| CameraConfig {
                 cameras: cameras.clone(),

@@ -581,14 +581,16 @@ mod bridge {
     /// A message of the log: topic, log time (ns), JSON payload.
     type Logged = (String, u64, serde_json::Value);
 
-    /// Every message of `path`, read with the `mcap` crate (not amstack's reader); the schema
-    /// names of the MAVLink channels are checked on the way.
+    /// Every message of `path`'s JSON channels (not the 3D scene's protobuf ones), read with
+    /// the `mcap` crate (not amstack's reader); the schema names of the MAVLink channels are
+    /// checked on the way.
     fn read_mcap(path: &Path) -> Vec<Logged> {
         let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         let stream = mcap::MessageStream::new(&bytes).unwrap_or_else(|e| panic!("{e}"));
         stream
+            .map(|m| m.unwrap_or_else(|e| panic!("{}: {e}", path.display())))
+            .filter(|m| m.channel.message_encoding == "json")
             .map(|m| {
-                let m = m.unwrap_or_else(|e| panic!("{}: {e}", path.display()));
                 let topic = m.channel.topic.clone();
                 let schema = m.channel.schema.as_ref().map(|s| s.name.clone());
                 match topic.as_str() {

@@ -14,6 +14,7 @@ use crate::stack::{Action, EeTarget};
 fn config(vehicle: &str, controller: ControllerKind, interface: Interface) -> BenchConfig {
     let vehicle = Vehicle::builtin(vehicle).unwrap_or_else(|e| panic!("{e}"));
     BenchConfig {
+        live: None,
         cameras: None,
         controller: profile(&vehicle, controller).unwrap_or_else(|e| panic!("{e}")),
         controller_name: "test".to_owned(),

@@ -323,6 +323,7 @@ fn merging_reindexes_episodes_and_tasks() {
 fn bench_config(vehicle: &str, interface: Interface) -> BenchConfig {
     let vehicle = Vehicle::builtin(vehicle).unwrap();
     BenchConfig {
+        live: None,
         controller: profile(&vehicle, ControllerKind::Pid).unwrap(),
         controller_name: "test".to_owned(),
         vehicle,

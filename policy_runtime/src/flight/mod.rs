@@ -162,10 +162,19 @@ pub fn run(
     let mut messages: Vec<LinkMessage> = Vec::new();
     let mut m = link.receive()?;
     link.drain_messages(m.time_s, &mut messages);
+    // The scene's shapes and, after each step, their poses: only for an observer that draws
+    // them (read-only queries of the link: they change nothing in the flight).
+    let scene_visuals = if observers.iter().any(|o| o.wants_scene()) {
+        link.camera_scene()
+    } else {
+        None
+    };
+    let mut scene_state = render::Snapshot::default();
     for o in observers.iter_mut() {
         o.start(&Start {
             measurement: &m,
             link_messages: &messages,
+            scene_visuals: scene_visuals.as_deref(),
         })?;
     }
     // The controllers' view of the vehicle: the measurement, or the estimator's. A link with
@@ -311,6 +320,10 @@ pub fn run(
         scene = link.task();
         messages.clear();
         link.drain_messages(m.time_s, &mut messages);
+        let scene_poses = match scene_visuals {
+            Some(_) if link.camera_state(&mut scene_state) => Some(&scene_state.scene_poses[..]),
+            _ => None,
+        };
         let mut stepped = Stepped {
             k,
             time_s: t,
@@ -320,6 +333,7 @@ pub fn run(
             link_messages: &messages,
             task_state: None,
             frames: rig.as_deref().filter(|_| rendered).map(CameraRig::frames),
+            scene_poses,
         };
         let mut stop = None;
         for o in observers.iter_mut() {

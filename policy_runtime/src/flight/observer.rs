@@ -11,7 +11,7 @@ use std::ops::ControlFlow;
 
 use nalgebra::Isometry3;
 use platform::Measurement;
-use sim_twin::TaskSnapshot;
+use sim_twin::{SceneVisual, TaskSnapshot};
 
 use super::FlightError;
 use crate::cameras::{FrameUse, Frames};
@@ -28,6 +28,9 @@ pub struct Start<'a> {
     pub measurement: &'a Measurement,
     /// The link's log messages at start.
     pub link_messages: &'a [LinkMessage],
+    /// The scene's shapes (floor, walls, task objects), when an observer
+    /// [wants the scene](Observer::wants_scene) and the link has one to show.
+    pub scene_visuals: Option<&'a [SceneVisual]>,
 }
 
 /// What tick `k` decided, before its setpoint is sent.
@@ -73,6 +76,9 @@ pub struct Stepped<'a> {
     /// step), whenever they were rendered for anyone at tick k. The images after this step
     /// are those of observation k+1 (the next tick's).
     pub frames: Option<&'a Frames>,
+    /// The world poses of [`Start::scene_visuals`] after the step (same order), when they
+    /// were given.
+    pub scene_poses: Option<&'a [Isometry3<f64>]>,
 }
 
 /// Why an observer stops a flight.
@@ -100,6 +106,13 @@ pub trait Observer {
     fn wants_frames(&self, k: u64) -> FrameUse {
         let _ = k;
         FrameUse::None
+    }
+
+    /// Whether this observer draws the scene: the runner then gives it the scene's shapes at
+    /// start ([`Start::scene_visuals`]) and their poses after every step
+    /// ([`Stepped::scene_poses`]). Default: no.
+    fn wants_scene(&self) -> bool {
+        false
     }
 
     /// The start measurement and the link's first messages.
@@ -143,7 +156,14 @@ impl Observer for FlightLog {
         }
     }
 
+    fn wants_scene(&self) -> bool {
+        true
+    }
+
     fn start(&mut self, start: &Start<'_>) -> Result<(), FlightError> {
+        if let Some(scene) = start.scene_visuals {
+            self.set_scene(scene.to_vec());
+        }
         Ok(self.link_messages(start.link_messages)?)
     }
 
@@ -161,6 +181,9 @@ impl Observer for FlightLog {
             if every > 0 && frames.k.is_multiple_of(every) {
                 self.cameras(frames)?;
             }
+        }
+        if let Some(poses) = step.scene_poses {
+            self.set_scene_poses(poses);
         }
         self.outcome(step.measurement)?;
         self.link_messages(step.link_messages)?;

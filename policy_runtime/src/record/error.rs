@@ -59,6 +59,14 @@ pub enum RecordError {
     /// The run metadata is unusable (`config_json` not JSON, a field missing on read-back, …).
     #[error("run metadata: {0}")]
     Metadata(String),
+    /// A Foxglove SDK message could not be encoded.
+    #[error("encoding a message of topic {topic}: {message}")]
+    Encode {
+        /// The channel's topic.
+        topic: String,
+        /// The encoder's message.
+        message: String,
+    },
     /// A camera image could not be encoded.
     #[error("encoding the image of topic {topic}: {message}")]
     Image {

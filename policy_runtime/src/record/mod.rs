@@ -68,7 +68,9 @@ mod schema;
 pub use error::RecordError;
 pub use metadata::{AMSTACK_VERSION, LOG_FORMAT_VERSION, RUN_METADATA_NAME, RunMetadata};
 pub use read::{RecordedMessage, Recording};
-pub use recorder::{Channel, Compression, McapRecorder, RecordSummary, RecorderConfig};
+pub use recorder::{
+    Channel, ChannelInfo, Compression, McapRecorder, RecordSummary, RecorderConfig, Tap,
+};
 pub use schema::{MESSAGE_ENCODING, SCHEMA_ENCODING, SchemaName, json_schema_of};
 
 #[cfg(test)]

@@ -148,9 +148,36 @@ pub struct RecordSummary {
 /// Per-topic bookkeeping.
 struct Registered {
     id: u16,
-    schema_name: &'static str,
+    schema_name: String,
     schema: Vec<u8>,
     next_sequence: u32,
+}
+
+/// A channel as a live view needs it to advertise the topic (everything but the messages).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChannelInfo {
+    /// The recorder's channel id (what [`Tap::message`] names).
+    pub id: u16,
+    /// Topic.
+    pub topic: String,
+    /// Schema name (`foxglove.SceneUpdate`, `amstack.Rotors`, …).
+    pub schema_name: String,
+    /// Schema encoding (`jsonschema`, `protobuf`).
+    pub schema_encoding: String,
+    /// The schema record's bytes.
+    pub schema: Vec<u8>,
+    /// Message encoding (`json`, `protobuf`).
+    pub message_encoding: String,
+}
+
+/// Something that sees every channel and message the recorder writes, as written (the live
+/// view, [`crate::live`]). Called on the flight loop's thread: an implementation must not
+/// block.
+pub trait Tap: Send {
+    /// A channel was registered (before its first message).
+    fn channel(&mut self, channel: &ChannelInfo);
+    /// A message was logged on channel `id` at `log_time_ns`, payload as in the file.
+    fn message(&mut self, id: u16, log_time_ns: u64, payload: &[u8]);
 }
 
 /// The chunk being filled.
@@ -178,6 +205,9 @@ pub struct McapRecorder {
     chunk: Option<OpenChunk>,
     messages_logged: u64,
     messages_flushed: u64,
+    /// Without a file ([`Self::file_less`]): messages go to the tap only.
+    file_less: bool,
+    tap: Option<Box<dyn Tap>>,
 }
 
 impl fmt::Debug for McapRecorder {
@@ -188,6 +218,8 @@ impl fmt::Debug for McapRecorder {
             .field("topics", &self.topics.keys().collect::<Vec<_>>())
             .field("messages_logged", &self.messages_logged)
             .field("messages_flushed", &self.messages_flushed)
+            .field("file_less", &self.file_less)
+            .field("tap", &self.tap.is_some())
             .finish_non_exhaustive()
     }
 }
@@ -250,7 +282,45 @@ impl McapRecorder {
             chunk: None,
             messages_logged: 0,
             messages_flushed: 0,
+            file_less: false,
+            tap: None,
         })
+    }
+
+    /// A recorder that writes no file: every channel and message goes to `tap` only (a live
+    /// view of a flight that is not logged). [`Self::finish`] reports what was logged, with
+    /// an empty path and no chunk.
+    pub fn file_less(tap: Box<dyn Tap>) -> Self {
+        Self {
+            path: PathBuf::new(),
+            writer: None,
+            config: RecorderConfig::default(),
+            id: NEXT_RECORDER_ID.fetch_add(1, Ordering::Relaxed),
+            topics: BTreeMap::new(),
+            payload: Vec::new(),
+            chunk: None,
+            messages_logged: 0,
+            messages_flushed: 0,
+            file_less: true,
+            tap: Some(tap),
+        }
+    }
+
+    /// Shows every channel (those already registered first) and message from here on to
+    /// `tap` as well (the live view).
+    pub fn with_tap(mut self, mut tap: Box<dyn Tap>) -> Self {
+        for (topic, r) in &self.topics {
+            tap.channel(&ChannelInfo {
+                id: r.id,
+                topic: topic.clone(),
+                schema_name: r.schema_name.clone(),
+                schema_encoding: SCHEMA_ENCODING.to_owned(),
+                schema: r.schema.clone(),
+                message_encoding: MESSAGE_ENCODING.to_owned(),
+            });
+        }
+        self.tap = Some(tap);
+        self
     }
 
     /// Registers `topic` for messages of type `T`, with the JSON Schema of `T` under the name
@@ -264,37 +334,92 @@ impl McapRecorder {
             topic: topic.to_owned(),
             source,
         })?;
+        self.register(
+            topic,
+            T::SCHEMA_NAME,
+            SCHEMA_ENCODING,
+            schema,
+            MESSAGE_ENCODING,
+        )
+    }
+
+    /// Registers `topic` for a Foxglove SDK message type `T` (`foxglove::schemas::SceneUpdate`,
+    /// `FrameTransforms`, …): its schema record is the SDK's (name `foxglove.<Type>`, encoding
+    /// `protobuf`, the FileDescriptorSet), its messages the SDK's encoding of them. Log with
+    /// [`Self::log_encoded`].
+    pub fn encoded_channel<T: foxglove::Encode>(
+        &mut self,
+        topic: &str,
+    ) -> Result<Channel<T>, RecordError> {
+        let schema = T::get_schema().ok_or_else(|| {
+            RecordError::Config(format!(
+                "{topic}: the message type {} has no schema",
+                std::any::type_name::<T>()
+            ))
+        })?;
+        self.register(
+            topic,
+            &schema.name,
+            &schema.encoding,
+            schema.data.into_owned(),
+            &T::get_message_encoding(),
+        )
+    }
+
+    fn register<T: ?Sized>(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema_encoding: &str,
+        schema: Vec<u8>,
+        message_encoding: &str,
+    ) -> Result<Channel<T>, RecordError> {
         if let Some(existing) = self.topics.get(topic) {
-            if existing.schema_name != T::SCHEMA_NAME || existing.schema != schema {
+            if existing.schema_name != schema_name || existing.schema != schema {
                 return Err(RecordError::TopicConflict {
                     topic: topic.to_owned(),
-                    existing: existing.schema_name.to_owned(),
-                    requested: if existing.schema_name == T::SCHEMA_NAME {
-                        format!("{} with a different schema", T::SCHEMA_NAME)
+                    existing: existing.schema_name.clone(),
+                    requested: if existing.schema_name == schema_name {
+                        format!("{schema_name} with a different schema")
                     } else {
-                        T::SCHEMA_NAME.to_owned()
+                        schema_name.to_owned()
                     },
                 });
             }
             return Ok(self.handle(existing.id, topic));
         }
-        let path = &self.path;
-        let writer = Self::writer_of(&mut self.writer, path)?;
-        let wrap = |source| RecordError::Write {
-            path: path.clone(),
-            source,
+        let id = if self.file_less {
+            u16::try_from(self.topics.len() + 1)
+                .map_err(|_| RecordError::Config(format!("{topic}: more than 65535 channels")))?
+        } else {
+            let path = &self.path;
+            let writer = Self::writer_of(&mut self.writer, path)?;
+            let wrap = |source| RecordError::Write {
+                path: path.clone(),
+                source,
+            };
+            let schema_id = writer
+                .add_schema(schema_name, schema_encoding, &schema)
+                .map_err(wrap)?;
+            writer
+                .add_channel(schema_id, topic, message_encoding, &BTreeMap::new())
+                .map_err(wrap)?
         };
-        let schema_id = writer
-            .add_schema(T::SCHEMA_NAME, SCHEMA_ENCODING, &schema)
-            .map_err(wrap)?;
-        let id = writer
-            .add_channel(schema_id, topic, MESSAGE_ENCODING, &BTreeMap::new())
-            .map_err(wrap)?;
+        if let Some(tap) = &mut self.tap {
+            tap.channel(&ChannelInfo {
+                id,
+                topic: topic.to_owned(),
+                schema_name: schema_name.to_owned(),
+                schema_encoding: schema_encoding.to_owned(),
+                schema: schema.clone(),
+                message_encoding: message_encoding.to_owned(),
+            });
+        }
         self.topics.insert(
             topic.to_owned(),
             Registered {
                 id,
-                schema_name: T::SCHEMA_NAME,
+                schema_name: schema_name.to_owned(),
                 schema,
                 next_sequence: 0,
             },
@@ -331,16 +456,50 @@ impl McapRecorder {
         publish_time_ns: u64,
         msg: &T,
     ) -> Result<(), RecordError> {
-        if channel.recorder_id != self.id {
-            return Err(RecordError::ForeignChannel {
-                topic: channel.topic.clone(),
-            });
-        }
+        self.check_own(channel)?;
         self.payload.clear();
         serde_json::to_writer(&mut self.payload, msg).map_err(|source| RecordError::Serialize {
             topic: channel.topic.clone(),
             source,
         })?;
+        self.write_payload(channel, log_time_ns, publish_time_ns)
+    }
+
+    /// Logs a Foxglove SDK message on a channel of [`Self::encoded_channel`] at `time_ns`
+    /// (log time = publish time), in the SDK's encoding.
+    pub fn log_encoded<T: foxglove::Encode>(
+        &mut self,
+        channel: &Channel<T>,
+        time_ns: u64,
+        msg: &T,
+    ) -> Result<(), RecordError> {
+        self.check_own(channel)?;
+        self.payload.clear();
+        msg.encode(&mut self.payload)
+            .map_err(|e| RecordError::Encode {
+                topic: channel.topic.clone(),
+                message: e.to_string(),
+            })?;
+        self.write_payload(channel, time_ns, time_ns)
+    }
+
+    fn check_own<T: ?Sized>(&self, channel: &Channel<T>) -> Result<(), RecordError> {
+        if channel.recorder_id == self.id {
+            Ok(())
+        } else {
+            Err(RecordError::ForeignChannel {
+                topic: channel.topic.clone(),
+            })
+        }
+    }
+
+    /// Writes `self.payload` on `channel`.
+    fn write_payload<T: ?Sized>(
+        &mut self,
+        channel: &Channel<T>,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+    ) -> Result<(), RecordError> {
         let registered =
             self.topics
                 .get_mut(&channel.topic)
@@ -349,6 +508,13 @@ impl McapRecorder {
                 })?;
         let sequence = registered.next_sequence;
         registered.next_sequence = sequence.wrapping_add(1);
+        if let Some(tap) = &mut self.tap {
+            tap.message(channel.id, log_time_ns, &self.payload);
+        }
+        if self.file_less {
+            self.messages_logged += 1;
+            return Ok(());
+        }
         let header = MessageHeader {
             channel_id: channel.id,
             sequence,
@@ -398,6 +564,9 @@ impl McapRecorder {
     /// Closes the open chunk (if any) and hands everything written so far to the operating
     /// system: from here on a killed process loses none of it. (Not an fsync: a power cut can.)
     pub fn flush(&mut self) -> Result<(), RecordError> {
+        if self.file_less {
+            return Ok(());
+        }
         let path = &self.path;
         Self::writer_of(&mut self.writer, path)?
             .flush()
@@ -430,6 +599,19 @@ impl McapRecorder {
     /// Writes the last chunk and the summary section (statistics, chunk and metadata indexes),
     /// flushes and syncs the file, and reports what it holds.
     pub fn finish(mut self) -> Result<RecordSummary, RecordError> {
+        if self.file_less {
+            return Ok(RecordSummary {
+                path: PathBuf::new(),
+                message_counts: self
+                    .topics
+                    .iter()
+                    .map(|(t, r)| (t.clone(), u64::from(r.next_sequence)))
+                    .collect(),
+                message_count: self.messages_logged,
+                chunk_count: 0,
+                log_time_range_ns: None,
+            });
+        }
         let writer = Self::writer_of(&mut self.writer, &self.path)?;
         let summary = writer.finish().map_err(|source| RecordError::Write {
             path: self.path.clone(),

@@ -20,6 +20,7 @@ fn mpc_hover(
         c.solve_budget_s = budget_s;
     }
     TrackConfig {
+        live: None,
         cameras: None,
         controller,
         vehicle,

@@ -365,6 +365,7 @@ fn twin_flight(dir: &Path, name: &str, disturbances: &str, interface: Interface)
     let controller = profile(&vehicle, ControllerKind::Pid).unwrap();
     let path = dir.join(name);
     let config = TrackConfig {
+        live: None,
         cameras: None,
         vehicle,
         controller,
@@ -586,6 +587,7 @@ fn a_bench_rollout_replays_with_its_scene_and_the_same_task_outcome() {
     let dir = tempfile::tempdir().unwrap();
     let vehicle = Vehicle::builtin("fa-hexa").unwrap();
     let config = crate::bench::BenchConfig {
+        live: None,
         cameras: None,
         controller: profile(&vehicle, ControllerKind::Pid).unwrap(),
         controller_name: "ik-pid".to_owned(),

@@ -1,0 +1,173 @@
+#!/usr/bin/env python3
+"""A Foxglove WebSocket protocol client written against the protocol's specification with the
+`websockets` package -- not Foxglove's code, not amstack's. It offers the subprotocol
+`foxglove.sdk.v1` (what the Foxglove SDK's server, 0.30, negotiates: the protocol formerly
+named `foxglove.websocket.v1`, same messages, schemas inline in `advertise`).
+
+Usage: foxglove_ws_client.py ws://HOST:PORT [--topics T1,T2,...] [--messages N]
+                             [--need TOPIC=N ...] [--stall SECONDS] [--timeout SECONDS]
+
+Connects, waits for the server's `serverInfo` and the `advertise` of every topic asked for
+(default: the 3D scene's topics), subscribes to them, and reads binary MessageData frames
+(opcode 0x01: u32 subscription id, u64 log time ns, payload; little-endian) until it has N
+messages on every topic (--messages, default 50). Protobuf payloads are decoded with the
+message class built from the advertised schema (a base64 FileDescriptorSet) by Google's
+`protobuf` package. With --stall S it subscribes, then reads nothing for S seconds (a slow
+viewer: the server's queue for it fills), reads what is left for a moment and closes.
+
+Prints one JSON object: serverInfo's name, the advertised channels {topic: {schemaName,
+encoding, schemaEncoding}}, per subscribed topic the messages received, the first and last
+log times, the median log-time step between consecutive messages, and what the decoded
+messages hold (FrameTransforms: frames; SceneUpdate: entity ids). Exit 0 when every topic got
+its messages (or, with --stall, when the connection was used and closed), 1 otherwise.
+"""
+
+import argparse
+import asyncio
+import base64
+import json
+import statistics
+import struct
+import sys
+
+import websockets
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+SCENE_TOPICS = "/scene/tf,/scene/static,/scene/dynamic,/scene/targets"
+
+
+def protobuf_class(name, schema_b64):
+    fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(schema_b64))
+    pool = descriptor_pool.DescriptorPool()
+    for fd in fds.file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+
+
+def summarise(entry, message):
+    name = message.DESCRIPTOR.full_name
+    if name == "foxglove.FrameTransforms":
+        for t in message.transforms:
+            pair = f"{t.parent_frame_id}->{t.child_frame_id}"
+            if pair not in entry.setdefault("frames", []):
+                entry["frames"].append(pair)
+    elif name == "foxglove.SceneUpdate":
+        for e in message.entities:
+            if e.id not in entry.setdefault("entities", []):
+                entry["entities"].append(e.id)
+
+
+async def run(args):
+    topics = [t for t in args.topics.split(",") if t]
+    needs = {t: args.messages for t in topics}
+    for item in args.need:
+        topic, _, n = item.partition("=")
+        needs[topic] = int(n)
+    report = {"server": None, "advertised": {}, "received": {}, "errors": []}
+    channels = {}  # channel id -> advertise entry
+    subscribed = {}  # subscription id -> (topic, decoder)
+    times = {}
+    async with websockets.connect(args.url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
+        report["subprotocol"] = ws.subprotocol
+        if ws.subprotocol not in SUBPROTOCOLS:
+            report["errors"].append(f"server chose subprotocol {ws.subprotocol!r}")
+            return report
+
+        async def advertise_until_all():
+            while not all(any(c["topic"] == t for c in channels.values()) for t in topics):
+                raw = await ws.recv()
+                if isinstance(raw, bytes):
+                    continue
+                msg = json.loads(raw)
+                if msg.get("op") == "serverInfo":
+                    report["server"] = msg.get("name")
+                elif msg.get("op") == "advertise":
+                    for c in msg["channels"]:
+                        channels[c["id"]] = c
+                        report["advertised"][c["topic"]] = {
+                            "schemaName": c.get("schemaName"),
+                            "encoding": c.get("encoding"),
+                            "schemaEncoding": c.get("schemaEncoding"),
+                        }
+
+        await asyncio.wait_for(advertise_until_all(), args.timeout)
+        subscriptions = []
+        for sid, (cid, c) in enumerate(sorted((cid, c) for cid, c in channels.items()
+                                              if c["topic"] in topics), start=1):
+            decoder = None
+            if c.get("encoding") == "protobuf":
+                decoder = protobuf_class(c["schemaName"], c["schema"])
+            subscribed[sid] = (c["topic"], decoder)
+            subscriptions.append({"id": sid, "channelId": cid})
+            report["received"][c["topic"]] = {"count": 0}
+            times[c["topic"]] = []
+        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+
+        if args.stall > 0:
+            await asyncio.sleep(args.stall)
+            end = asyncio.get_running_loop().time() + 1.0
+            try:
+                while asyncio.get_running_loop().time() < end:
+                    raw = await asyncio.wait_for(ws.recv(), 1.0)
+                    if isinstance(raw, bytes) and raw[:1] == b"\x01":
+                        sid = struct.unpack_from("<I", raw, 1)[0]
+                        if sid in subscribed:
+                            report["received"][subscribed[sid][0]]["count"] += 1
+            except (asyncio.TimeoutError, websockets.ConnectionClosed):
+                pass
+            report["stalled_s"] = args.stall
+            return report
+
+        async def read_until_enough():
+            while any(report["received"][t]["count"] < needs[t] for t in report["received"]):
+                raw = await ws.recv()
+                if not isinstance(raw, bytes) or raw[:1] != b"\x01":
+                    continue
+                sid, log_time = struct.unpack_from("<IQ", raw, 1)
+                if sid not in subscribed:
+                    continue
+                topic, decoder = subscribed[sid]
+                entry = report["received"][topic]
+                entry["count"] += 1
+                times[topic].append(log_time)
+                if decoder is not None:
+                    try:
+                        summarise(entry, decoder.FromString(raw[13:]))
+                    except Exception as e:
+                        report["errors"].append(f"{topic}: does not decode: {e}")
+
+        try:
+            await asyncio.wait_for(read_until_enough(), args.timeout)
+        except asyncio.TimeoutError:
+            report["errors"].append("timed out before every topic had its messages")
+    for topic, ts in times.items():
+        entry = report["received"][topic]
+        if ts:
+            entry["first_log_time_ns"], entry["last_log_time_ns"] = ts[0], ts[-1]
+        steps = [b - a for a, b in zip(ts, ts[1:])]
+        if steps:
+            entry["median_step_ns"] = statistics.median(steps)
+    return report
+
+
+def main(argv):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("url")
+    p.add_argument("--topics", default=SCENE_TOPICS)
+    p.add_argument("--messages", type=int, default=50)
+    p.add_argument("--need", action="append", default=[], metavar="TOPIC=N")
+    p.add_argument("--stall", type=float, default=0.0)
+    p.add_argument("--timeout", type=float, default=60.0)
+    args = p.parse_args(argv)
+    try:
+        report = asyncio.run(run(args))
+    except (OSError, asyncio.TimeoutError, websockets.WebSocketException) as e:
+        report = {"errors": [f"{type(e).__name__}: {e}"]}
+    print(json.dumps(report))
+    ok = not report.get("errors") and (args.stall > 0 or bool(report.get("received")))
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
