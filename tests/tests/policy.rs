@@ -78,6 +78,23 @@ fn bench(dir: &Path, name: &str, args: &[&str]) -> Value {
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// Writes a small ONNX test model (and its sidecar) with `scripts/onnx_model.py make ARGS`.
+fn make_model(model: &Path, args: &[&str]) {
+    let made = Command::new(python())
+        .arg(scripts_dir().join("onnx_model.py"))
+        .arg("make")
+        .args(args)
+        .arg("--out")
+        .arg(model)
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+}
+
 fn rollouts(results: &Value) -> &Vec<Value> {
     results["tasks"]["press-button"]["per_rollout"]
         .as_array()
@@ -299,17 +316,7 @@ fn onnx_inference_matches_onnxruntime() {
     use policy_runtime::policy::{OnnxPolicy, StateKey};
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let model = dir.path().join("mlp.onnx");
-    let made = Command::new(python())
-        .arg(scripts_dir().join("onnx_model.py"))
-        .args(["make", "--horizon", "4", "--seed", "3", "--out"])
-        .arg(&model)
-        .output()
-        .unwrap_or_else(|e| panic!("{e}"));
-    assert!(
-        made.status.success(),
-        "{}",
-        String::from_utf8_lossy(&made.stderr)
-    );
+    make_model(&model, &["--horizon", "4", "--seed", "3"]);
     let len = |k: StateKey| match k {
         StateKey::EePos | StateKey::BasePos => 3,
         StateKey::EeQuat | StateKey::BaseQuat => 4,
@@ -374,17 +381,7 @@ fn onnx_inference_matches_onnxruntime() {
 fn an_onnx_policy_flies_a_rollout_from_the_cli() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let model = dir.path().join("relative.onnx");
-    let made = Command::new(python())
-        .arg(scripts_dir().join("onnx_model.py"))
-        .args(["make", "--horizon", "8", "--semantics", "relative", "--out"])
-        .arg(&model)
-        .output()
-        .unwrap_or_else(|e| panic!("{e}"));
-    assert!(
-        made.status.success(),
-        "{}",
-        String::from_utf8_lossy(&made.stderr)
-    );
+    make_model(&model, &["--horizon", "8", "--semantics", "relative"]);
     let policy = format!("onnx:{}", model.display());
     // 1 s: 119 ticks, a query every 48: 3 queries.
     let results = bench(
@@ -460,17 +457,7 @@ fn without_wall_clock(v: &Value) -> Value {
 fn a_sharded_run_of_a_learned_policy_merges_to_the_unsharded_results() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let model = dir.path().join("relative.onnx");
-    let made = Command::new(python())
-        .arg(scripts_dir().join("onnx_model.py"))
-        .args(["make", "--horizon", "8", "--semantics", "relative", "--out"])
-        .arg(&model)
-        .output()
-        .unwrap_or_else(|e| panic!("{e}"));
-    assert!(
-        made.status.success(),
-        "{}",
-        String::from_utf8_lossy(&made.stderr)
-    );
+    make_model(&model, &["--horizon", "8", "--semantics", "relative"]);
     let policy = format!("onnx:{}", model.display());
     let run = [
         "--rollouts",
