@@ -18,7 +18,8 @@ viewer: the server's queue for it fills), reads what is left for a moment and cl
 Prints one JSON object: serverInfo's name, the advertised channels {topic: {schemaName,
 encoding, schemaEncoding}}, per subscribed topic the messages received, the first and last
 log times, the median log-time step between consecutive messages, and what the decoded
-messages hold (FrameTransforms: frames; SceneUpdate: entity ids). Exit 0 when every topic got
+messages hold (as mcap_check.py summarises them: FrameTransforms frames; SceneUpdate entity
+ids and primitive counts). Exit 0 when every topic got
 its messages (or, with --stall, when the connection was used and closed), 1 otherwise.
 """
 
@@ -31,31 +32,14 @@ import struct
 import sys
 
 import websockets
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from mcap_check import protobuf_message_class, summarise_protobuf as summarise
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 SCENE_TOPICS = "/scene/tf,/scene/static,/scene/dynamic,/scene/targets"
 
 
 def protobuf_class(name, schema_b64):
-    fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(schema_b64))
-    pool = descriptor_pool.DescriptorPool()
-    for fd in fds.file:
-        pool.Add(fd)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
-
-
-def summarise(entry, message):
-    name = message.DESCRIPTOR.full_name
-    if name == "foxglove.FrameTransforms":
-        for t in message.transforms:
-            pair = f"{t.parent_frame_id}->{t.child_frame_id}"
-            if pair not in entry.setdefault("frames", []):
-                entry["frames"].append(pair)
-    elif name == "foxglove.SceneUpdate":
-        for e in message.entities:
-            if e.id not in entry.setdefault("entities", []):
-                entry["entities"].append(e.id)
+    return protobuf_message_class(name, base64.b64decode(schema_b64))
 
 
 async def run(args):

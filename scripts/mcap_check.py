@@ -47,15 +47,21 @@ except ImportError:  # pragma: no cover - environment problem, not a check failu
 MAX_ERRORS_SHOWN = 20
 
 
-def protobuf_class(schema):
-    """The message class of a protobuf schema record (a serialized FileDescriptorSet)."""
+def protobuf_message_class(name, descriptor_set):
+    """The message class `name` of a serialized protobuf FileDescriptorSet (as an MCAP schema
+    record or a Foxglove WebSocket `advertise` carries it)."""
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-    fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+    fds = descriptor_pb2.FileDescriptorSet.FromString(descriptor_set)
     pool = descriptor_pool.DescriptorPool()
     for fd in fds.file:
         pool.Add(fd)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+
+
+def protobuf_class(schema):
+    """The message class of a protobuf schema record."""
+    return protobuf_message_class(schema.name, schema.data)
 
 
 def summarise_protobuf(entry, message):

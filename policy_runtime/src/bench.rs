@@ -313,22 +313,14 @@ pub fn run_rollout_with(
         Some(c) => Some(worker_rig(c, vehicle)?),
         None => None,
     };
-    let recorder = match (log_path, &config.live) {
-        (None, None) => None,
-        (None, Some(live)) => Some(McapRecorder::file_less(live.tap())),
-        (Some(path), live) => {
-            let run = RunMetadata::new(&vehicle.id, &config.controller_name, seed)
+    let recorder =
+        McapRecorder::for_flight(log_path, config.live.as_ref().map(|l| l.tap()), || {
+            RunMetadata::new(&vehicle.id, &config.controller_name, seed)
                 .with_interface(config.interface.name())
                 .with_trajectory(format!("task:{}", task.name()))
                 .with_config(&twin_config)?
-                .with_controller_config(&config.controller)?;
-            let recorder = McapRecorder::create(path, &run)?;
-            Some(match live {
-                Some(live) => recorder.with_tap(live.tap()),
-                None => recorder,
-            })
-        }
-    };
+                .with_controller_config(&config.controller)
+        })?;
     let mut log = match recorder {
         None => None,
         Some(recorder) => Some(

@@ -217,22 +217,17 @@ pub fn run_track_with_link(
         ),
         None => None,
     };
-    let recorder = match (&config.mcap, &config.live) {
-        (None, None) => None,
-        (None, Some(live)) => Some(McapRecorder::file_less(live.tap())),
-        (Some(path), live) => {
-            let run = RunMetadata::new(&vehicle.id, config.controller.name(), config.twin.seed)
+    let recorder = McapRecorder::for_flight(
+        config.mcap.as_deref(),
+        config.live.as_ref().map(|l| l.tap()),
+        || {
+            RunMetadata::new(&vehicle.id, config.controller.name(), config.twin.seed)
                 .with_interface(config.interface.name())
                 .with_trajectory(config.trajectory.name())
                 .with_config(&config.twin)?
-                .with_controller_config(&config.controller)?;
-            let recorder = McapRecorder::create(path, &run)?;
-            Some(match live {
-                Some(live) => recorder.with_tap(live.tap()),
-                None => recorder,
-            })
-        }
-    };
+                .with_controller_config(&config.controller)
+        },
+    )?;
     let mut log = match recorder {
         None => None,
         Some(recorder) => Some(

@@ -310,9 +310,10 @@ fn read_tasks(root: &Path) -> Result<Vec<String>, DatasetError> {
     Ok(tasks)
 }
 
-fn read_episodes(root: &Path) -> Result<Vec<EpisodeRow>, DatasetError> {
-    let mut files: Vec<PathBuf> = Vec::new();
-    let dir = root.join("meta/episodes");
+/// The parquet files in the chunk folders of `root/dir` (`chunk-CCC/file-FFF.parquet`), sorted.
+pub(crate) fn parquet_files(root: &Path, dir: &str) -> Result<Vec<PathBuf>, DatasetError> {
+    let mut files = Vec::new();
+    let dir = root.join(dir);
     for chunk in std::fs::read_dir(&dir).map_err(DatasetError::io(&dir))? {
         let chunk = chunk.map_err(DatasetError::io(&dir))?.path();
         if chunk.is_dir() {
@@ -325,13 +326,22 @@ fn read_episodes(root: &Path) -> Result<Vec<EpisodeRow>, DatasetError> {
         }
     }
     files.sort();
+    Ok(files)
+}
+
+/// `path` relative to the dataset's `root`, for messages.
+pub(crate) fn rel(root: &Path, path: &Path) -> String {
+    path.strip_prefix(root)
+        .unwrap_or(path)
+        .display()
+        .to_string()
+}
+
+fn read_episodes(root: &Path) -> Result<Vec<EpisodeRow>, DatasetError> {
+    let files = parquet_files(root, "meta/episodes")?;
     let mut rows = Vec::new();
     for path in files {
-        let rel = path
-            .strip_prefix(root)
-            .unwrap_or(&path)
-            .display()
-            .to_string();
+        let rel = rel(root, &path);
         for batch in read_parquet(&path)? {
             let tasks = column::<ListArray>(&batch, "tasks", &rel)?;
             let index = ints(&batch, "episode_index", &rel)?;
@@ -368,25 +378,9 @@ fn read_episode_videos(
     keys: &[String],
     rows: &mut [EpisodeRow],
 ) -> Result<(), DatasetError> {
-    let dir = root.join("meta/episodes");
-    let mut files: Vec<PathBuf> = Vec::new();
-    for chunk in std::fs::read_dir(&dir).map_err(DatasetError::io(&dir))? {
-        let chunk = chunk.map_err(DatasetError::io(&dir))?.path();
-        if chunk.is_dir() {
-            for f in std::fs::read_dir(&chunk).map_err(DatasetError::io(&chunk))? {
-                let f = f.map_err(DatasetError::io(&chunk))?.path();
-                if f.extension().is_some_and(|e| e == "parquet") {
-                    files.push(f);
-                }
-            }
-        }
-    }
+    let files = parquet_files(root, "meta/episodes")?;
     for path in files {
-        let rel = path
-            .strip_prefix(root)
-            .unwrap_or(&path)
-            .display()
-            .to_string();
+        let rel = rel(root, &path);
         for batch in read_parquet(&path)? {
             let index = ints(&batch, "episode_index", &rel)?;
             for key in keys {

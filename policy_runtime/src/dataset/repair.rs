@@ -21,7 +21,7 @@ use serde_json::Value;
 
 use super::DatasetError;
 use super::layout::DatasetSpec;
-use super::read::{column, read_parquet};
+use super::read::{column, parquet_files, read_parquet, rel};
 use super::write::{data_schema, tasks_parquet, write_atomic, write_parquet};
 
 /// What [`drop_uncommitted`] removed.
@@ -49,32 +49,13 @@ impl Repair {
     }
 }
 
-fn parquet_files(root: &Path, dir: &str) -> Result<Vec<PathBuf>, DatasetError> {
-    let mut files = Vec::new();
-    let dir = root.join(dir);
-    let Ok(chunks) = std::fs::read_dir(&dir) else {
-        return Ok(files);
-    };
-    for chunk in chunks {
-        let chunk = chunk.map_err(DatasetError::io(&dir))?.path();
-        if chunk.is_dir() {
-            for f in std::fs::read_dir(&chunk).map_err(DatasetError::io(&chunk))? {
-                let f = f.map_err(DatasetError::io(&chunk))?.path();
-                if f.extension().is_some_and(|e| e == "parquet") {
-                    files.push(f);
-                }
-            }
-        }
+/// [`parquet_files`] of `root/dir`, none if a crash left no such folder.
+fn existing_parquet_files(root: &Path, dir: &str) -> Result<Vec<PathBuf>, DatasetError> {
+    if root.join(dir).is_dir() {
+        parquet_files(root, dir)
+    } else {
+        Ok(Vec::new())
     }
-    files.sort();
-    Ok(files)
-}
-
-fn rel(root: &Path, path: &Path) -> String {
-    path.strip_prefix(root)
-        .unwrap_or(path)
-        .display()
-        .to_string()
 }
 
 /// The rows of `batches` (one table) whose `episode_index` is below `committed`, one batch
@@ -170,11 +151,11 @@ pub(crate) fn drop_uncommitted(root: &Path) -> Result<Repair, DatasetError> {
         .unwrap_or(0);
     let total_tasks = info.get("total_tasks").and_then(Value::as_u64).unwrap_or(0);
     let mut repair = Repair::default();
-    for path in parquet_files(root, "meta/episodes")? {
+    for path in existing_parquet_files(root, "meta/episodes")? {
         repair.episode_rows += keep_committed(root, &path, committed, None, false, &mut repair)?;
     }
     let schema = data_schema(&spec.features());
-    for path in parquet_files(root, "data")? {
+    for path in existing_parquet_files(root, "data")? {
         repair.data_rows +=
             keep_committed(root, &path, committed, Some(&schema), true, &mut repair)?;
     }

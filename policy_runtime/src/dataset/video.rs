@@ -11,7 +11,7 @@ use std::process::{Command, Stdio};
 
 use super::DatasetError;
 use super::layout::DatasetSpec;
-use super::write::decode_png;
+use super::write::{AtomicFile, decode_png};
 
 /// H.264 quality (x264's constant rate factor; 18 is visually lossless).
 const CRF: &str = "18";
@@ -25,14 +25,7 @@ pub(crate) fn encode_episode(
     frames: &[Vec<u8>],
     fps: u32,
 ) -> Result<(), DatasetError> {
-    let path = root.join(rel);
-    let dir = path.parent().unwrap_or(root).to_owned();
-    std::fs::create_dir_all(&dir).map_err(DatasetError::io(&dir))?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp"));
+    let file = AtomicFile::new(root, rel)?;
     let bad = |what: String| DatasetError::invalid(rel, what);
     let first = frames
         .first()
@@ -48,7 +41,7 @@ pub(crate) fn encode_episode(
         ])
         .args(["-threads", "1", "-an", "-map_metadata", "-1"])
         .args(["-fflags", "+bitexact", "-flags:v", "+bitexact", "-f", "mp4"])
-        .arg(&tmp)
+        .arg(&file.tmp)
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -85,17 +78,10 @@ pub(crate) fn encode_episode(
                 err.lines().last().unwrap_or("no message")
             )));
         }
-        std::fs::File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .and_then(|()| std::fs::rename(&tmp, &path))
-            .and_then(|()| std::fs::File::open(&dir)?.sync_all())
-            .map_err(|e| DatasetError::Io {
-                path: path.clone(),
-                source: e,
-            })
+        file.commit()
     });
     if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+        file.abandon();
     }
     result
 }

@@ -1,7 +1,6 @@
 //! The dataset writer: episodes appended whole, every file replaced atomically.
 
 use std::fs::File;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -319,14 +318,7 @@ impl DatasetWriter {
                 .position(|t| *t == frames.task)
                 .unwrap_or(0) as i64;
             let stats = self.episode_stats(&frames, len, row.index, row.from, task_index);
-            all = Some(match all {
-                None => stats,
-                Some(all) => all
-                    .iter()
-                    .zip(&stats)
-                    .filter_map(|(a, b)| FeatureStats::aggregate(&[a, b]))
-                    .collect(),
-            });
+            all = Some(with_episode_stats(all.as_deref(), stats));
         }
         if let Some(all) = &all {
             write_atomic(
@@ -518,14 +510,7 @@ impl DatasetWriter {
             "meta/tasks.parquet",
             &tasks_parquet(&self.tasks)?,
         )?;
-        let aggregated: Vec<FeatureStats> = match &self.stats {
-            None => stats,
-            Some(all) => all
-                .iter()
-                .zip(&stats)
-                .filter_map(|(a, b)| FeatureStats::aggregate(&[a, b]))
-                .collect(),
-        };
+        let aggregated = with_episode_stats(self.stats.as_deref(), stats);
         write_atomic(
             &self.root,
             "meta/stats.json",
@@ -976,28 +961,77 @@ pub(crate) fn write_parquet(
     Ok(bytes.len() as u64)
 }
 
-/// Replaces `root/rel` with `bytes`: a temporary file beside it, synced, renamed over it, the
-/// folder synced. A failure (a full disk) leaves the old file and removes the temporary one.
+/// The dataset's statistics `all` (none before the first episode) with one more episode's.
+fn with_episode_stats(
+    all: Option<&[FeatureStats]>,
+    episode: Vec<FeatureStats>,
+) -> Vec<FeatureStats> {
+    match all {
+        None => episode,
+        Some(all) => all
+            .iter()
+            .zip(&episode)
+            .filter_map(|(a, b)| FeatureStats::aggregate(&[a, b]))
+            .collect(),
+    }
+}
+
+/// A file replaced atomically: filled as a temporary file beside it, then synced, renamed over
+/// it and the folder synced ([`AtomicFile::commit`]); a failure leaves the old file.
+pub(crate) struct AtomicFile {
+    pub(crate) path: PathBuf,
+    dir: PathBuf,
+    /// The temporary file to fill.
+    pub(crate) tmp: PathBuf,
+}
+
+impl AtomicFile {
+    /// `root/rel`, its folder created.
+    pub(crate) fn new(root: &Path, rel: &str) -> Result<Self, DatasetError> {
+        let path = root.join(rel);
+        let dir = path.parent().unwrap_or(root).to_owned();
+        std::fs::create_dir_all(&dir).map_err(DatasetError::io(&dir))?;
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let tmp = dir.join(format!(".{name}.tmp"));
+        Ok(Self { path, dir, tmp })
+    }
+
+    /// Syncs the filled temporary file and renames it over the file, then syncs the folder.
+    pub(crate) fn commit(&self) -> Result<(), DatasetError> {
+        File::open(&self.tmp)
+            .and_then(|f| f.sync_all())
+            .and_then(|()| std::fs::rename(&self.tmp, &self.path))
+            .and_then(|()| File::open(&self.dir)?.sync_all())
+            .map_err(|e| {
+                self.abandon();
+                DatasetError::Io {
+                    path: self.path.clone(),
+                    source: e,
+                }
+            })
+    }
+
+    /// Removes the temporary file (after a failure).
+    pub(crate) fn abandon(&self) {
+        let _ = std::fs::remove_file(&self.tmp);
+    }
+}
+
+/// Replaces `root/rel` with `bytes` atomically ([`AtomicFile`]). A failure (a full disk) leaves
+/// the old file and removes the temporary one.
 pub(crate) fn write_atomic(root: &Path, rel: &str, bytes: &[u8]) -> Result<(), DatasetError> {
-    let path = root.join(rel);
-    let dir = path.parent().unwrap_or(root).to_owned();
-    std::fs::create_dir_all(&dir).map_err(DatasetError::io(&dir))?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp"));
-    let result = (|| {
-        let mut f = File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, &path)?;
-        File::open(&dir)?.sync_all()
-    })();
-    result.map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        DatasetError::Io { path, source: e }
-    })
+    let file = AtomicFile::new(root, rel)?;
+    if let Err(e) = std::fs::write(&file.tmp, bytes) {
+        file.abandon();
+        return Err(DatasetError::Io {
+            path: file.path,
+            source: e,
+        });
+    }
+    file.commit()
 }
 
 /// Merges datasets of the same features (several tasks) into one at `out`: episodes in the

@@ -287,6 +287,27 @@ impl McapRecorder {
         })
     }
 
+    /// The recorder of one flight: the log file at `path` (its metadata from `run`, asked only
+    /// then), also shown to `tap` (the live view) when there is one; `tap` alone without a
+    /// path; none without either.
+    pub fn for_flight(
+        path: Option<&Path>,
+        tap: Option<Box<dyn Tap>>,
+        run: impl FnOnce() -> Result<RunMetadata, RecordError>,
+    ) -> Result<Option<Self>, RecordError> {
+        Ok(match (path, tap) {
+            (None, None) => None,
+            (None, Some(tap)) => Some(Self::file_less(tap)),
+            (Some(path), tap) => {
+                let recorder = Self::create(path, &run()?)?;
+                Some(match tap {
+                    Some(tap) => recorder.with_tap(tap),
+                    None => recorder,
+                })
+            }
+        })
+    }
+
     /// A recorder that writes no file: every channel and message goes to `tap` only (a live
     /// view of a flight that is not logged). [`Self::finish`] reports what was logged, with
     /// an empty path and no chunk.
