@@ -425,14 +425,38 @@ impl FlightStack {
         } else {
             ThrustLimits::Ideal
         };
-        Ok(Self::new(
+        let mut stack = Self::new(
             vehicle,
             config,
             AllocationMethod::PseudoInverse,
             limits,
             twin.control_dt_s(),
         )?
-        .with_tilt_projection(twin.tilt_thrust == TiltThrust::Measured))
+        .with_tilt_projection(twin.tilt_thrust == TiltThrust::Measured);
+        // The reference's task-specific IK profiles belong to its PID profiles.
+        if let (Some(task), ControllerConfig::Pid6(_) | ControllerConfig::Pid4(_)) =
+            (twin.task, config)
+        {
+            stack.use_task_ik_profile(task.name())?;
+        }
+        Ok(stack)
+    }
+
+    /// Switches the whole-body IK to the reference's profile for `task` where the vehicle's
+    /// preset has one ([`IkConfig::task_override`]); otherwise nothing changes.
+    pub fn use_task_ik_profile(&mut self, task: &str) -> Result<(), StackError> {
+        let Some(preset) = self.vehicle.control.ik.as_deref() else {
+            return Ok(());
+        };
+        let Some(config) = IkConfig::task_override(preset, task) else {
+            return Ok(());
+        };
+        self.safety_margin_m = config.safety_margin_m;
+        if let Some(ee) = &mut self.ee {
+            ee.ik = WholeBodyIk::new(&self.vehicle, config)
+                .map_err(|e| StackError(format!("whole-body IK: {e}")))?;
+        }
+        Ok(())
     }
 
     /// Whether each tilting rotor's thrust is projected on its measured direction (for links

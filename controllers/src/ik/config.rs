@@ -263,6 +263,46 @@ impl IkConfig {
         }
     }
 
+    /// The reference's task-specific override of preset `preset` for task `task` (a task id
+    /// as `amstack` spells it), if it has one (AMBENCH_SPEC §2.6): Lemon Harvesting with the
+    /// PID profiles of the FA-Hexa (base smoothness 6.0, margin 1.0 m), the UA-Quad (base
+    /// fully locked, smoothness 6.0 and 1.0, pose weights 15 and 4, margin 0) and the
+    /// Omni-Hexa (margin 0.5 m).
+    ///
+    /// The reference's lemon profiles also leave `arm_joint_names` unset, so its rest cost
+    /// falls on the first three actuated joints in pyroki's order and the non-arm joints are
+    /// not reset after the solve; here the rest cost stays on the arm joints and the non-arm
+    /// joints are held, as in every other profile.
+    pub fn task_override(preset: &str, task: &str) -> Option<Self> {
+        if task != "lemon-harvesting" {
+            return None;
+        }
+        match preset {
+            "fa-hexa" => {
+                let mut c = Self::fa_hexa();
+                c.weights.smoothness_base_position = 6.0;
+                c.safety_margin_m = 1.0;
+                Some(c)
+            }
+            "ua-quad" => {
+                let mut c = Self::ua_quad();
+                c.fix_base_orientation = [true, true, true];
+                c.weights.smoothness_base_position = 6.0;
+                c.weights.smoothness_base_orientation = 1.0;
+                c.weights.pose_position = 15.0;
+                c.weights.pose_orientation = 4.0;
+                c.safety_margin_m = 0.0;
+                Some(c)
+            }
+            "omni-hexa" => {
+                let mut c = Self::omni_hexa();
+                c.safety_margin_m = 0.5;
+                Some(c)
+            }
+            _ => None,
+        }
+    }
+
     /// The IK preset of `vehicle` (its `[control] ik`): the default profile when it names
     /// none (its end effector is its base); an error naming an unknown preset.
     pub fn for_vehicle(vehicle: &platform::Vehicle) -> Result<Self, IkConfigError> {

@@ -6,3 +6,4 @@ mod mavlink_flight;
 mod mpc_flight;
 mod mpc_stack;
 mod rotor_log;
+mod task_ik;
