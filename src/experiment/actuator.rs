@@ -43,6 +43,9 @@ pub(crate) struct Args {
     /// Length of each flight, s [default: track's, 30 s for the sines].
     #[arg(long, value_name = "S")]
     duration: Option<f64>,
+    /// Physics steps per 120 Hz control tick, as `track --physics-substeps` [default: 4].
+    #[arg(long, value_name = "N")]
+    physics_substeps: Option<u32>,
     /// Output folder (created; an existing one must be empty).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -111,6 +114,7 @@ fn flags(a: &Args, model: &Model, band: &str, mcap: &std::path::Path) -> Vec<Str
         "saturation",
     ]);
     f.extend(["--seed".to_owned(), a.seed.to_string()]);
+    f.extend(runs::substeps(a.physics_substeps));
     if let Some(tau) = model.tau_s {
         f.extend(["--motor-tau".to_owned(), tau.to_string()]);
     }
@@ -277,6 +281,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "controller": configs.first().map(|c| c.controller.name()),
         "disturbances": ["saturation"],
         "seed": a.seed,
+        "physics_substeps": configs.first().map(|c| c.twin.physics_substeps),
         "thrust_max_n": thrust_max_n,
         "rows": rows,
         "checks": checks,

@@ -51,6 +51,9 @@ pub(crate) struct Args {
     /// Ground-effect intensity k of the stand-in flight (the paper's rho).
     #[arg(long, value_name = "K", default_value_t = 3.4)]
     ground_effect_k: f64,
+    /// Physics steps per 120 Hz control tick, as `track --physics-substeps` [default: 4].
+    #[arg(long, value_name = "N")]
+    physics_substeps: Option<u32>,
     /// Output folder (created; an existing one must be empty).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -115,6 +118,8 @@ pub(super) fn run(a: &Args) -> Result<()> {
     if let Some(d) = a.duration {
         flags.extend(["--duration".to_owned(), d.to_string()]);
     }
+    // The replays fly the logged twin configuration, substeps included.
+    flags.extend(runs::substeps(a.physics_substeps));
     let config = runs::track_config(&flags)?;
     let total = runs::seconds(std::slice::from_ref(&config));
     // The replays fly the same length again, each.
@@ -233,6 +238,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "platform": "fa-hexa",
         "seed": a.seed,
         "ground_effect_k": a.ground_effect_k,
+        "physics_substeps": config.twin.physics_substeps,
         "intervals": {"near_ground": NEAR, "high": HIGH},
         "stand_in": {"mcap": real, "track": stand_in},
         "replays": replays,

@@ -40,6 +40,12 @@ pub(super) fn strings(items: &[&str]) -> Vec<String> {
     items.iter().map(|s| (*s).to_owned()).collect()
 }
 
+/// `--physics-substeps N` when set (track's flag), else nothing.
+pub(super) fn substeps(n: Option<u32>) -> Vec<String> {
+    n.map(|n| vec!["--physics-substeps".to_owned(), n.to_string()])
+        .unwrap_or_default()
+}
+
 /// An `amstack track FLAGS` flight, configured (every bad-input error raised here, before
 /// anything flies).
 pub(super) fn track_config(flags: &[String]) -> Result<TrackConfig> {

@@ -45,6 +45,9 @@ pub(crate) struct Args {
     /// Length of each flight, s (the step is at 1 s).
     #[arg(long, value_name = "S", default_value_t = 6.0)]
     duration: f64,
+    /// Physics steps per 120 Hz control tick, as `track --physics-substeps` [default: 4].
+    #[arg(long, value_name = "N")]
+    physics_substeps: Option<u32>,
     /// Output folder (created; an existing one must be empty).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -174,6 +177,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
                 "--mcap".to_owned(),
                 log(name).display().to_string(),
             ]);
+            f.extend(runs::substeps(a.physics_substeps));
             runs::track_config(&f)
         })
         .collect::<Result<Vec<_>>>()?;
@@ -290,6 +294,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "platform": "fa-hexa",
         "seed": a.seed,
         "duration_s": a.duration,
+        "physics_substeps": configs.first().map(|c| c.twin.physics_substeps),
         "thrust_limits_n": [lo, hi],
         "arrival_share": ARRIVED,
         "responses": responses,
