@@ -1041,13 +1041,27 @@ fn experiment_bad_input_is_one_line_before_anything_runs() {
             &amstack(&["experiment", which, "--out", &out_arg]),
             &["--out", "not empty"],
         );
+        let fresh = dir.path().join(format!("fresh-{which}"));
+        let fresh_arg = fresh.display().to_string();
         assert_bad_input(
-            &amstack(&["experiment", which, "--duration", "0", "--out", &out_arg]),
+            &amstack(&["experiment", which, "--duration", "0", "--out", &fresh_arg]),
             &["--duration 0"],
         );
+        assert!(!fresh.exists(), "{which}: nothing written");
         assert_bad_input(
             &amstack(&["experiment", which, "--jobs", "0", "--out", &out_arg]),
             &["--jobs"],
+        );
+        assert_bad_input(
+            &amstack(&[
+                "experiment",
+                which,
+                "--physics-substeps",
+                "0",
+                "--out",
+                &out_arg,
+            ]),
+            &["--physics-substeps"],
         );
         let kept: Vec<_> = std::fs::read_dir(&out_dir)
             .map(|d| d.flatten().map(|e| e.file_name()).collect())

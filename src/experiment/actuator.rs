@@ -134,6 +134,7 @@ fn pct(ours: f64, base: f64) -> f64 {
 
 pub(super) fn run(a: &Args) -> Result<()> {
     let jobs = runs::jobs(a.jobs)?;
+    runs::check_substeps(a.physics_substeps)?;
     if let Some(d) = a.duration
         && !(d.is_finite() && d > 2.0)
     {

@@ -88,6 +88,7 @@ fn cell(x: Option<f64>) -> String {
 
 pub(super) fn run(a: &Args) -> Result<()> {
     let jobs = runs::jobs(a.jobs)?;
+    runs::check_substeps(a.physics_substeps)?;
     if let Some(d) = a.duration
         && !(d.is_finite() && d > 2.0)
     {
@@ -144,7 +145,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
                 "--out".to_owned(),
                 sim(key).display().to_string(),
             ];
-            let args: crate::replay::Args = runs::parse_flags("replay", &flags)?;
+            let args: crate::replay::Args = crate::flag_line::parse("replay", &flags)?;
             crate::replay::prepare(&args)
         })
         .collect::<Result<Vec<_>>>()?;

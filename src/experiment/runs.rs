@@ -16,28 +16,17 @@ use policy_runtime::{TrackConfig, TrackResult, run_track};
 
 use crate::cli_error::bad_input;
 
-/// `FLAGS` parsed as `amstack COMMAND FLAGS` parses them (`T` is that command's flags).
-pub(super) fn parse_flags<T: clap::Args>(command: &str, flags: &[String]) -> Result<T> {
-    let line = T::augment_args(clap::Command::new("amstack"));
-    let first_line = |e: clap::Error| {
-        let text = e.render().to_string();
-        bad_input(format!(
-            "{command}: {}",
-            text.lines()
-                .find(|l| !l.trim().is_empty())
-                .unwrap_or("bad flags")
-                .trim_start_matches("error: ")
-        ))
-    };
-    let matches = line
-        .try_get_matches_from(std::iter::once(command.to_owned()).chain(flags.iter().cloned()))
-        .map_err(first_line)?;
-    T::from_arg_matches(&matches).map_err(first_line)
-}
-
 /// Strings from string slices (flag lists).
 pub(super) fn strings(items: &[&str]) -> Vec<String> {
     items.iter().map(|s| (*s).to_owned()).collect()
+}
+
+/// Refuses `--physics-substeps 0` before anything is written.
+pub(super) fn check_substeps(n: Option<u32>) -> Result<()> {
+    if n == Some(0) {
+        return Err(bad_input("--physics-substeps: 0; at least 1 step per tick"));
+    }
+    Ok(())
 }
 
 /// `--physics-substeps N` when set (track's flag), else nothing.
@@ -49,7 +38,7 @@ pub(super) fn substeps(n: Option<u32>) -> Vec<String> {
 /// An `amstack track FLAGS` flight, configured (every bad-input error raised here, before
 /// anything flies).
 pub(super) fn track_config(flags: &[String]) -> Result<TrackConfig> {
-    let args: crate::track::Args = parse_flags("track", flags)?;
+    let args: crate::track::Args = crate::flag_line::parse("track", flags)?;
     crate::track::prepare(&args)
 }
 

@@ -146,6 +146,7 @@ fn time(t: Option<f64>) -> String {
 
 pub(super) fn run(a: &Args) -> Result<()> {
     let jobs = runs::jobs(a.jobs)?;
+    runs::check_substeps(a.physics_substeps)?;
     if !(a.duration.is_finite() && a.duration > 1.0) {
         return Err(bad_input(format!(
             "--duration {}: must be longer than 1 s (the step is at 1 s)",

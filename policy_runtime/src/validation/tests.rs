@@ -734,8 +734,8 @@ fn rotor_saturation_names_the_rotor_the_limit_the_time_and_the_longest_stretch()
     // Rotor 1: 12 N then 22.9 N, never at a limit. The allocator falls short from tick 4.
     let dir = tempfile::tempdir().unwrap();
     let mut thrusts = [[10.0, 12.0]; 10];
-    for k in 3..=5 {
-        thrusts[k][0] = 23.0 - 0.5e-5;
+    for t in &mut thrusts[3..=5] {
+        t[0] = 23.0 - 0.5e-5;
     }
     thrusts[8][0] = 0.0;
     thrusts[9][1] = 22.9;
