@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use anyhow::Result;
 use comfy_table::{Table, presets};
 use policy_runtime::validation::{
-    CompareError, ErrorStats, available_signals, compare_logs, read_flight_log, start_shift_s,
+    CompareError, CompareReport, ErrorStats, FlightLogFile, available_signals, compare_logs,
+    read_flight_log, start_shift_s,
 };
 
 use crate::cli_error::bad_input;
@@ -80,6 +81,21 @@ fn row(table: &mut Table, signal: &str, unit: &str, interval: &str, s: &ErrorSta
     ]);
 }
 
+/// [`compare_logs`], a wrong signal or interval or logs that do not overlap being bad input.
+pub(crate) fn compare(
+    a: &FlightLogFile,
+    b: &FlightLogFile,
+    signals: &[String],
+    intervals: &[String],
+    b_shift_s: f64,
+) -> Result<CompareReport> {
+    compare_logs(a, b, signals, intervals, b_shift_s).map_err(|e| match e {
+        CompareError::Signal(_) | CompareError::Interval(_) | CompareError::NoOverlap { .. } => {
+            bad_input(e.to_string())
+        }
+    })
+}
+
 pub fn run(args: &Args) -> Result<()> {
     for (flag, path) in [("--json", &args.json), ("--plot", &args.plot)] {
         if let Some(p) = path {
@@ -124,12 +140,7 @@ pub fn run(args: &Args) -> Result<()> {
     if shift != 0.0 {
         eprintln!("B's times shifted by {shift:+.6} s");
     }
-    let report =
-        compare_logs(&a, &b, &args.signals, &args.intervals, shift).map_err(|e| match e {
-            CompareError::Signal(_)
-            | CompareError::Interval(_)
-            | CompareError::NoOverlap { .. } => bad_input(e.to_string()),
-        })?;
+    let report = compare(&a, &b, &args.signals, &args.intervals, shift)?;
     let mut table = Table::new();
     table.load_style(presets::ASCII_MARKDOWN).set_header([
         "signal",

@@ -7,6 +7,15 @@
 //!   successful rollouts; and Rotate Valve's base orientation, desired against actual, on the
 //!   UA-Hexa and the FA-Hexa (`valve-base-orientation.png`). The orderings the paper reads
 //!   off its table are checked on the measured figures and printed.
+//! - `actuator` ([`actuator`]), `ground-effect` ([`ground_effect`]), `wrench-limit`
+//!   ([`wrench_limit`]) — the paper's actuator-dynamics table and its real-world validation
+//!   experiments, flown with the library functions behind `track`, `replay` and `compare`
+//!   ([`runs`]).
+
+mod actuator;
+mod ground_effect;
+mod runs;
+mod wrench_limit;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -44,6 +53,18 @@ rollouts (the reference's N/A rule); tilt use in rad as the paper prints it.
 Example:
   amstack experiment embodiment --rollouts 30 --out embodiment/")]
     Embodiment(EmbodimentArgs),
+    /// The actuator-dynamics table: the FA-Hexa's base-z RMSE on the low- and high-frequency
+    /// vertical sines under four motor models, rotor limits on.
+    #[command(after_help = actuator::AFTER_HELP)]
+    Actuator(actuator::Args),
+    /// The ground-effect comparison: a stand-in "real" flight with strong ground effect,
+    /// replayed with and without the model; EE-z error near and away from the ground.
+    #[command(after_help = ground_effect::AFTER_HELP)]
+    GroundEffect(ground_effect::Args),
+    /// The wrench-limit step responses I (|F| <= 80 N) and II (|F| <= 100 N): arrival, sink,
+    /// and which rotors saturate, when and for how long.
+    #[command(after_help = wrench_limit::AFTER_HELP)]
+    WrenchLimit(wrench_limit::Args),
 }
 
 #[derive(Debug, clap::Args)]
@@ -72,6 +93,9 @@ const TASKS: [&str; 2] = ["push-slider", "open-door"];
 pub fn run(args: &Args) -> Result<()> {
     match &args.which {
         Which::Embodiment(a) => embodiment(a),
+        Which::Actuator(a) => actuator::run(a),
+        Which::GroundEffect(a) => ground_effect::run(a),
+        Which::WrenchLimit(a) => wrench_limit::run(a),
     }
 }
 

@@ -11,6 +11,7 @@ mod cli_error;
 mod compare;
 mod dataset_cmd;
 mod experiment;
+mod flag_line;
 mod fly;
 mod mpc_bench;
 mod output;
@@ -84,8 +85,9 @@ enum Command {
     /// disturbances x tasks x rollouts x seeds): locally on all cores or as shards on a Ray
     /// cluster; one results folder per cell and a summary table (terminal, JSON, CSV).
     Sweep(Box<sweep::Args>),
-    /// The paper's experiments as one command each (`embodiment`): tables (terminal, JSON)
-    /// and PNG plots in an output folder.
+    /// The paper's experiments as one command each (`embodiment`, `actuator`,
+    /// `ground-effect`, `wrench-limit`): tables (terminal, JSON) and PNG plots in an output
+    /// folder.
     Experiment(Box<experiment::Args>),
     /// Record demonstrations of a task's scripted policy (the rollouts of `bench`) as a
     /// LeRobot v3.0 dataset: observation state, actions, task prompt (120 fps).

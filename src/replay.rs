@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use anyhow::Result;
 use policy_runtime::validation::replay::{LoggedFlight, check_replay, controller_profile};
 use policy_runtime::validation::{
-    LogFileError, ReplayConfig, ReplayError, ReplayMode, read_flight_log, replay_flight,
+    LogFileError, ReplayConfig, ReplayError, ReplayMode, ReplayResult, read_flight_log,
+    replay_flight,
 };
 use sim_twin::Disturbances;
 
@@ -72,7 +73,18 @@ pub(crate) fn log_error(e: &LogFileError) -> anyhow::Error {
     bad_input(e.to_string())
 }
 
-pub fn run(args: &Args) -> Result<()> {
+/// A replay ready to fly: the logged flight, the replay's configuration (the log's, with the
+/// flags' overrides), and the overrides in words.
+#[derive(Debug)]
+pub(crate) struct Prepared {
+    pub logged: LoggedFlight,
+    pub config: ReplayConfig,
+    pub overrides: Vec<String>,
+}
+
+/// Reads the log and builds the replay of `args`: every bad-input error (an unreadable log,
+/// an unknown vehicle, a bad override), before anything is flown.
+pub(crate) fn prepare(args: &Args) -> Result<Prepared> {
     check_writable("--out", &args.out)?;
     if let Some(p) = &args.json {
         check_writable("--json", p)?;
@@ -149,6 +161,29 @@ pub fn run(args: &Args) -> Result<()> {
         out: args.out.clone(),
     };
     check_replay(&logged, &config).map_err(|e| bad_input(e.to_string()))?;
+    Ok(Prepared {
+        logged,
+        config,
+        overrides,
+    })
+}
+
+/// Flies a prepared replay; a log the stack cannot replay is bad input.
+pub(crate) fn fly(p: &Prepared) -> Result<ReplayResult> {
+    replay_flight(&p.logged, &p.config).map_err(|e| match e {
+        ReplayError::Log { .. } | ReplayError::Stack(_) => bad_input(e.to_string()),
+        other => anyhow::Error::new(other),
+    })
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let prepared = prepare(args)?;
+    let Prepared {
+        logged,
+        config,
+        overrides,
+    } = &prepared;
+    let (run, mode, name) = (&logged.run, config.mode, args.log.display());
     eprintln!(
         "replaying {} ({} ticks, {} on {}, {} interface) in {} mode, disturbances: {}",
         name,
@@ -159,13 +194,10 @@ pub fn run(args: &Args) -> Result<()> {
         mode.name(),
         names(&config.twin.disturbances)
     );
-    for o in &overrides {
+    for o in overrides {
         eprintln!("  override: {o}");
     }
-    let result = replay_flight(&logged, &config).map_err(|e| match e {
-        ReplayError::Log { .. } | ReplayError::Stack(_) => bad_input(e.to_string()),
-        other => anyhow::Error::new(other),
-    })?;
+    let result = fly(&prepared)?;
     if !result.actions_from_action_channel && mode == ReplayMode::Reference {
         eprintln!(
             "  note: the log has no /action channel; actions rebuilt from the references (gripper closed)"

@@ -14,7 +14,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::Result;
-use clap::Parser;
 use comfy_table::{Table, presets};
 use indicatif::{ProgressBar, ProgressStyle};
 use policy_runtime::bench::{RolloutResult, run_bench};
@@ -143,37 +142,8 @@ impl Cell {
 }
 
 /// `amstack bench FLAGS` parsed as the command line parses it.
-#[derive(Debug, Parser)]
-#[command(name = "amstack")]
-struct BenchLine {
-    #[command(subcommand)]
-    command: BenchCommand,
-}
-
-#[derive(Debug, clap::Subcommand)]
-enum BenchCommand {
-    Bench(Box<crate::bench::Args>),
-}
-
 pub(crate) fn bench_args(flags: &[String]) -> Result<crate::bench::Args> {
-    let line = BenchLine::try_parse_from(
-        ["amstack", "bench"]
-            .into_iter()
-            .map(str::to_owned)
-            .chain(flags.iter().cloned()),
-    )
-    .map_err(|e| {
-        let text = e.render().to_string();
-        bad_input(
-            text.lines()
-                .find(|l| !l.trim().is_empty())
-                .unwrap_or("bad flags")
-                .trim_start_matches("error: ")
-                .to_owned(),
-        )
-    })?;
-    let BenchCommand::Bench(args) = line.command;
-    Ok(*args)
+    crate::flag_line::parse("bench", flags)
 }
 
 // ---- the sweep file ----------------------------------------------------------------------

@@ -1034,6 +1034,239 @@ fn experiment_bad_input_is_one_line_before_anything_runs() {
     assert_bad_input(&out, &["not empty"]);
     let out = amstack(&["experiment", "nonsense"]);
     assert_bad_input(&out, &["nonsense"]);
+    // The flight experiments: a non-empty --out, a bad --duration or --jobs, refused on one
+    // line before anything flies (the folder keeps only what was there).
+    for which in ["actuator", "ground-effect", "wrench-limit"] {
+        assert_bad_input(
+            &amstack(&["experiment", which, "--out", &out_arg]),
+            &["--out", "not empty"],
+        );
+        let fresh = dir.path().join(format!("fresh-{which}"));
+        let fresh_arg = fresh.display().to_string();
+        assert_bad_input(
+            &amstack(&["experiment", which, "--duration", "0", "--out", &fresh_arg]),
+            &["--duration 0"],
+        );
+        assert!(!fresh.exists(), "{which}: nothing written");
+        assert_bad_input(
+            &amstack(&["experiment", which, "--jobs", "0", "--out", &out_arg]),
+            &["--jobs"],
+        );
+        assert_bad_input(
+            &amstack(&[
+                "experiment",
+                which,
+                "--physics-substeps",
+                "0",
+                "--out",
+                &out_arg,
+            ]),
+            &["--physics-substeps"],
+        );
+        let kept: Vec<_> = std::fs::read_dir(&out_dir)
+            .map(|d| d.flatten().map(|e| e.file_name()).collect())
+            .unwrap_or_default();
+        assert_eq!(kept, vec![std::ffi::OsString::from("x")], "{which}");
+    }
+}
+
+/// Runs `amstack experiment ARGS… --out DIR/NAME` and returns its folder and JSON document
+/// `NAME.json`.
+fn experiment(dir: &Path, name: &str, args: &[&str]) -> (PathBuf, serde_json::Value) {
+    let out_dir = dir.join(name);
+    let out_arg = out_dir.display().to_string();
+    let mut all = vec!["experiment", name];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--out", &out_arg]);
+    let out = amstack(&all);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = std::fs::read_to_string(out_dir.join(format!("{name}.json"))).unwrap_or_default();
+    let v = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+    (out_dir, v)
+}
+
+fn num(v: &serde_json::Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
+}
+
+fn is_png(path: &Path) -> bool {
+    std::fs::read(path).is_ok_and(|b| b.starts_with(b"\x89PNG\r\n\x1a\n"))
+}
+
+/// The paper's actuator table, short flights: the identified motor lag (47.5 ms) raises the
+/// high-frequency base-z error over ideal motors, the 0.75 1/s rate cap moves no error by
+/// more than 5 % (the paper: 1.96 vs 1.95 cm), no rotor reaches T_max = 23 N; and the
+/// figures are the same flown on one thread or two.
+#[test]
+fn experiment_actuator_motor_delay_raises_the_high_frequency_error() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let (out, v) = experiment(dir.path(), "actuator", &["--duration", "8", "--jobs", "2"]);
+    let rows = v["rows"].as_array().cloned().unwrap_or_default();
+    assert_eq!(rows.len(), 4, "{v}");
+    let row = |key: &str| {
+        rows.iter()
+            .find(|r| r["key"] == key)
+            .unwrap_or_else(|| panic!("no row {key}: {v}"))
+    };
+    let z = |key: &str, band: &str| num(&row(key)[band]["base_z_rmse_m"]);
+    assert!(
+        z("delay", "high") > 1.1 * z("none", "high"),
+        "delay {} vs none {}",
+        z("delay", "high"),
+        z("none", "high")
+    );
+    for (a, b) in [("rate-limit", "none"), ("delay-and-rate-limit", "delay")] {
+        for band in ["low", "high"] {
+            assert!(
+                (z(a, band) / z(b, band) - 1.0).abs() <= 0.05,
+                "{a} vs {b} on {band}: {} vs {}",
+                z(a, band),
+                z(b, band)
+            );
+        }
+    }
+    for r in &rows {
+        assert!(num(&r["max_rotor_thrust_n"]) < 23.0, "{r}");
+        // The paper's figures stand beside ours.
+        assert!(num(&r["paper"]["high_rmse_cm"]) > 1.9, "{r}");
+    }
+    assert_eq!(row("delay")["paper"]["high_rmse_cm"], 2.33);
+    let checks = v["checks"].as_array().cloned().unwrap_or_default();
+    assert!(checks.iter().all(|c| c["holds"] == true), "{checks:?}");
+    for band in ["sines-low", "sines-high"] {
+        assert!(is_png(&out.join(format!("actuator-{band}.png"))), "{band}");
+    }
+    let logs = std::fs::read_dir(out.join("logs")).map_or(0, Iterator::count);
+    assert_eq!(logs, 8);
+    // --jobs changes the threads, never the figures.
+    let figures = |v: &serde_json::Value| {
+        let mut rows = v["rows"].clone();
+        for r in rows.as_array_mut().into_iter().flatten() {
+            for band in ["low", "high"] {
+                r[band]["mcap"] = serde_json::Value::Null;
+            }
+        }
+        rows
+    };
+    let (_, one) = experiment(
+        &dir.path().join("j1"),
+        "actuator",
+        &["--duration", "3", "--jobs", "1"],
+    );
+    let (_, two) = experiment(
+        &dir.path().join("j2"),
+        "actuator",
+        &["--duration", "3", "--jobs", "2"],
+    );
+    assert_eq!(figures(&one), figures(&two));
+}
+
+/// The ground-effect comparison over one pass near the ground (20 s: z_ref = 0.8 + 0.2
+/// cos(2 pi t / 30) is <= 0.7 m for t in [10, 20) s, about 1200 ticks at 120 Hz): with the
+/// ground-effect model the replay's near-ground EE-z error is below the one without.
+#[test]
+fn experiment_ground_effect_model_lowers_the_near_ground_error() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let (out, v) = experiment(dir.path(), "ground-effect", &["--duration", "20"]);
+    let near = |which: &str| num(&v[which]["ee_z_rmse_cm"]["near_ground"]);
+    assert!(
+        near("with") < near("without"),
+        "with {} vs without {} cm",
+        near("with"),
+        near("without")
+    );
+    let samples = v["with"]["compare"]["signals"][0]["intervals"][0]["samples"]
+        .as_u64()
+        .unwrap_or_default();
+    assert!(
+        (1195..=1201).contains(&samples),
+        "{samples} near-ground samples"
+    );
+    assert_eq!(v["paper"]["ee_z_rmse_cm"]["without"]["near_ground"], 1.91);
+    for f in ["ground-effect-with.png", "ground-effect-without.png"] {
+        assert!(is_png(&out.join(f)), "{f}");
+    }
+    for f in ["ge-real.mcap", "ge-sim-with.mcap", "ge-sim-without.mcap"] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+}
+
+/// The wrench-limit steps, short: the norm bound scales gravity compensation too, so the
+/// wider limit II sinks less than I; the allocator falls short at the step (t = 1 s) and
+/// every rotor is at a limit one control period later (the realised thrust is logged one
+/// period after its tick); and the Rust summary of which rotors saturate, when and for how
+/// long agrees with scripts/rotor_saturation.py reading the same MCAP with the PyPI reader.
+#[test]
+fn experiment_wrench_limit_saturation_agrees_with_the_python_reader() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let (out, v) = experiment(dir.path(), "wrench-limit", &["--duration", "3"]);
+    let responses = v["responses"].as_array().cloned().unwrap_or_default();
+    assert_eq!(responses.len(), 2, "{v}");
+    let (one, two) = (&responses[0], &responses[1]);
+    assert!(
+        num(&two["min_base_z_m"]) > num(&one["min_base_z_m"]),
+        "II {} vs I {}",
+        two["min_base_z_m"],
+        one["min_base_z_m"]
+    );
+    let period = 1.0 / 120.0;
+    for r in [one, two] {
+        assert!((num(&r["step_time_s"]) - 1.0).abs() < 1e-6, "{r}");
+        assert!(
+            (num(&r["saturation"]["first_unallocated_s"]) - 1.0).abs() < 1e-6,
+            "{r}"
+        );
+        for rotor in r["saturation"]["rotors"].as_array().into_iter().flatten() {
+            let first = [&rotor["first_at_max_s"], &rotor["first_at_min_s"]]
+                .iter()
+                .filter_map(|t| t.as_f64())
+                .fold(f64::INFINITY, f64::min);
+            assert!((first - (1.0 + period)).abs() < 1e-6, "{rotor}");
+        }
+    }
+    assert!(is_png(&out.join("wrench-limit-step.png")));
+    let logs = [out.join("step-I.mcap"), out.join("step-II.mcap")];
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/rotor_saturation.py");
+    let py = Command::new(venv_python())
+        .arg(&script)
+        .args(&logs)
+        .args(["--limits", "0", "23", "--json"])
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(py.status.success(), "{}", stderr(&py));
+    let p: serde_json::Value =
+        serde_json::from_str(&stdout(&py)).unwrap_or_else(|e| panic!("{e}: {}", stdout(&py)));
+    let close =
+        |a: &serde_json::Value, b: &serde_json::Value, what: &str| match (a.as_f64(), b.as_f64()) {
+            (Some(x), Some(y)) => assert!((x - y).abs() < 1e-9, "{what}: rust {x} python {y}"),
+            _ => assert_eq!(a, b, "{what}"),
+        };
+    for (r, py) in [one, two]
+        .iter()
+        .zip(p["logs"].as_array().into_iter().flatten())
+    {
+        let (rust, python) = (&r["saturation"], py);
+        assert_eq!(rust["ticks"], python["ticks"]);
+        close(
+            &rust["first_unallocated_s"],
+            &python["first_unallocated_s"],
+            "first unallocated",
+        );
+        let rs = rust["rotors"].as_array().cloned().unwrap_or_default();
+        let ps = python["rotors"].as_array().cloned().unwrap_or_default();
+        assert_eq!(rs.len(), 6);
+        assert_eq!(rs.len(), ps.len());
+        for (a, b) in rs.iter().zip(&ps) {
+            for k in [
+                "first_at_max_s",
+                "first_at_min_s",
+                "share_at_limit",
+                "max_thrust_n",
+            ] {
+                close(&a[k], &b[k], &format!("rotor {} {k}", a["rotor"]));
+            }
+        }
+    }
 }
 
 #[test]

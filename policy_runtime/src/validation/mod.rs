@@ -1,11 +1,13 @@
 //! Sim-to-real validation: re-flying a logged flight in the twin ([`replay`]) and comparing
-//! two flight logs signal by signal ([`compare`], [`signals`]). Logs are read by
+//! two flight logs signal by signal ([`compare`], [`signals`]), and which rotors reached a
+//! thrust limit in a log, when and for how long ([`saturation`]). Logs are read by
 //! [`read_flight_log`], which checks the format version and reports damage naming the file.
 //! The log format is described in `docs/mcap-format.md`.
 
 pub mod compare;
 mod log_file;
 pub mod replay;
+pub mod saturation;
 pub mod signals;
 
 use std::path::PathBuf;
@@ -17,6 +19,7 @@ pub use log_file::{FlightLogFile, LogFileError, OLDEST_READABLE_FORMAT_VERSION, 
 pub use replay::{
     ReplayConfig, ReplayError, ReplayMode, ReplayResult, check_replay, replay_flight,
 };
+pub use saturation::{RotorLimitUse, SaturationSummary, rotor_saturation};
 pub use signals::{SignalError, SignalPath, available_signals};
 
 /// What stops a comparison. Every variant names the file, the signal or the interval.

@@ -696,3 +696,66 @@ fn a_non_finite_logged_command_is_refused_in_commands_mode_only() {
         "{err}"
     );
 }
+
+/// Writes a log at 100 Hz with `/rotors.realised_n` = `thrusts[k]` and `/control/wrench`
+/// whose unallocated force x is `unallocated[k]`.
+fn rotor_log(dir: &Path, thrusts: &[[f64; 2]], unallocated: &[f64]) -> FlightLogFile {
+    use crate::flight_log::{BodyWrench, Rotors};
+    let path = dir.join("rotors.mcap");
+    let mut rec = McapRecorder::create(&path, &RunMetadata::new("fa-hexa", "pid6", 0)).unwrap();
+    let rotors = rec.channel::<Rotors>("/rotors").unwrap();
+    let wrench = rec.channel::<BodyWrench>("/control/wrench").unwrap();
+    for (k, (t, u)) in thrusts.iter().zip(unallocated).enumerate() {
+        let ns = k as u64 * 10_000_000;
+        let m = Rotors {
+            commanded_n: t.to_vec(),
+            realised_n: t.to_vec(),
+            applied_n: t.to_vec(),
+            saturated: false,
+        };
+        rec.log(&rotors, ns, &m).unwrap();
+        let w = BodyWrench {
+            force_n: [0.0; 3],
+            torque_nm: [0.0; 3],
+            unallocated_force_n: [*u, 0.0, 0.0],
+            unallocated_torque_nm: [0.0; 3],
+        };
+        rec.log(&wrench, ns, &w).unwrap();
+    }
+    rec.finish().unwrap();
+    read_flight_log(&path, false).unwrap()
+}
+
+#[test]
+fn rotor_saturation_names_the_rotor_the_limit_the_time_and_the_longest_stretch() {
+    // Limits 0..23 N, ticks every 10 ms. Rotor 0: 23 N (within the 1e-5 N tolerance) at
+    // ticks 3, 4, 5, idle (0 N) at tick 8, else 10 N → first at max 0.03 s, first at min
+    // 0.08 s, 4 of 10 ticks at a limit, longest stretch ticks 3..5 = 3 ticks = 0.03 s.
+    // Rotor 1: 12 N then 22.9 N, never at a limit. The allocator falls short from tick 4.
+    let dir = tempfile::tempdir().unwrap();
+    let mut thrusts = [[10.0, 12.0]; 10];
+    for t in &mut thrusts[3..=5] {
+        t[0] = 23.0 - 0.5e-5;
+    }
+    thrusts[8][0] = 0.0;
+    thrusts[9][1] = 22.9;
+    let unallocated = [0.0, 0.0, 0.0, 1e-12, 0.4, 0.2, 0.0, 0.0, 0.0, 0.0];
+    let log = rotor_log(dir.path(), &thrusts, &unallocated);
+    let s = rotor_saturation(&log, 0.0, 23.0).unwrap();
+    assert_eq!(s.ticks, 10);
+    assert_eq!(s.rotors.len(), 2);
+    let r0 = &s.rotors[0];
+    assert!(close(r0.first_at_max_s, 0.03, EXACT), "{r0:?}");
+    assert!(close(r0.first_at_min_s, 0.08, EXACT), "{r0:?}");
+    assert_eq!((r0.ticks_at_max, r0.ticks_at_min), (3, 1));
+    assert!((r0.share_at_limit - 0.4).abs() < EXACT, "{r0:?}");
+    assert!((r0.longest_at_limit_s - 0.03).abs() < EXACT, "{r0:?}");
+    assert!((r0.max_thrust_n - (23.0 - 0.5e-5)).abs() < EXACT, "{r0:?}");
+    let r1 = &s.rotors[1];
+    assert_eq!((r1.first_at_max_s, r1.first_at_min_s), (None, None));
+    assert_eq!(r1.share_at_limit, 0.0);
+    assert!((r1.max_thrust_n - 22.9).abs() < EXACT, "{r1:?}");
+    assert_eq!(s.saturated_rotors(), vec![0]);
+    // 1e-12 N is round-off, not a shortfall.
+    assert!(close(s.first_unallocated_s, 0.04, EXACT), "{s:?}");
+}
