@@ -7,7 +7,7 @@ use controllers::mpc::{FallbackEvent, MpcMode, MpcStatus, SolveFailure, WholeBod
 use controllers::{
     BaseController, BodyParams, ControllerConfig, ControllerStatus, InputHealth, Pid6Gains, build,
 };
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix3};
 use platform::{
     ActuatorCommand, AttitudeSetpoint, Measurement, PositionSetpoint, RigidBodyState, Vehicle,
     Wrench,
@@ -231,6 +231,8 @@ pub struct FlightStack {
     posture: Vec<f64>,
     /// The vehicle's initial configuration: the targets of joints no action commands.
     initial: Vec<f64>,
+    /// The vehicle's inertia about its centre of mass at `initial`: the base controller's.
+    initial_inertia_kgm2: Matrix3<f64>,
     ee: Option<EeInterface>,
     mpc: Option<MpcInterface>,
     /// The vehicle IK profile's safety margin from obstacle faces, m.
@@ -301,6 +303,8 @@ impl FlightStack {
         });
         let tilt_dofs = vehicle.tilt_dofs();
         let vehicle_initial = vehicle.initial_configuration();
+        let initial_inertia_kgm2 =
+            BodyParams::at_configuration(&vehicle, &vehicle_initial).inertia_kgm2;
         // The vehicle's IK profile: the EE interface's solver, and the margin the base keeps
         // from obstacle faces (also for the MPC, which has no IK).
         let ik_config = IkConfig::for_vehicle(&vehicle).map_err(|e| StackError(e.to_string()))?;
@@ -328,6 +332,7 @@ impl FlightStack {
             tilt_dofs,
             project_on_measured_tilt: false,
             posture: vehicle_initial.clone(),
+            initial_inertia_kgm2,
             initial: vehicle_initial,
             ee,
             mpc,
@@ -552,6 +557,16 @@ impl FlightStack {
     /// The arm moves the centre of mass: the model-based terms follow the arm's posture,
     /// low-passed so the quasi-static feed-forward does not couple the arm's fast dynamics
     /// (a drive at its effort limit swinging) into the attitude loop.
+    ///
+    /// The base controller's inertia stays the vehicle's at its initial configuration, as
+    /// the reference's (AMBENCH_SPEC §2.1): the PID attitude laws' rate loop is deadbeat
+    /// (kd_rot·dt = 1 with the reference gains), so a model inertia more than twice the
+    /// inertia the torque actually turns makes it unstable. An arm whose drives are at
+    /// their effort limit (the UA-Hexa's 20 N·m) no longer turns with the base, leaving the
+    /// base's own inertia; the posture-following inertia of the extended arm is 2.3–2.8 times
+    /// that, and the UA-Hexa's rate loop diverged at 20 Hz within a second on NDT's arm sweep
+    /// (and on six more tasks). The folded arm's inertia is within 1.3 times the base's. The
+    /// MPC, whose model is not deadbeat, keeps the posture-following inertia.
     fn follow_posture(&mut self, measurement: &Measurement) {
         if measurement.joint_positions.len() == self.posture.len()
             && measurement.joint_positions.iter().all(|q| q.is_finite())
@@ -561,7 +576,10 @@ impl FlightStack {
                 *p += a * (q - *p);
             }
             let body = BodyParams::at_configuration(&self.vehicle, &self.posture);
-            self.controller.set_body(body);
+            self.controller.set_body(BodyParams {
+                inertia_kgm2: self.initial_inertia_kgm2,
+                ..body
+            });
             if let Some(mpc) = &mut self.mpc {
                 mpc.controller.set_body(body);
             }
