@@ -254,3 +254,56 @@ fn the_ua_hexa_rate_loop_stays_stable_while_its_arm_drives_saturate() {
     assert!(largest_tilt < 0.35, "tilt {largest_tilt} rad");
     assert!(largest_rate < 3.0, "rate {largest_rate} rad/s");
 }
+
+/// The cabinet's root sits where the reference's IK limit lets the FA-Hexa reach the can
+/// (`sim_twin` cabinet scene, [U]): from the base limit 0.15 m + its 0.85 m margin in front of
+/// the root, the IK meets the script's `can_approach` pose exactly, with a level base, and the
+/// scripted rollout lifts the can.
+#[test]
+fn the_fa_hexa_reaches_the_can_from_the_cabinets_ik_margin() {
+    let mut scene = None;
+    let mut lifted = false;
+    fly_scripted(TaskId::CabinetPickPlace, "fa-hexa", 0, |step| {
+        if let Some(s) = step.scene {
+            if scene.is_none() {
+                let can = s
+                    .observation
+                    .vec3("can_pos", 0)
+                    .unwrap_or_else(|e| panic!("{e}"));
+                scene = Some((can, s.obstacle_face_x));
+            }
+            lifted |= s.status.criteria.get(1).copied().unwrap_or(false);
+        }
+        true
+    });
+    let Some((can, Some(face_x))) = scene else {
+        panic!("no cabinet scene or no base limit: {scene:?}");
+    };
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"));
+    let config = profile(&vehicle, ControllerKind::Pid).unwrap_or_else(|e| panic!("{e}"));
+    let twin = TwinConfig {
+        task: Some(TaskId::CabinetPickPlace),
+        ..TwinConfig::default()
+    };
+    let mut stack =
+        FlightStack::for_twin(vehicle, &config, &twin).unwrap_or_else(|e| panic!("{e}"));
+    stack.keep_in_front_of(Some(face_x));
+    let target = Isometry3::translation(can.x - 0.15, can.y, can.z);
+    let ee = EeTarget {
+        world_from_ee_command: target,
+        gripper: 1.0,
+    };
+    let mut base_joint = stack.ee_to_base_joint_target(&ee);
+    for _ in 0..30 {
+        base_joint = stack.ee_to_base_joint_target(&ee);
+    }
+    let base_x = base_joint.world_from_base.translation.x;
+    let reached = stack.ee_reference(&Action::BaseJoint(base_joint));
+    let miss = (reached.translation.vector - target.translation.vector).norm();
+    assert!(miss < 1e-4, "the IK misses the can's approach by {miss} m");
+    assert!(
+        base_x <= face_x - 0.85 + 1e-3,
+        "base x {base_x} beyond the limit"
+    );
+    assert!(lifted, "the scripted rollout did not lift the can");
+}

@@ -3,36 +3,47 @@
 //! a shelf and puts it on the cabinet's top (z 1.67 m).
 //!
 //! [U] choices. The reference keeps the cabinet and the can only as USD assets; the geometry
-//! below is derived from the scripted waypoints (D = cabinet root (1.5, 0, 0), C = can
-//! position) so that the script's straight segments run through free space:
-//! - Door handle: a vertical bar 0.015 m (x) × 0.012 m (y) at x 1.06–1.075 m, y 0.5 m,
-//!   spanning z 0.08–0.62 m, on two posts to the door panel. The script's `door_approach`
-//!   (D + (−0.58, 0.5, 0.2)) puts the open fingers (x 1.00–1.10 m, inner faces 0.045 m either
-//!   side) around it; they close along y, across the bar. Being vertical, the bar meets the
-//!   fingers at any height of the diagonal approach from the start pose; it stands back
+//! below is derived from the scripted waypoints (D = cabinet root, C = can position) and the
+//! IK's base limit, so that the script's straight segments run through free space and the
+//! vehicles can reach what the script asks:
+//! - Cabinet root (D, `pulling_door_pos`): (2.30, 0, 0.80), not the spec's prim position
+//!   (1.5, 0, 0): the articulation's root body sits 0.8 m ahead of its prim and 0.8 m up, near
+//!   the carcass's centre (an offset inside the USD). Two measurements of the reference's own
+//!   numbers say so. (1) Its IK keeps the base at x ≤ D.x − (margin + 0.15) (AMBENCH_SPEC
+//!   §2.6; the FA-Hexa's margin 0.85) and its script reaches for the can with the EE link at
+//!   C.x − 0.15 = 2.11 m; the FA-Hexa's arm reaches at most 0.895 m ahead of its base with a
+//!   level gripper (arm fully raised, link 3 level), so the can is out of reach unless
+//!   D.x ≥ 2.21 m — yet the reference collected its FA-Hexa demonstrations of this task. With
+//!   D at 1.5 the FA-Hexa's base stopped at 0.5 m and its gripper 0.62 m short of the can (0 of
+//!   30 rollouts). (2) The script takes the door's handle at D.z + 0.2: with D.z = 0 that is
+//!   0.2 m above the floor, where the FA-Hexa (its arm reaches no lower than its base) must
+//!   press its base onto the ground (it did, pushing down with 200 N of integrated force).
+//!   The can stays at the spec's absolute (2.26, 0.3, 1.17), the top at 1.67 m.
+//! - Door handle: a vertical bar 0.015 m (x) × 0.012 m (y) at x D.x − 0.44 … − 0.425, y 0.5 m,
+//!   spanning z D.z + 0.08 … + 0.62 m, on two posts to the door panel. The script's `door_approach`
+//!   (D + (−0.58, 0.5, 0.2)) puts the open fingers (D.x − 0.50 … − 0.40, inner faces 0.045 m
+//!   either side) around it; they close along y, across the bar. Being vertical, the bar meets
+//!   the fingers at any height of the diagonal approach from the start pose; it stands back
 //!   (0.04 m short of the fingertips) because that approach also moves 0.54 m in y per metre
 //!   in x, and a bar further forward met a fingertip before it was between the fingers.
-//! - Door: a panel 0.02 m thick (x 1.11–1.13 m) covering y −0.03–0.63 m, z 0.03–1.62 m,
-//!   mass 1.0 kg, on the prismatic joint `pull_door_slide` along −y (the script pulls it
-//!   0.62 m to `pull_right`), limits [0, 0.65] m, stiffness 0, damping 10 N·s/m, Coulomb
-//!   friction 2 N, effort 50 N (spec).
-//! - Carcass (fixed, on the root): x 1.14–2.40 m, y −0.70–0.70 m, top slab z 1.62–1.67 m (the
+//! - Door: a panel 0.02 m thick (x D.x − 0.39 … − 0.37) covering y −0.03–0.63 m,
+//!   z 0.03–1.62 m, mass 1.0 kg, on the prismatic joint `pull_door_slide` along −y (the script
+//!   pulls it 0.62 m to `pull_right`), limits [0, 0.65] m, stiffness 0, damping 10 N·s/m,
+//!   Coulomb friction 2 N, effort 50 N (spec).
+//! - Carcass (fixed, on the root): x 1.94–2.40 m, y −0.70–0.70 m, top slab z 1.62–1.67 m (the
 //!   placement surface of the spec, 1.67 m); a base up to z 0.25 m; behind the door a
 //!   compartment y 0.00–0.60 m, z 0.25–1.62 m, open at the front, with a solid section left
 //!   of it (y < 0, which the opened door slides in front of), a right side wall and a back
 //!   wall (x ≥ 2.36 m).
-//! - Shelf: the can stands on a shelf at the back of the compartment, top z 1.125 m, from
-//!   x = 2.22 m to the back wall. Its front edge is set by the script: from `align_y`
-//!   (retract.x = 0.82, C.y, 0.2) to `can_approach` (C.x − 0.15, C.y, C.z) the gripper rises
-//!   diagonally through the compartment (1.6 m in 150 steps), its finger bottoms level with
-//!   the shelf top only about where the fingertips reach x ≈ 2.24 m on the straight line (the
-//!   tracked path runs a little above it: the controller's feed-forward is clamped to
-//!   1 m/s per axis and x lags more than z). A full-depth shelf, or any support under the
-//!   fingers' path (which follows the randomised can), would stop the fingers. The can
-//!   (x ≥ 2.24 m) always has its centre 2 cm or more over the shelf.
+//! - Can stand: the can stands on a post 0.05 × 0.05 m in section, from the compartment's
+//!   floor to z 1.125 m, under the can wherever its reset puts it. The script reaches the can
+//!   from below (from `align_y` (D.x − 0.68, C.y, D.z + 0.2) to `can_approach`
+//!   (C.x − 0.15, C.y, C.z), 0.17 m up over 0.5 m ahead, and lower while the controller
+//!   lags): a shelf reaching out under that path stops the fingers, while the open fingers (0.09 m apart) pass either side of the post,
+//!   and the palm (0.08 m behind the fingertips) stops short of it.
 //! - Can: a cylinder of radius 0.03 m and height 0.09 m, origin at its centre (1.17 m, so its
-//!   bottom rests on the shelf at 1.125 m), mass 0.015 kg (an empty can). The script grasps
-//!   it 0.02 m below its centre (finger bottoms 1.5 cm above the shelf) and releases it about
+//!   bottom rests on the stand at 1.125 m), mass 0.015 kg (an empty can). The script grasps
+//!   it 0.02 m below its centre (finger bottoms 1.5 cm above the stand) and releases it about
 //!   0.065 m above the top; resting upright on the top its origin is 0.045 m above it, inside
 //!   the success band [0, 0.05) (lying on its side, 0.03 m). The mass matters: the twin's
 //!   EE-only body has a small rotational inertia and its PID torques scale with it, so an
@@ -52,8 +63,8 @@ use crate::convert::pose_to_rapier;
 use crate::error::TwinError;
 use crate::vehicle_body::material;
 
-/// Cabinet root position (env-local).
-pub(crate) const CABINET_ROOT: Vector3<f64> = Vector3::new(1.5, 0.0, 0.0);
+/// Cabinet root position (env-local) [U]: see the module doc.
+pub(crate) const CABINET_ROOT: Vector3<f64> = Vector3::new(2.30, 0.0, 0.80);
 /// Default can position: root + (0.76, 0.3, 1.17).
 pub(crate) const CAN_DEFAULT: Vector3<f64> = Vector3::new(2.26, 0.3, 1.17);
 /// Placement surface (the cabinet's top), m.
@@ -87,31 +98,33 @@ const DOOR: JointSpec = JointSpec {
 };
 
 /// World boxes (min, max corners) of the carcass [U].
-const CARCASS: [([f64; 3], [f64; 3]); 6] = [
+const CARCASS: [([f64; 3], [f64; 3]); 5] = [
     // Base.
-    ([1.14, -0.70, 0.0], [2.40, 0.70, 0.25]),
+    ([1.94, -0.70, 0.0], [2.40, 0.70, 0.25]),
     // Solid section left of the compartment (the opened door slides in front of it).
-    ([1.14, -0.70, 0.25], [2.40, 0.0, 1.62]),
+    ([1.94, -0.70, 0.25], [2.40, 0.0, 1.62]),
     // Right side wall.
-    ([1.14, 0.60, 0.25], [2.40, 0.70, 1.62]),
+    ([1.94, 0.60, 0.25], [2.40, 0.70, 1.62]),
     // Back wall.
     ([2.36, 0.0, 0.25], [2.40, 0.60, 1.62]),
     // Top slab: its upper face is the placement surface.
-    ([1.14, -0.70, 1.62], [2.40, 0.70, DRAWER_TOP_Z]),
-    // The shelf the can stands on.
-    ([2.22, 0.0, 1.10], [2.36, 0.60, 1.125]),
+    ([1.94, -0.70, 1.62], [2.40, 0.70, DRAWER_TOP_Z]),
 ];
+
+/// The can stand's half section (x, y), m, and its z range [U].
+const STAND_HALF_M: f64 = 0.025;
+const STAND_Z: (f64, f64) = (0.25, 1.125);
 
 /// World boxes of the closed door: panel, handle bar, two posts [U].
 const DOOR_BOXES: [([f64; 3], [f64; 3]); 4] = [
-    ([1.11, -0.03, 0.03], [1.13, 0.63, 1.62]),
-    ([1.06, 0.494, 0.08], [1.075, 0.506, 0.62]),
-    ([1.075, 0.494, 0.08], [1.11, 0.506, 0.10]),
-    ([1.075, 0.494, 0.60], [1.11, 0.506, 0.62]),
+    ([1.91, -0.03, 0.03], [1.93, 0.63, 1.62]),
+    ([1.86, 0.494, 0.88], [1.875, 0.506, 1.42]),
+    ([1.875, 0.494, 0.88], [1.91, 0.506, 0.90]),
+    ([1.875, 0.494, 1.40], [1.91, 0.506, 1.42]),
 ];
 
 /// The door link's origin (closed): the panel's centre.
-const DOOR_ORIGIN: Vector3<f64> = Vector3::new(1.12, 0.30, 0.825);
+const DOOR_ORIGIN: Vector3<f64> = Vector3::new(1.92, 0.30, 0.825);
 
 #[derive(Debug, Default)]
 pub(crate) struct CabinetPickPlace {
@@ -188,6 +201,19 @@ impl Scene for CabinetPickPlace {
         let can_pose =
             Isometry3::translation(CAN_DEFAULT.x + dx, CAN_DEFAULT.y + dy, CAN_DEFAULT.z);
         let can = insert_can(b.world, &can_pose);
+        // The stand under the can.
+        let stand_half_z = 0.5 * (STAND_Z.1 - STAND_Z.0);
+        let stand = Vector3::new(
+            can_pose.translation.x,
+            can_pose.translation.y,
+            0.5 * (STAND_Z.0 + STAND_Z.1),
+        ) - CABINET_ROOT;
+        attach(
+            b.world,
+            root,
+            ColliderBuilder::cuboid(STAND_HALF_M, STAND_HALF_M, stand_half_z),
+            &Isometry3::translation(stand.x, stand.y, stand.z),
+        );
         self.can_reset_z = can_pose.translation.z;
         b.graspable.push(door.link);
         b.graspable.push(can);
@@ -291,7 +317,7 @@ mod tests {
     }
 
     #[test]
-    fn the_can_is_randomised_within_the_spec_ranges_and_stands_on_its_shelf() {
+    fn the_can_is_randomised_within_the_spec_ranges_and_stands_on_its_stand() {
         for seed in 0..20 {
             let (mut w, s, graspable) = scene(seed);
             let c = position_of(&w, can(&s)) - CAN_DEFAULT;
