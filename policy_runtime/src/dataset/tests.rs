@@ -58,6 +58,7 @@ fn episode(e: u64, len: usize, task: &str, cameras: usize) -> EpisodeFrames {
             success: true,
             attempt: e,
         },
+        videos: Vec::new(),
     }
 }
 
