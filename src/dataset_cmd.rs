@@ -76,11 +76,18 @@ fn merge_shard_parts(dirs: &[PathBuf], out: &Path) -> Result<()> {
         return Err(bad_input(format!("--out {}: not empty", out.display())));
     }
     let existed = out.exists();
-    let mut progress = |e: u64| eprint!("\rmerge: {e} episodes");
+    let mut shown = false;
+    let mut progress = |e: u64| {
+        shown = true;
+        eprint!("\rmerge: {e} episodes");
+    };
     let merged = merge_shards(dirs, out, &mut progress);
     let merged = match merged {
         Ok(m) => m,
         Err(e) => {
+            if shown {
+                eprintln!();
+            }
             if !existed {
                 let _ = std::fs::remove_dir_all(out);
             }
@@ -230,9 +237,17 @@ pub fn run(args: &Args) -> Result<()> {
             }
             let existed = out.exists();
             fresh_out(out)?;
-            let mut progress = |e: u64| eprint!("\rexport-openpi: {e} episodes");
-            let export = export_openpi(dirs, out, *target_hz, &mut progress).map_err(|e| {
-                // A failed export leaves no half-written --out behind.
+            let mut shown = false;
+            let mut progress = |e: u64| {
+                shown = true;
+                eprint!("\rexport-openpi: {e} episodes");
+            };
+            let export = export_openpi(dirs, out, *target_hz, &mut progress);
+            let export = export.map_err(|e| {
+                // The error on a line of its own, after the progress; no half-written --out.
+                if shown {
+                    eprintln!();
+                }
                 if existed {
                     let _ = std::fs::remove_dir_all(out).and_then(|()| std::fs::create_dir(out));
                 } else {
@@ -277,9 +292,17 @@ pub fn run(args: &Args) -> Result<()> {
             }
             let existed = out.exists();
             fresh_out(out)?;
-            let mut progress = |e: u64| eprint!("\rmerge: {e} episodes");
-            let w = merge(dirs, out, &mut progress).map_err(|e| {
-                // A refused or failed merge leaves no half-written --out behind.
+            let mut shown = false;
+            let mut progress = |e: u64| {
+                shown = true;
+                eprint!("\rmerge: {e} episodes");
+            };
+            let w = merge(dirs, out, &mut progress);
+            let w = w.map_err(|e| {
+                // The error on a line of its own, after the progress; no half-written --out.
+                if shown {
+                    eprintln!();
+                }
                 if existed {
                     let _ = std::fs::remove_dir_all(out).and_then(|()| std::fs::create_dir(out));
                 } else {

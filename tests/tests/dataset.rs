@@ -483,4 +483,52 @@ fn a_video_dataset_decodes_to_its_frames_merges_without_re_encoding_and_exports_
         "{stderr}"
     );
     assert!(!never.exists(), "a refused merge left {}", never.display());
+
+    // lerobot's packed layout (both episodes in file-000, the second from its first episode's
+    // end, rewritten with pyarrow) cannot be merged without re-encoding: one line, exit 2.
+    let packed = tmp.path().join("packed");
+    let mut cp = Command::new("cp");
+    assert!(
+        cp.arg("-r")
+            .arg(&dir)
+            .arg(&packed)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let script = r#"
+import glob, sys, pyarrow as pa, pyarrow.parquet as pq
+key = "observation.images.ee_camera"
+f = glob.glob(sys.argv[1] + "/meta/episodes/*/*.parquet")[0]
+t = pq.read_table(f)
+n = t.column("length").to_pylist()
+start = [sum(n[:i]) / 120 for i in range(len(n))]
+for name, v in ((f"videos/{key}/file_index", [0] * len(n)),
+                (f"videos/{key}/from_timestamp", start),
+                (f"videos/{key}/to_timestamp", [s + l / 120 for s, l in zip(start, n)])):
+    i = t.schema.get_field_index(name)
+    t = t.set_column(i, t.schema.field(i), pa.array(v, type=t.schema.field(i).type))
+pq.write_table(t, f)
+"#;
+    let status = Command::new(python())
+        .args(["-c", script])
+        .arg(&packed)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let out = run(&[
+        "dataset",
+        "merge",
+        packed.to_str().unwrap(),
+        "--out",
+        never.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("episode 0:") && stderr.contains("lerobot's packed layout"),
+        "{stderr}"
+    );
+    assert!(!never.exists(), "a refused merge left {}", never.display());
 }
