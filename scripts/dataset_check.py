@@ -4,7 +4,9 @@
 reads every file and checks that info.json, meta/tasks.parquet, meta/episodes/*.parquet and
 meta/stats.json agree with the data. The MP4 files of a video dataset (`record --video`) are
 decoded with imageio-ffmpeg's ffmpeg: each episode's file has its frames (count, size, fps) and
-its row's from/to timestamps span them.
+its row's from/to timestamps span them. The openpi export's `ee_image` is the source's image
+at every 6th frame (a video dataset: the frame imageio-ffmpeg decodes at that timestamp,
+pixel for pixel; its PNG read with Pillow).
 
     dataset_check.py DIR [--openpi OUT] [--json]
 
@@ -155,7 +157,7 @@ def check_dataset(root, problems, report):
     videos = [k for k, ft in feats.items() if ft["dtype"] == "video"]
     if videos:
         check_videos(root, info, videos, ep_rows, stats, problems, report)
-    return {"info": info, "tasks": tasks, "state": state, "action": action, "episodes": ep_rows,
+    return {"root": root, "info": info, "tasks": tasks, "state": state, "action": action, "episodes": ep_rows,
             "tables": tables, "order": order}
 
 
@@ -204,6 +206,57 @@ def check_videos(root, info, videos, ep_rows, stats, problems, report):
     report["video_frames"] = decoded
 
 
+def check_openpi_images(t, src, row, e, picks, problems, report):
+    """The export's `ee_image` of episode e against the source's frames at the picks (frame
+    indices in the source episode): the same PNG bytes for an image dataset; for a video
+    dataset, the pixels imageio-ffmpeg decodes from the source MP4 at those timestamps."""
+    import io
+
+    from PIL import Image
+
+    key = "observation.images.ee_camera"
+    ft = src["info"]["features"].get(key)
+    exported = [item["bytes"] for item in t.column("ee_image").to_pylist()]
+    if ft is None:
+        problems.append(f"openpi episode {e}: ee_image without a source {key}")
+        return
+    if ft["dtype"] == "image":
+        a = row["dataset_from_index"]
+        rows = src["order"][a + picks]
+        sources = [item["bytes"] for tab in src["tables"] for item in tab.column(key).to_pylist()]
+        if exported != [sources[i] for i in rows]:
+            problems.append(f"openpi episode {e}: ee_image is not the source's image at every pick")
+        report["openpi_images"] = report.get("openpi_images", 0) + len(exported)
+        return
+    import imageio_ffmpeg
+
+    info = src["info"]
+    fps = info["fps"]
+    path = os.path.join(src["root"], info["video_path"].format(
+        video_key=key, chunk_index=row[f"videos/{key}/chunk_index"],
+        file_index=row[f"videos/{key}/file_index"]))
+    first = round(row[f"videos/{key}/from_timestamp"] * fps)
+    wanted = {first + int(k): i for i, k in enumerate(picks)}
+    h, w, _ = ft["shape"]
+    reader = imageio_ffmpeg.read_frames(path)
+    next(reader)
+    decoded = {}
+    for n, frame in enumerate(reader):
+        if n in wanted:
+            decoded[wanted[n]] = np.frombuffer(frame, dtype=np.uint8).reshape(h, w, 3)
+    if len(decoded) != len(picks):
+        problems.append(f"openpi episode {e}: {path} has {len(decoded)} of the {len(picks)} picked frames")
+        return
+    for i, png in enumerate(exported):
+        img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+        if not np.array_equal(img, decoded[i]):
+            diff = np.abs(img.astype(int) - decoded[i].astype(int)).max()
+            problems.append(f"openpi episode {e}: ee_image {i} differs from {path}'s frame "
+                            f"{first + int(picks[i])} (max |difference| {diff})")
+            return
+    report["openpi_images"] = report.get("openpi_images", 0) + len(exported)
+
+
 def check_openpi(out, src, problems, report):
     info = json.load(open(os.path.join(out, "meta/info.json")))
     if info.get("codebase_version") != "v2.1":
@@ -238,6 +291,8 @@ def check_openpi(out, src, problems, report):
             v = (c.flatten().to_numpy() if d > 1 else c.to_numpy()).reshape(t.num_rows, d)
             if not np.array_equal(v, src["state"][picks, off:off + d]):
                 problems.append(f"openpi episode {e['episode_index']}: {k} is not every {stride}th source state")
+        if "ee_image" in t.column_names:
+            check_openpi_images(t, src, r, e["episode_index"], picks - a, problems, report)
         if not np.array_equal(t.column("frame_index").to_numpy(), np.arange(t.num_rows)):
             problems.append(f"openpi episode {e['episode_index']}: frame_index")
         ts = t.column("timestamp").to_numpy()

@@ -35,7 +35,8 @@ MCAP_VERSION="1.6.0"
 PYMAVLINK_VERSION="2.4.50"
 PYARROW_VERSION="21.0.0"
 IMAGEIO_FFMPEG_VERSION="0.8.1"
-# openpi-client 0.1.2 brings msgpack, numpy, websockets, pillow, dm-tree (all wheels);
+# openpi-client 0.1.2 brings msgpack, numpy, websockets, pillow, dm-tree (all wheels); pillow
+# is pinned too: scripts/dataset_check.py reads the openpi export's PNGs with it.
 # onnx/onnxruntime ship manylinux wheels (protobuf, ml_dtypes, flatbuffers).
 OPENPI_CLIENT_VERSION="0.1.2"
 ONNXRUNTIME_VERSION="1.32.0"
@@ -48,7 +49,7 @@ PINNED=("mcap==${MCAP_VERSION}" "lz4==4.4.5" "zstandard==0.25.0"
         "websockets==17.4" "onnx==1.23.2" "onnxruntime==${ONNXRUNTIME_VERSION}"
         "protobuf==7.36.2"
         "scikit-learn==${SKLEARN_VERSION}" "scipy==1.17.1" "joblib==1.6.0" "threadpoolctl==3.8.0"
-        "narwhals==2.29.0" "cloudpickle==3.1.3")
+        "narwhals==2.29.0" "cloudpickle==3.1.3" "pillow==13.0.0")
 
 VENV="${AMSTACK_VENV:-$HOME/.cache/amstack-venv}"
 PYTHON="${PYTHON:-python3}"

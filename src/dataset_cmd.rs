@@ -39,7 +39,9 @@ enum Command {
     },
     /// Export to openpi's LeRobot v2.1 layout at the policy rate: frame k of an episode is
     /// raw frame k·(fps / target-hz) (120 → 20 Hz: every 6th, ⌊len/6⌋ frames), with
-    /// `ee_image` (and `base_image`), `actions` and the state split into its fields.
+    /// `ee_image` (and `base_image`), `actions` and the state split into its fields. A video
+    /// dataset's frames are decoded from its MP4 files by the ffmpeg program
+    /// ($AMSTACK_FFMPEG, else the PATH's).
     #[command(name = "export-openpi")]
     ExportOpenpi {
         /// The dataset folders (the same features; several tasks make one export).
@@ -54,7 +56,8 @@ enum Command {
     },
     /// Merge datasets of several tasks (the same features) into one multi-task dataset:
     /// episodes re-indexed in the order given, tasks numbered as they appear, statistics
-    /// aggregated. Or merge the shards of one recording (`amstack record --shard I/N`, in any
+    /// aggregated; video datasets (record --video) with video datasets, each episode's MP4
+    /// copied as it is (no re-encoding). Or merge the shards of one recording (`amstack record --shard I/N`, in any
     /// order) into exactly the dataset the unsharded recording writes: they must be of one
     /// recording, each shard once, and hold every attempt the unsharded run decides.
     Merge {
@@ -73,11 +76,18 @@ fn merge_shard_parts(dirs: &[PathBuf], out: &Path) -> Result<()> {
         return Err(bad_input(format!("--out {}: not empty", out.display())));
     }
     let existed = out.exists();
-    let mut progress = |e: u64| eprint!("\rmerge: {e} episodes");
+    let mut shown = false;
+    let mut progress = |e: u64| {
+        shown = true;
+        eprint!("\rmerge: {e} episodes");
+    };
     let merged = merge_shards(dirs, out, &mut progress);
     let merged = match merged {
         Ok(m) => m,
         Err(e) => {
+            if shown {
+                eprintln!();
+            }
             if !existed {
                 let _ = std::fs::remove_dir_all(out);
             }
@@ -110,17 +120,6 @@ fn merge_shard_parts(dirs: &[PathBuf], out: &Path) -> Result<()> {
             merged.writer.episodes(),
             merged.wanted
         );
-    }
-    Ok(())
-}
-
-/// A video dataset where a command still reads its images from the data files.
-fn refuse_video(r: &DatasetReader, dir: &Path, what: &str) -> Result<()> {
-    if r.spec.video {
-        return Err(bad_input(format!(
-            "{}: a video dataset (record --video): {what} does not decode videos yet; record without --video for it",
-            dir.display()
-        )));
     }
     Ok(())
 }
@@ -234,11 +233,31 @@ pub fn run(args: &Args) -> Result<()> {
             target_hz,
         } => {
             for d in dirs {
-                refuse_video(&open(d)?, d, "export-openpi")?;
+                open(d)?;
             }
+            let existed = out.exists();
             fresh_out(out)?;
-            let mut progress = |e: u64| eprint!("\rexport-openpi: {e} episodes");
-            let export = export_openpi(dirs, out, *target_hz, &mut progress)?;
+            let mut shown = false;
+            let mut progress = |e: u64| {
+                shown = true;
+                eprint!("\rexport-openpi: {e} episodes");
+            };
+            let export = export_openpi(dirs, out, *target_hz, &mut progress);
+            let export = export.map_err(|e| {
+                // The error on a line of its own, after the progress; no half-written --out.
+                if shown {
+                    eprintln!();
+                }
+                if existed {
+                    let _ = std::fs::remove_dir_all(out).and_then(|()| std::fs::create_dir(out));
+                } else {
+                    let _ = std::fs::remove_dir_all(out);
+                }
+                match e {
+                    DatasetError::Invalid { .. } => bad_input(e.to_string()),
+                    e => anyhow::Error::new(e),
+                }
+            })?;
             eprintln!();
             println!(
                 "exported {} episodes, {} frames at {} Hz (every {}th of {} raw frames){} to {}",
@@ -258,7 +277,7 @@ pub fn run(args: &Args) -> Result<()> {
         }
         Command::Merge { dirs, out } => {
             for d in dirs {
-                refuse_video(&open(d)?, d, "merge")?;
+                open(d)?;
             }
             let shards: Vec<&PathBuf> = dirs.iter().filter(|d| is_shard(d)).collect();
             if !shards.is_empty() {
@@ -271,11 +290,28 @@ pub fn run(args: &Args) -> Result<()> {
                 }
                 return merge_shard_parts(dirs, out);
             }
+            let existed = out.exists();
             fresh_out(out)?;
-            let mut progress = |e: u64| eprint!("\rmerge: {e} episodes");
-            let w = merge(dirs, out, &mut progress).map_err(|e| match e {
-                DatasetError::Invalid { .. } => bad_input(e.to_string()),
-                e => anyhow::Error::new(e),
+            let mut shown = false;
+            let mut progress = |e: u64| {
+                shown = true;
+                eprint!("\rmerge: {e} episodes");
+            };
+            let w = merge(dirs, out, &mut progress);
+            let w = w.map_err(|e| {
+                // The error on a line of its own, after the progress; no half-written --out.
+                if shown {
+                    eprintln!();
+                }
+                if existed {
+                    let _ = std::fs::remove_dir_all(out).and_then(|()| std::fs::create_dir(out));
+                } else {
+                    let _ = std::fs::remove_dir_all(out);
+                }
+                match e {
+                    DatasetError::Invalid { .. } => bad_input(e.to_string()),
+                    e => anyhow::Error::new(e),
+                }
             })?;
             eprintln!();
             println!(

@@ -110,6 +110,8 @@ fn a_recorded_dataset_is_read_back_by_pyarrow_and_exported_at_20_hz() {
     let frames = report["frames"].as_u64().unwrap();
     let openpi = report["openpi_frames"].as_u64().unwrap();
     assert!(openpi <= frames / 6 && openpi + 2 >= frames / 6, "{report}");
+    // Its images are the source's PNGs at every 6th frame.
+    assert_eq!(report["openpi_images"], report["openpi_frames"], "{report}");
     // merge: the same dataset twice is one of 4 episodes with one task.
     let merged = tmp.path().join("merged");
     ok(&["dataset", "merge", d, d, "--out", merged.to_str().unwrap()]);
@@ -283,7 +285,7 @@ fn three_recorded_shards_merged_are_the_unsharded_dataset_file_by_file() {
 }
 
 #[test]
-fn a_video_dataset_has_one_mp4_per_episode_that_ffmpeg_decodes_to_its_frames() {
+fn a_video_dataset_decodes_to_its_frames_merges_without_re_encoding_and_exports_at_20_hz() {
     // The encoder: the static ffmpeg of the venv's imageio-ffmpeg (no Debian ffmpeg needed).
     let exe = Command::new(python())
         .args([
@@ -298,35 +300,39 @@ fn a_video_dataset_has_one_mp4_per_episode_that_ffmpeg_decodes_to_its_frames() {
         "no imageio-ffmpeg"
     );
     let tmp = tempfile::tempdir().unwrap();
-    let record = |dir: &Path| {
+    let amstack_ff = |args: &[&str]| {
         let out = Command::new(amstack())
-            .args([
-                "record",
-                "--task",
-                "press-button",
-                "--episodes",
-                "2",
-                "--seed",
-                "3",
-                "--cameras",
-                "ee",
-                "--video",
-                "--jobs",
-                "2",
-                "--out",
-            ])
-            .arg(dir)
+            .args(args)
             .env("AMSTACK_FFMPEG", &ffmpeg)
             .output()
             .unwrap();
         assert!(
             out.status.success(),
-            "{}",
+            "{args:?}: {}",
             String::from_utf8_lossy(&out.stderr)
         );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let record = |dir: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "record",
+            "--task",
+            "press-button",
+            "--episodes",
+            "2",
+            "--seed",
+            "3",
+            "--cameras",
+            "ee",
+            "--jobs",
+            "2",
+        ];
+        args.extend(extra);
+        args.extend(["--out", dir.to_str().unwrap()]);
+        amstack_ff(&args);
     };
     let dir = tmp.path().join("video");
-    record(&dir);
+    record(&dir, &["--video"]);
     let d = dir.to_str().unwrap();
     let validated = ok(&["dataset", "validate", d]);
     assert!(validated.contains("valid (2 episodes"), "{validated}");
@@ -336,11 +342,13 @@ fn a_video_dataset_has_one_mp4_per_episode_that_ffmpeg_decodes_to_its_frames() {
             .any(|l| l.contains("observation.images.ee_camera") && l.contains("video")),
         "{info}"
     );
-    for f in 0..2 {
-        let mp4 = dir.join(format!(
+    let mp4 = |root: &Path, f: u32| {
+        root.join(format!(
             "videos/observation.images.ee_camera/chunk-000/file-{f:03}.mp4"
-        ));
-        assert!(mp4.is_file(), "{}", mp4.display());
+        ))
+    };
+    for f in 0..2 {
+        assert!(mp4(&dir, f).is_file(), "{}", mp4(&dir, f).display());
     }
     // pyarrow reads the files, imageio-ffmpeg decodes every MP4: its frames are the
     // episode's, and the row's timestamps span them.
@@ -349,11 +357,178 @@ fn a_video_dataset_has_one_mp4_per_episode_that_ffmpeg_decodes_to_its_frames() {
     assert_eq!(report["video_frames"], report["frames"], "{report}");
     // Same flags, same bytes (the encoder runs single-threaded, bit-exact).
     let again = tmp.path().join("again");
-    record(&again);
+    record(&again, &["--video"]);
     assert!(files(&dir) == files(&again), "a second recording differs");
-    // What does not decode videos yet says so on one line.
-    let out = run(&["dataset", "merge", d, "--out", "/tmp/x-never-video"]);
+
+    // Video shards merged are the unsharded recording, file for file (MP4s copied as they are).
+    let parts: Vec<String> = (0..2)
+        .map(|i| tmp.path().join(format!("part{i}")).display().to_string())
+        .collect();
+    for (i, part) in parts.iter().enumerate() {
+        let shard = format!("{i}/2");
+        record(Path::new(part), &["--video", "--shard", &shard]);
+    }
+    let merged = tmp.path().join("merged");
+    amstack_ff(&[
+        "dataset",
+        "merge",
+        &parts[1],
+        &parts[0],
+        "--out",
+        merged.to_str().unwrap(),
+    ]);
+    let (a, b) = (files(&dir), files(&merged));
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (path, bytes) in &a {
+        assert!(b[path] == *bytes, "{} differs", path.display());
+    }
+
+    // A dataset merged alone (no ffmpeg given: nothing is re-encoded): every file but
+    // info.json (its `merged_from`) is the source's, so the videos' statistics (of the frames
+    // before encoding) are carried, not recomputed from the lossy MP4.
+    let alone = tmp.path().join("alone");
+    ok(&["dataset", "merge", d, "--out", alone.to_str().unwrap()]);
+    let c = files(&alone);
+    assert_eq!(a.keys().collect::<Vec<_>>(), c.keys().collect::<Vec<_>>());
+    for (path, bytes) in &a {
+        if path != Path::new("meta/info.json") {
+            assert!(c[path] == *bytes, "{} differs", path.display());
+        }
+    }
+
+    // Two video datasets (another seed) merged: 3 episodes, the second's MP4 copied as
+    // file-002, every file read back (frame counts and timestamps against the metadata).
+    let other = tmp.path().join("other");
+    amstack_ff(&[
+        "record",
+        "--task",
+        "press-button",
+        "--episodes",
+        "1",
+        "--seed",
+        "11",
+        "--cameras",
+        "ee",
+        "--video",
+        "--out",
+        other.to_str().unwrap(),
+    ]);
+    let both = tmp.path().join("both");
+    let said = ok(&[
+        "dataset",
+        "merge",
+        d,
+        other.to_str().unwrap(),
+        "--out",
+        both.to_str().unwrap(),
+    ]);
+    assert!(said.contains("3 episodes"), "{said}");
+    assert!(std::fs::read(mp4(&both, 2)).unwrap() == std::fs::read(mp4(&other, 0)).unwrap());
+    assert!(std::fs::read(mp4(&both, 0)).unwrap() == std::fs::read(mp4(&dir, 0)).unwrap());
+    let validated = ok(&["dataset", "validate", both.to_str().unwrap()]);
+    assert!(validated.contains("valid (3 episodes"), "{validated}");
+
+    // export-openpi decodes every 6th frame: the images equal what imageio-ffmpeg decodes
+    // from the source MP4 at those timestamps (and the state/action every 6th source row).
+    let openpi = tmp.path().join("openpi");
+    let said = amstack_ff(&[
+        "dataset",
+        "export-openpi",
+        both.to_str().unwrap(),
+        "--out",
+        openpi.to_str().unwrap(),
+    ]);
+    assert!(said.contains("exported 3 episodes"), "{said}");
+    let report = check(&both, Some(&openpi));
+    assert_eq!(report["episodes"], 3);
+    assert_eq!(report["video_frames"], report["frames"], "{report}");
+    let frames = report["frames"].as_u64().unwrap();
+    let exported = report["openpi_frames"].as_u64().unwrap();
+    assert!(
+        exported <= frames / 6 && exported + 3 >= frames / 6,
+        "{report}"
+    );
+    assert_eq!(report["openpi_images"], report["openpi_frames"], "{report}");
+
+    // A merge mixing a video and an image dataset is one line, exit 2, and writes nothing.
+    let images = tmp.path().join("images");
+    amstack_ff(&[
+        "record",
+        "--task",
+        "press-button",
+        "--episodes",
+        "1",
+        "--seed",
+        "3",
+        "--cameras",
+        "ee",
+        "--out",
+        images.to_str().unwrap(),
+    ]);
+    let never = tmp.path().join("never");
+    let out = run(&[
+        "dataset",
+        "merge",
+        d,
+        images.to_str().unwrap(),
+        "--out",
+        never.to_str().unwrap(),
+    ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
-    assert!(stderr.contains("a video dataset"), "{stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("videos (record --video)")
+            && stderr.contains("merge datasets stored alike"),
+        "{stderr}"
+    );
+    assert!(!never.exists(), "a refused merge left {}", never.display());
+
+    // lerobot's packed layout (both episodes in file-000, the second from its first episode's
+    // end, rewritten with pyarrow) cannot be merged without re-encoding: one line, exit 2.
+    let packed = tmp.path().join("packed");
+    let mut cp = Command::new("cp");
+    assert!(
+        cp.arg("-r")
+            .arg(&dir)
+            .arg(&packed)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let script = r#"
+import glob, sys, pyarrow as pa, pyarrow.parquet as pq
+key = "observation.images.ee_camera"
+f = glob.glob(sys.argv[1] + "/meta/episodes/*/*.parquet")[0]
+t = pq.read_table(f)
+n = t.column("length").to_pylist()
+start = [sum(n[:i]) / 120 for i in range(len(n))]
+for name, v in ((f"videos/{key}/file_index", [0] * len(n)),
+                (f"videos/{key}/from_timestamp", start),
+                (f"videos/{key}/to_timestamp", [s + l / 120 for s, l in zip(start, n)])):
+    i = t.schema.get_field_index(name)
+    t = t.set_column(i, t.schema.field(i), pa.array(v, type=t.schema.field(i).type))
+pq.write_table(t, f)
+"#;
+    let status = Command::new(python())
+        .args(["-c", script])
+        .arg(&packed)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let out = run(&[
+        "dataset",
+        "merge",
+        packed.to_str().unwrap(),
+        "--out",
+        never.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("episode 0:") && stderr.contains("lerobot's packed layout"),
+        "{stderr}"
+    );
+    assert!(!never.exists(), "a refused merge left {}", never.display());
 }

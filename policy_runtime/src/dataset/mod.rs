@@ -53,7 +53,9 @@ pub use self::shard::{
     DecidedAttempt, RECORD_SHARD_ASSIGNMENT, ShardMerge, ShardPart, is_shard, merge_shards,
 };
 pub use self::validate::validate;
-pub use self::write::{DatasetWriter, EpisodeFrames, EpisodeSource, decode_png, encode_png, merge};
+pub use self::write::{
+    DatasetWriter, EpisodeFrames, EpisodeSource, EpisodeVideoFile, decode_png, encode_png, merge,
+};
 
 #[cfg(test)]
 #[allow(

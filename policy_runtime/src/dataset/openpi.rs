@@ -16,7 +16,10 @@ use super::json::J;
 use super::layout::{ActionSemantics, Dtype, Feature, image_key};
 use super::read::DatasetReader;
 use super::stats::{FeatureStats, StatsKind};
-use super::write::{data_schema, decode_png, image_column, write_atomic, write_parquet};
+use super::video::decode_frames;
+use super::write::{
+    data_schema, decode_png, encode_png, image_column, write_atomic, write_parquet,
+};
 
 /// The v2.1 layout openpi pins.
 const OPENPI_VERSION: &str = "v2.1";
@@ -59,7 +62,8 @@ pub fn export_openpi(
         .first()
         .ok_or_else(|| DatasetError::invalid("export-openpi", "no dataset to export"))?;
     let spec = DatasetReader::open(first)?.spec;
-    super::video::refuse_video(first, &spec, "export-openpi")?;
+    // A video dataset's frames are decoded by the ffmpeg program (found when first needed).
+    let mut ffmpeg: Option<PathBuf> = None;
     if target_hz == 0 || spec.fps % target_hz != 0 {
         return Err(DatasetError::invalid(
             "export-openpi",
@@ -228,13 +232,38 @@ pub fn export_openpi(
                             .cloned()
                             .unwrap_or_default();
                         let c = spec.images.iter().position(|i| i.0 == src_key).unwrap_or(0);
-                        let pngs: Vec<Vec<u8>> =
-                            picks.iter().map(|&k| ep.images[c][k].clone()).collect();
-                        let rgb = pngs
-                            .iter()
-                            .map(|p| decode_png(p).map(|d| d.2))
-                            .collect::<Result<Vec<_>, _>>()?;
-                        let _ = (h, w);
+                        let (pngs, rgb) = if let Some(video) = ep.videos.get(c) {
+                            // The frames at the picks' timestamps, decoded from the MP4.
+                            let program = match &ffmpeg {
+                                Some(p) => p.clone(),
+                                None => ffmpeg
+                                    .insert(crate::video::ffmpeg_program().map_err(|e| {
+                                        DatasetError::invalid(
+                                            &video.path.display().to_string(),
+                                            format!("a video dataset needs a decoder: {e}"),
+                                        )
+                                    })?)
+                                    .clone(),
+                            };
+                            let at: Vec<usize> = picks
+                                .iter()
+                                .map(|&k| video.from_frame as usize + k)
+                                .collect();
+                            let rgb = decode_frames(&program, &video.path, w, h, &at)?;
+                            let pngs = rgb
+                                .iter()
+                                .map(|f| encode_png(w as u32, h as u32, f))
+                                .collect::<Result<Vec<_>, _>>()?;
+                            (pngs, rgb)
+                        } else {
+                            let pngs: Vec<Vec<u8>> =
+                                picks.iter().map(|&k| ep.images[c][k].clone()).collect();
+                            let rgb = pngs
+                                .iter()
+                                .map(|p| decode_png(p).map(|d| d.2))
+                                .collect::<Result<Vec<_>, _>>()?;
+                            (pngs, rgb)
+                        };
                         let s = all_pixel_stats(&rgb);
                         (image_column(&pngs), s)
                     }

@@ -13,9 +13,9 @@ use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use serde_json::Value;
 
 use super::DatasetError;
-use super::layout::{DatasetSpec, Dtype, Feature, data_file};
+use super::layout::{DatasetSpec, Dtype, Feature, data_file, video_file};
 use super::stats::{FeatureStats, StatsKind};
-use super::write::{EpisodeFrames, EpisodeSource};
+use super::write::{EpisodeFrames, EpisodeSource, EpisodeVideoFile};
 
 /// One row of `meta/episodes`.
 #[derive(Debug, Clone, PartialEq)]
@@ -50,6 +50,8 @@ pub struct EpisodeVideo {
     pub from_timestamp: f64,
     /// One frame past its last, s.
     pub to_timestamp: f64,
+    /// The episode's `stats/KEY/…` (of the frames before encoding), if its row has them.
+    pub stats: Option<FeatureStats>,
 }
 
 /// A dataset opened for reading.
@@ -190,8 +192,10 @@ impl DatasetReader {
         let spec = self.spec.clone();
         let tasks = self.tasks.clone();
         let source = self.sources.get(e as usize).cloned().unwrap_or(Value::Null);
+        let videos = self.episode_video_files(&row);
         let batches = self.data_batches(row.data)?;
         let mut out = EpisodeFrames {
+            videos,
             images: vec![Vec::new(); spec.images.len()],
             source: EpisodeSource {
                 task_name: source
@@ -250,6 +254,35 @@ impl DatasetReader {
             ));
         }
         Ok(out)
+    }
+}
+
+impl DatasetReader {
+    /// A video dataset's episode: per camera of the spec, its MP4, where the episode starts in
+    /// it, whether the file is the episode's alone (amstack writes one per episode; lerobot
+    /// packs several), and its recorded statistics. Empty without videos.
+    fn episode_video_files(&self, row: &EpisodeRow) -> Vec<EpisodeVideoFile> {
+        if !self.spec.video {
+            return Vec::new();
+        }
+        let fps = f64::from(self.spec.fps);
+        self.spec
+            .images
+            .iter()
+            .filter_map(|(key, _, _)| {
+                let v = row.videos.iter().find(|v| v.key == *key)?;
+                let shared = self.episodes.iter().any(|r| {
+                    r.index != row.index
+                        && r.videos.iter().any(|o| o.key == *key && o.file == v.file)
+                });
+                Some(EpisodeVideoFile {
+                    path: self.root.join(video_file(key, v.file.0, v.file.1)),
+                    from_frame: (v.from_timestamp * fps).round().max(0.0) as u64,
+                    whole_file: !shared && v.from_timestamp == 0.0,
+                    stats: v.stats.clone(),
+                })
+            })
+            .collect()
     }
 }
 
@@ -390,6 +423,7 @@ fn read_episode_videos(
                     column::<Float64Array>(&batch, &format!("videos/{key}/from_timestamp"), &rel)?;
                 let to =
                     column::<Float64Array>(&batch, &format!("videos/{key}/to_timestamp"), &rel)?;
+                let stats = video_stats(&batch, key);
                 for r in 0..batch.num_rows() {
                     if let Some(row) = rows.iter_mut().find(|x| x.index == index[r]) {
                         row.videos.push(EpisodeVideo {
@@ -397,6 +431,7 @@ fn read_episode_videos(
                             file: (chunk[r], file[r]),
                             from_timestamp: from.value(r),
                             to_timestamp: to.value(r),
+                            stats: stats.as_ref().map(|s| s[r].clone()),
                         });
                     }
                 }
@@ -404,6 +439,47 @@ fn read_episode_videos(
         }
     }
     Ok(())
+}
+
+/// The `stats/KEY/…` columns of a batch of episode rows, per row (None if one is missing).
+fn video_stats(batch: &RecordBatch, key: &str) -> Option<Vec<FeatureStats>> {
+    let rows = |name: &str| -> Option<Vec<Vec<f64>>> {
+        let list = batch
+            .column_by_name(&format!("stats/{key}/{name}"))?
+            .as_any()
+            .downcast_ref::<ListArray>()?;
+        Some(
+            (0..list.len())
+                .map(|r| {
+                    let mut v = Vec::new();
+                    flatten_array(list.value(r).as_ref(), &mut v);
+                    v
+                })
+                .collect(),
+        )
+    };
+    let (min, max, mean, std) = (rows("min")?, rows("max")?, rows("mean")?, rows("std")?);
+    let count = rows("count")?;
+    let quantiles = super::stats::QUANTILES
+        .iter()
+        .map(|(_, q)| rows(q))
+        .collect::<Option<Vec<_>>>()?;
+    (0..batch.num_rows())
+        .map(|r| {
+            Some(FeatureStats {
+                min: min.get(r)?.clone(),
+                max: max.get(r)?.clone(),
+                mean: mean.get(r)?.clone(),
+                std: std.get(r)?.clone(),
+                count: *count.get(r)?.first()? as u64,
+                quantiles: quantiles
+                    .iter()
+                    .map(|q| q.get(r).cloned())
+                    .collect::<Option<Vec<_>>>()?,
+                kind: StatsKind::Image,
+            })
+        })
+        .collect()
 }
 
 /// Columns by name, each a list of rows of values.

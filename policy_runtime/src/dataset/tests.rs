@@ -58,6 +58,7 @@ fn episode(e: u64, len: usize, task: &str, cameras: usize) -> EpisodeFrames {
             success: true,
             attempt: e,
         },
+        videos: Vec::new(),
     }
 }
 
@@ -318,6 +319,117 @@ fn merging_reindexes_episodes_and_tasks() {
     assert_eq!(r.tasks, vec!["press", "open"]);
     assert_eq!(r.episode(2).unwrap().state, episode(7, 5, "open", 0).state);
     assert_eq!(r.episodes[2].from, 7);
+}
+
+/// An episode of a video dataset read back from elsewhere: `episode(e, …)` without PNGs, its
+/// camera's "MP4" a file of marker bytes (a merge copies it and never decodes it) with
+/// statistics that are not those of any frame.
+fn video_episode(e: u64, len: usize, task: &str, dir: &Path) -> EpisodeFrames {
+    let path = dir.join(format!("source-{e}.mp4"));
+    std::fs::write(&path, format!("episode {e}").as_bytes()).unwrap();
+    let v = e as f64 / 100.0;
+    let mut frames = episode(e, len, task, 1);
+    frames.images = vec![Vec::new()];
+    frames.videos = vec![EpisodeVideoFile {
+        path,
+        from_frame: 0,
+        whole_file: true,
+        stats: Some(stats::FeatureStats {
+            min: vec![v; 3],
+            max: vec![v + 0.5; 3],
+            mean: vec![v + 0.25; 3],
+            std: vec![0.1; 3],
+            count: len as u64,
+            quantiles: vec![vec![v + 0.2; 3]; stats::QUANTILES.len()],
+            kind: stats::StatsKind::Image,
+        }),
+    }];
+    frames
+}
+
+#[test]
+fn merging_video_datasets_copies_each_mp4_and_keeps_its_recorded_statistics() {
+    let cams = [("ee_camera".to_owned(), 4, 4)];
+    let files = tempfile::tempdir().unwrap();
+    let (a, b, out) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
+    // No ffmpeg anywhere: episodes given as files are copied, not encoded.
+    let mut wa =
+        DatasetWriter::create(a.path(), spec(&cams).with_video(true), Value::Null).unwrap();
+    wa.write_episode(video_episode(0, 4, "press", files.path()))
+        .unwrap();
+    wa.write_episode(video_episode(1, 3, "press", files.path()))
+        .unwrap();
+    let mut wb =
+        DatasetWriter::create(b.path(), spec(&cams).with_video(true), Value::Null).unwrap();
+    wb.write_episode(video_episode(7, 5, "open", files.path()))
+        .unwrap();
+    let w = merge(
+        &[b.path().to_owned(), a.path().to_owned()],
+        out.path(),
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_eq!((w.episodes(), w.frames()), (3, 12));
+    assert!(
+        validate(out.path()).is_empty(),
+        "{:#?}",
+        validate(out.path())
+    );
+    let key = image_key("ee_camera");
+    let r = DatasetReader::open(out.path()).unwrap();
+    assert_eq!(r.tasks, vec!["open", "press"]);
+    for (e, source) in [7, 0, 1].into_iter().enumerate() {
+        let mp4 = out.path().join(layout::video_file(&key, 0, e as u64));
+        assert_eq!(
+            std::fs::read_to_string(&mp4).unwrap_or_else(|e| panic!("{}: {e}", mp4.display())),
+            format!("episode {source}"),
+            "episode {e}'s file"
+        );
+        let row = &r.episodes[e];
+        assert_eq!(row.videos[0].file, (0, e as u64));
+        assert_eq!(row.videos[0].from_timestamp, 0.0);
+        assert_eq!(row.videos[0].to_timestamp, row.length as f64 / 120.0);
+        let files = files.path();
+        assert_eq!(
+            row.videos[0].stats,
+            video_episode(source, row.length as usize, "", files).videos[0].stats,
+            "episode {e}'s statistics"
+        );
+    }
+    // The dataset's: the count-weighted aggregate of the episodes' (4, 3 and 5 frames).
+    let all = r.stats_for(&r.spec.features()).unwrap();
+    let (f, s) = r
+        .spec
+        .features()
+        .iter()
+        .zip(&all)
+        .find(|(f, _)| f.key == key)
+        .map(|(f, s)| (f.clone(), s.clone()))
+        .unwrap();
+    assert_eq!(f.dtype, Dtype::Video);
+    let mean = (0.25 * 4.0 + 0.26 * 3.0 + 0.32 * 5.0) / 12.0;
+    assert!((s.mean[0] - mean).abs() < 1e-12, "{:?} vs {mean}", s.mean);
+    assert_eq!((s.min[0], s.max[0], s.count), (0.0, 7.0 / 100.0 + 0.5, 12));
+
+    // A video dataset and an image one are not merged; nothing is written.
+    let c = tempfile::tempdir().unwrap();
+    let mut wc = DatasetWriter::create(c.path(), spec(&cams), Value::Null).unwrap();
+    wc.write_episode(episode(2, 3, "press", 1)).unwrap();
+    let never = tempfile::tempdir().unwrap();
+    let never = never.path().join("never");
+    let err = merge(
+        &[a.path().to_owned(), c.path().to_owned()],
+        &never,
+        &mut |_| {},
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("merge datasets stored alike"), "{err}");
+    assert!(!never.exists());
 }
 
 fn bench_config(vehicle: &str, interface: Interface) -> BenchConfig {

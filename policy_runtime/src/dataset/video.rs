@@ -5,12 +5,11 @@
 //! every 2 frames (lerobot's `g=2`, for seeking), one thread and bit-exact flags: the same
 //! frames give the same bytes.
 
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::Path;
 use std::process::{Command, Stdio};
 
 use super::DatasetError;
-use super::layout::DatasetSpec;
 use super::write::{AtomicFile, decode_png};
 
 /// H.264 quality (x264's constant rate factor; 18 is visually lossless).
@@ -86,20 +85,90 @@ pub(crate) fn encode_episode(
     result
 }
 
-/// Refuses a video dataset where `what` (merge, export) reads frames from the data files.
-pub(crate) fn refuse_video(
-    root: &Path,
-    spec: &DatasetSpec,
-    what: &str,
-) -> Result<(), DatasetError> {
-    if spec.video {
-        return Err(DatasetError::invalid(
-            &root.join("meta/info.json").display().to_string(),
-            format!(
-                "a video dataset (record --video): {what} reads images from the data files and \
-                 does not decode videos yet; record without --video for it"
-            ),
-        ));
+/// Copies the MP4 `src` (one episode's whole file, from another dataset) to `root/rel`,
+/// atomically: a merge keeps the encoded bytes (no re-encoding).
+pub(crate) fn copy_video(src: &Path, root: &Path, rel: &str) -> Result<(), DatasetError> {
+    let file = AtomicFile::new(root, rel)?;
+    if let Err(e) = std::fs::copy(src, &file.tmp) {
+        file.abandon();
+        return Err(DatasetError::Io {
+            path: src.to_owned(),
+            source: e,
+        });
     }
-    Ok(())
+    file.commit()
+}
+
+/// Decodes the MP4 `path` (`width` × `height`) with `ffmpeg` to RGB8 frames, as imageio-ffmpeg
+/// reads one (`-pix_fmt rgb24 -vcodec rawvideo -f image2pipe`), and returns the frames at the
+/// indices `wanted` (ascending, counted from the file's first frame). A file shorter than the
+/// last wanted frame is an error naming it.
+pub(crate) fn decode_frames(
+    ffmpeg: &Path,
+    path: &Path,
+    width: usize,
+    height: usize,
+    wanted: &[usize],
+) -> Result<Vec<Vec<u8>>, DatasetError> {
+    let shown = path.display().to_string();
+    let bad = |what: String| DatasetError::invalid(&shown, what);
+    let mut child = Command::new(ffmpeg)
+        .args(["-hide_banner", "-loglevel", "error", "-nostdin", "-i"])
+        .arg(path)
+        .args([
+            "-pix_fmt",
+            "rgb24",
+            "-vcodec",
+            "rawvideo",
+            "-f",
+            "image2pipe",
+            "-",
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| bad(format!("cannot start {}: {e}", ffmpeg.display())))?;
+    let mut stdout = child
+        .stdout
+        .take()
+        .ok_or_else(|| bad("ffmpeg has no output pipe".into()))?;
+    let mut frame = vec![0u8; width * height * 3];
+    let mut out = Vec::with_capacity(wanted.len());
+    let mut next = wanted.iter().peekable();
+    let mut k = 0usize;
+    let mut short = false;
+    while next.peek().is_some() {
+        if let Err(e) = stdout.read_exact(&mut frame) {
+            short = e.kind() == std::io::ErrorKind::UnexpectedEof;
+            if !short {
+                let _ = child.kill();
+                let _ = child.wait();
+                return Err(bad(format!("reading ffmpeg's frames: {e}")));
+            }
+            break;
+        }
+        while next.peek().is_some_and(|w| **w == k) {
+            out.push(frame.clone());
+            next.next();
+        }
+        k += 1;
+    }
+    // Every wanted frame is read (or the file ended): the rest is not needed.
+    drop(stdout);
+    let _ = child.kill();
+    let output = child
+        .wait_with_output()
+        .map_err(|e| bad(format!("ffmpeg: {e}")))?;
+    if short {
+        let err = String::from_utf8_lossy(&output.stderr);
+        return Err(bad(format!(
+            "{k} frames of {width}x{height} decoded, frame {} wanted{}",
+            wanted.last().copied().unwrap_or(0),
+            err.lines()
+                .last()
+                .map_or(String::new(), |l| format!(" (ffmpeg: {l})"))
+        )));
+    }
+    Ok(out)
 }

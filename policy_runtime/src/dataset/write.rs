@@ -26,7 +26,7 @@ use super::read::DatasetReader;
 use super::repair::{Repair, drop_uncommitted};
 use super::shard::{DecidedAttempt, ShardPart};
 use super::stats::{FeatureStats, QUANTILES, StatsKind, sample_indices};
-use super::video::encode_episode;
+use super::video::{copy_video, encode_episode};
 
 /// One episode's frames, as recorded.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -44,6 +44,23 @@ pub struct EpisodeFrames {
     pub sampled_rgb: Vec<Vec<Vec<u8>>>,
     /// Where the episode came from.
     pub source: EpisodeSource,
+    /// An episode of a video dataset read back: per camera of the spec, its MP4 (`images`
+    /// then stays empty; a merge copies the file, an export decodes it).
+    pub videos: Vec<EpisodeVideoFile>,
+}
+
+/// Where an episode of a video dataset has one camera's frames.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeVideoFile {
+    /// The MP4.
+    pub path: PathBuf,
+    /// The episode's first frame in it (`from_timestamp` · fps).
+    pub from_frame: u64,
+    /// Whether the file is this episode's alone, from its start (amstack writes one file per
+    /// episode; lerobot's writer packs several into one).
+    pub whole_file: bool,
+    /// The camera's statistics for the episode as recorded (of its frames before encoding).
+    pub stats: Option<FeatureStats>,
 }
 
 /// Where an episode came from (`info.json` `ambench.episodes`).
@@ -67,7 +84,7 @@ impl EpisodeFrames {
 
     /// Decodes the sampled frames of every camera from its PNGs (when not given).
     pub fn finish_images(&mut self, state_dim: usize) -> Result<(), DatasetError> {
-        if self.sampled_rgb.len() == self.images.len() {
+        if self.sampled_rgb.len() == self.images.len() || !self.videos.is_empty() {
             return Ok(());
         }
         let idx = sample_indices(self.len(state_dim));
@@ -407,7 +424,32 @@ impl DatasetWriter {
                 self.spec.action_dim
             )));
         }
-        if episode.images.len() != self.spec.images.len()
+        let from_videos = !episode.videos.is_empty();
+        if from_videos {
+            if !self.spec.video || episode.videos.len() != self.spec.images.len() {
+                return Err(bad(format!(
+                    "videos of {} cameras for the dataset's {} {}",
+                    episode.videos.len(),
+                    self.spec.images.len(),
+                    if self.spec.video { "videos" } else { "images" }
+                )));
+            }
+            for v in &episode.videos {
+                if !v.whole_file {
+                    return Err(bad(format!(
+                        "{} holds other episodes too (lerobot's packed layout): amstack copies \
+                         one file per episode and does not re-encode",
+                        v.path.display()
+                    )));
+                }
+                if v.stats.is_none() {
+                    return Err(bad(format!(
+                        "{}: its episode row has no statistics of the video",
+                        v.path.display()
+                    )));
+                }
+            }
+        } else if episode.images.len() != self.spec.images.len()
             || episode.images.iter().any(|c| c.len() != len)
         {
             return Err(bad(format!(
@@ -430,7 +472,7 @@ impl DatasetWriter {
 
         // A video dataset's camera streams first: one MP4 per camera (not counted until the
         // metadata says so).
-        let video_at = if self.spec.video {
+        let video_at = if self.spec.video && !from_videos {
             let ffmpeg = self.ffmpeg.clone().ok_or_else(|| {
                 bad("a video dataset needs the ffmpeg program to encode its cameras".into())
             })?;
@@ -443,6 +485,13 @@ impl DatasetWriter {
                     frames,
                     self.spec.fps,
                 )?;
+            }
+            Some(at)
+        } else if from_videos {
+            // Another video dataset's episode (a merge): its files as they are.
+            let at = self.next_video;
+            for ((key, _, _), v) in self.spec.images.iter().zip(&episode.videos) {
+                copy_video(&v.path, &self.root, &video_file(key, at.0, at.1))?;
             }
             Some(at)
         } else {
@@ -617,7 +666,10 @@ impl DatasetWriter {
                 "task_index" => ints(vec![task_index as f64; len]),
                 _ => {
                     let (_, h, w) = &self.spec.images[camera];
-                    let s = FeatureStats::of_images(&episode.sampled_rgb[camera], *h, *w);
+                    let s = match episode.videos.get(camera).and_then(|v| v.stats.clone()) {
+                        Some(recorded) => recorded,
+                        None => FeatureStats::of_images(&episode.sampled_rgb[camera], *h, *w),
+                    };
                     camera += 1;
                     s
                 }
@@ -1036,7 +1088,10 @@ pub(crate) fn write_atomic(root: &Path, rel: &str, bytes: &[u8]) -> Result<(), D
 
 /// Merges datasets of the same features (several tasks) into one at `out`: episodes in the
 /// order given, re-indexed, tasks numbered in order of appearance, statistics recomputed
-/// (their aggregate is lerobot's). `progress` sees each episode copied.
+/// (their aggregate is lerobot's). Video datasets merge with video datasets: each episode's
+/// MP4 is copied as it is (amstack's one file per episode; no re-encoding) and its recorded
+/// statistics kept. Every source is checked before anything is written. `progress` sees each
+/// episode copied.
 pub fn merge(
     sources: &[PathBuf],
     out: &Path,
@@ -1046,44 +1101,102 @@ pub fn merge(
         .first()
         .ok_or_else(|| DatasetError::invalid("merge", "no dataset to merge"))?;
     let spec = DatasetReader::open(first)?.spec;
-    super::video::refuse_video(first, &spec, "merge")?;
-    let mut writer: Option<DatasetWriter> = None;
-    let mut recordings = Vec::new();
+    let mut readers: Vec<DatasetReader> = Vec::with_capacity(sources.len());
     for src in sources {
-        let mut reader = DatasetReader::open(src)?;
-        if reader.spec.state_dim != spec.state_dim
-            || reader.spec.action_dim != spec.action_dim
-            || reader.spec.action_semantics != spec.action_semantics
-            || reader.spec.images != spec.images
-            || reader.spec.fps != spec.fps
-        {
-            return Err(DatasetError::invalid(
-                &src.join("meta/info.json").display().to_string(),
-                format!(
-                    "its features differ from {}'s (state {}, action {} {}, images {:?}, fps {})",
-                    first.display(),
-                    spec.state_dim,
-                    spec.action_semantics.name(),
-                    spec.action_dim,
-                    spec.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
-                    spec.fps
-                ),
-            ));
-        }
+        let reader = DatasetReader::open(src)?;
+        check_mergeable(first, &spec, src, &reader)?;
+        readers.push(reader);
+    }
+    let mut writer = DatasetWriter::create(out, spec, Value::Null)?;
+    let mut recordings = Vec::new();
+    // Each source's reader (and its cached data file) goes once its episodes are copied.
+    for (src, mut reader) in sources.iter().zip(readers) {
         recordings
             .push(json!({ "source": src.display().to_string(), "recording": reader.recording }));
-        let w = match &mut writer {
-            Some(w) => w,
-            None => writer.insert(DatasetWriter::create(out, spec.clone(), Value::Null)?),
-        };
-        w.recording = json!({ "merged_from": recordings });
+        writer.recording = json!({ "merged_from": recordings });
         for e in 0..reader.total_episodes {
             let frames = reader.episode(e)?;
-            w.write_episode(frames)?;
-            progress(w.total_episodes);
+            writer.write_episode(frames)?;
+            progress(writer.total_episodes);
         }
     }
-    let w = writer.ok_or_else(|| DatasetError::invalid("merge", "no dataset to merge"))?;
-    w.write_info()?;
-    Ok(w)
+    writer.write_info()?;
+    Ok(writer)
+}
+
+/// Whether `reader` (of `src`) can join a merge whose first dataset (`first`) has `spec`: the
+/// same features, stored alike (videos or images), and, for videos, one file per episode.
+fn check_mergeable(
+    first: &Path,
+    spec: &DatasetSpec,
+    src: &Path,
+    reader: &DatasetReader,
+) -> Result<(), DatasetError> {
+    let shown = src.join("meta/info.json").display().to_string();
+    let other = &reader.spec;
+    if other.state_dim != spec.state_dim
+        || other.action_dim != spec.action_dim
+        || other.action_semantics != spec.action_semantics
+        || other.images != spec.images
+        || other.fps != spec.fps
+    {
+        return Err(DatasetError::invalid(
+            &shown,
+            format!(
+                "its features differ from {}'s (state {}, action {} {}, images {:?}, fps {})",
+                first.display(),
+                spec.state_dim,
+                spec.action_semantics.name(),
+                spec.action_dim,
+                spec.images.iter().map(|i| &i.0).collect::<Vec<_>>(),
+                spec.fps
+            ),
+        ));
+    }
+    if other.video != spec.video {
+        let how = |video: bool| {
+            if video {
+                "videos (record --video)"
+            } else {
+                "PNG images in its data files"
+            }
+        };
+        return Err(DatasetError::invalid(
+            &shown,
+            format!(
+                "its cameras are stored as {}, {}'s as {}: merge datasets stored alike",
+                how(other.video),
+                first.display(),
+                how(spec.video)
+            ),
+        ));
+    }
+    if other.video {
+        for row in &reader.episodes {
+            for v in &row.videos {
+                let shared = reader.episodes.iter().any(|r| {
+                    r.index != row.index
+                        && r.videos.iter().any(|o| o.key == v.key && o.file == v.file)
+                });
+                if shared || v.from_timestamp != 0.0 {
+                    return Err(DatasetError::invalid(
+                        &shown,
+                        format!(
+                            "episode {}: its {} video shares file-{:03} of chunk-{:03} with other \
+                             episodes (lerobot's packed layout): merge copies amstack's one file \
+                             per episode and does not re-encode",
+                            row.index, v.key, v.file.1, v.file.0
+                        ),
+                    ));
+                }
+                if v.stats.is_none() {
+                    return Err(DatasetError::invalid(
+                        &shown,
+                        format!("episode {}: no stats/{} in its row", row.index, v.key),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
