@@ -363,3 +363,145 @@ fn a_live_viewer_receives_the_scene_at_the_tick_rate_and_changes_nothing() {
     assert!(stats.contains("dropped"), "{stats}");
     assert_eq!(results(&alone), results(&watched));
 }
+
+/// Waits until `path` exists (the client subscribed) or `client` exited.
+fn wait_for_file(path: &Path, client: &mut std::process::Child) {
+    let started = std::time::Instant::now();
+    while !path.exists() {
+        if let Ok(Some(status)) = client.try_wait() {
+            panic!("the client exited ({status}) before it subscribed");
+        }
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(120),
+            "the client never subscribed"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn a_served_twin_streams_its_truth_live_while_another_process_flies_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let service = format!("test-{}-live", std::process::id());
+    let port = free_port();
+    let addr = format!("127.0.0.1:{port}");
+    let common = ["--platform", "fa-hexa", "--seed", "3"];
+    let mut twin_args = vec![
+        "twin",
+        "serve",
+        "--ipc",
+        &service,
+        "--flight-chooses-episode",
+        "--sessions",
+        "1",
+        "--live",
+        &addr,
+    ];
+    twin_args.extend(common);
+    let mut twin = Proc::start("twin serve --live", &twin_args);
+    let line = twin.wait_for("live view: ws://");
+    assert!(line.contains(&addr), "{line}");
+    twin.wait_for("twin: serving");
+
+    // The viewer connects while the twin waits for a flight, subscribes, then the flight.
+    let ready = dir.path().join("subscribed");
+    let topics =
+        "/scene/tf,/scene/static,/scene/dynamic,/tf,/base/state,/joints,/rotors,/task/state";
+    let mut viewer = client(&[
+        &format!("ws://{addr}"),
+        "--topics",
+        topics,
+        "--messages",
+        "100",
+        "--need",
+        "/scene/static=2",
+        "--timeout",
+        "120",
+        "--ready-file",
+        ready.to_str().unwrap(),
+    ])
+    .stdout(std::process::Stdio::piped())
+    .spawn()
+    .unwrap();
+    wait_for_file(&ready, &mut viewer);
+    let link = format!("ipc:{service}");
+    let out = dir.path().join("bench");
+    let mut bench = vec![
+        "bench",
+        "--task",
+        "press-button",
+        "--rollouts",
+        "1",
+        "--link",
+        &link,
+        "--link-timeout-ms",
+        "10000",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    bench.extend(common);
+    let mut flight = Proc::start("bench --link ipc", &bench);
+    assert!(flight.wait().success(), "{}", flight.stderr());
+    let viewed = viewer.wait_with_output().unwrap();
+    let report: Value = serde_json::from_slice(&viewed.stdout)
+        .unwrap_or_else(|e| panic!("client: {e}: {}", String::from_utf8_lossy(&viewed.stdout)));
+    assert!(viewed.status.success(), "{report}");
+    assert!(twin.wait().success(), "{}", twin.stderr());
+    sim_twin::ipc::cleanup_dead_nodes_now();
+
+    // Advertised with the flight log's schemas: the SDK's protobuf scene, amstack's JSON.
+    let adv = &report["advertised"];
+    for (topic, schema, encoding) in [
+        ("/scene/tf", "foxglove.FrameTransforms", "protobuf"),
+        ("/scene/static", "foxglove.SceneUpdate", "protobuf"),
+        ("/scene/dynamic", "foxglove.SceneUpdate", "protobuf"),
+        ("/tf", "foxglove.FrameTransforms", "json"),
+        ("/base/state", "amstack.BaseState", "json"),
+        ("/rotors", "amstack.Rotors", "json"),
+        ("/task/state", "amstack.TaskState", "json"),
+    ] {
+        assert_eq!(adv[topic]["schemaName"], schema, "{topic}: {adv}");
+        assert_eq!(adv[topic]["encoding"], encoding, "{topic}: {adv}");
+    }
+    let got = &report["received"];
+    // Every step of the twin, one control period (1/120 s of its time) apart.
+    let tf = &got["/scene/tf"];
+    assert!(tf["count"].as_u64().unwrap() >= 100, "{tf}");
+    let step = tf["median_step_ns"].as_f64().unwrap();
+    assert!((step - 1e9 / 120.0).abs() <= 1.0, "median step {step} ns");
+    assert!(strings(&tf["frames"]).contains(&"world->base_link"), "{tf}");
+    for i in 0..6 {
+        assert!(
+            strings(&tf["frames"]).contains(&format!("base_link->rotor_{i}").as_str()),
+            "{tf}"
+        );
+    }
+    // The task scene the twin holds: floor and wall, the button's plunger, the rotors' thrust.
+    let statics = strings(&got["/scene/static"]["entities"]);
+    assert!(statics.contains(&"vehicle/base_link"), "{statics:?}");
+    assert!(statics.contains(&"scene/fixed"), "{statics:?}");
+    let dynamic = strings(&got["/scene/dynamic"]["entities"]);
+    assert!(dynamic.contains(&"scene/objects"), "{dynamic:?}");
+    assert!(dynamic.contains(&"rotor/5/thrust"), "{dynamic:?}");
+    // The twin's truth in amstack's JSON: the task it runs, six rotors, every joint.
+    assert_eq!(got["/task/state"]["last"]["task"], "press-button");
+    let rotors = &got["/rotors"]["last"];
+    assert_eq!(
+        rotors["realised_n"].as_array().unwrap().len(),
+        6,
+        "{rotors}"
+    );
+    let joints = &got["/joints"]["last"];
+    let names = joints["names"].as_array().unwrap().len();
+    assert!(names > 0, "{joints}");
+    assert_eq!(joints["position"].as_array().unwrap().len(), names);
+    assert_eq!(joints["target"].as_array().unwrap().len(), names);
+    let z = got["/base/state"]["last"]["position_m"][2]
+        .as_f64()
+        .unwrap();
+    assert!(z > 0.2, "flying, not on the floor: z = {z} m");
+
+    // The twin reports what it published and dropped.
+    let stats = twin.wait_for("messages published");
+    assert!(stats.contains("dropped"), "{stats}");
+}
