@@ -195,20 +195,38 @@ fn rerun_python() -> Option<PathBuf> {
 }
 
 #[test]
-fn rerun_converts_a_press_button_log_into_transforms_and_scene_entities() {
+fn rerun_converts_a_press_button_log_into_transforms_scene_entities_and_images() {
     let Some(rerun_python) = rerun_python() else {
         eprintln!(
-            "SKIPPED rerun_converts_a_press_button_log_into_transforms_and_scene_entities: the \
+            "SKIPPED rerun_converts_a_press_button_log_into_transforms_scene_entities_and_images: the \
              opt-in Rerun venv is absent (run scripts/setup-rerun.sh, ~790 MB, or set AMSTACK_RERUN=1)"
         );
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let mcap = press_button_log(dir.path());
+    // With the EE and base cameras' images (the SDK's CompressedImage, CameraCalibration).
+    let mcap = dir.path().join("press.mcap");
+    run(&[
+        "track",
+        "--platform",
+        "fa-hexa",
+        "--trajectory",
+        "scripted",
+        "--task",
+        "press-button",
+        "--seed",
+        "3",
+        "--cameras",
+        "ee,base",
+        "--camera-log-every",
+        "60",
+        "--mcap",
+        mcap.to_str().unwrap(),
+    ]);
     let out = Command::new(rerun_python)
         .arg(scripts_dir().join("rrd_check.py"))
         .arg(&mcap)
-        .args(["--expect-transforms", "--expect-scene"])
+        .args(["--expect-transforms", "--expect-scene", "--expect-images"])
         .output()
         .unwrap();
     let report: Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
@@ -225,6 +243,24 @@ fn rerun_converts_a_press_button_log_into_transforms_and_scene_entities() {
         .map(|(_, e)| e)
         .unwrap();
     assert!(strings(&tf["archetypes"]).contains(&"Transform3D"), "{tf}");
+    // The camera image comes through as an image, its calibration as a pinhole.
+    let entity = |topic: &str| {
+        entities
+            .iter()
+            .find(|(path, _)| path.trim_end_matches('/').ends_with(topic))
+            .map(|(_, e)| e)
+            .unwrap_or_else(|| panic!("no {topic}: {report}"))
+    };
+    let image = entity("/camera/ee_camera/image");
+    assert!(
+        strings(&image["archetypes"]).contains(&"EncodedImage"),
+        "{image}"
+    );
+    let calibration = entity("/camera/ee_camera/calibration");
+    assert!(
+        strings(&calibration["archetypes"]).contains(&"Pinhole"),
+        "{calibration}"
+    );
     // The hand-written JSON channels stay raw bytes to Rerun: the reason for the SDK's.
     let json_tf = entities
         .iter()
