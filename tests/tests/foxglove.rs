@@ -541,3 +541,87 @@ fn a_served_twin_streams_its_truth_live_while_another_process_flies_it() {
     let stats = twin.wait_for("messages published");
     assert!(stats.contains("dropped"), "{stats}");
 }
+
+#[test]
+fn the_twins_mavlink_autopilot_streams_its_steps_live() {
+    let dir = tempfile::tempdir().unwrap();
+    let udp = std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .unwrap()
+        .port();
+    let mavlink = format!("udp:127.0.0.1:{udp}");
+    let addr = format!("127.0.0.1:{}", free_port());
+    let common = [
+        "--platform",
+        "fa-hexa",
+        "--disturbances",
+        "saturation",
+        "--seed",
+        "3",
+    ];
+    let mut args = vec![
+        "twin",
+        "serve",
+        "--mavlink",
+        &mavlink,
+        "--lockstep",
+        "--live",
+        &addr,
+    ];
+    args.extend(common);
+    let mut autopilot = Proc::start("twin serve --mavlink --live", &args);
+    autopilot.wait_for("live view: ws://");
+    let ready = dir.path().join("subscribed");
+    let mut viewer = client(&[
+        &format!("ws://{addr}"),
+        "--topics",
+        "/scene/tf,/scene/static,/scene/dynamic,/base/state,/rotors",
+        "--messages",
+        "100",
+        "--need",
+        "/scene/static=2",
+        "--timeout",
+        "120",
+        "--ready-file",
+        ready.to_str().unwrap(),
+    ])
+    .stdout(std::process::Stdio::piped())
+    .spawn()
+    .unwrap();
+    wait_for_file(&ready, &mut viewer);
+    let link = format!("mavlink:{mavlink}");
+    let mut fly = vec![
+        "fly",
+        "--link",
+        &link,
+        "--trajectory",
+        "step",
+        "--duration",
+        "4",
+    ];
+    fly.extend(common);
+    let mut flight = Proc::start("fly --link mavlink", &fly);
+    assert!(flight.wait().success(), "{}", flight.stderr());
+    let viewed = viewer.wait_with_output().unwrap();
+    let report: Value = serde_json::from_slice(&viewed.stdout).unwrap();
+    assert!(viewed.status.success(), "{report}");
+    autopilot.interrupt();
+    assert!(autopilot.wait().success(), "{}", autopilot.stderr());
+    let got = &report["received"];
+    // One message set per autopilot step, a control period of the twin's time apart.
+    for topic in ["/scene/tf", "/scene/dynamic", "/base/state", "/rotors"] {
+        let entry = &got[topic];
+        assert!(entry["count"].as_u64().unwrap() >= 100, "{topic}: {entry}");
+        let step = entry["median_step_ns"].as_f64().unwrap();
+        assert!((step - 1e9 / 120.0).abs() <= 1.0, "{topic}: {step} ns");
+    }
+    let statics = strings(&got["/scene/static"]["entities"]);
+    assert!(statics.contains(&"vehicle/base_link"), "{statics:?}");
+    // Armed and flying: the base above its resting height.
+    let z = got["/base/state"]["last"]["position_m"][2]
+        .as_f64()
+        .unwrap();
+    assert!(z > 0.5, "z = {z} m");
+    let stats = autopilot.wait_for("messages published");
+    assert!(stats.contains("dropped"), "{stats}");
+}
