@@ -6,6 +6,7 @@ named `foxglove.websocket.v1`, same messages, schemas inline in `advertise`).
 
 Usage: foxglove_ws_client.py ws://HOST:PORT [--topics T1,T2,...] [--messages N]
                              [--need TOPIC=N ...] [--stall SECONDS] [--timeout SECONDS]
+                             [--ready-file PATH]
 
 Connects, waits for the server's `serverInfo` and the `advertise` of every topic asked for
 (default: the 3D scene's topics), subscribes to them, and reads binary MessageData frames
@@ -14,12 +15,13 @@ messages on every topic (--messages, default 50). Protobuf payloads are decoded 
 message class built from the advertised schema (a base64 FileDescriptorSet) by Google's
 `protobuf` package. With --stall S it subscribes, then reads nothing for S seconds (a slow
 viewer: the server's queue for it fills), reads what is left for a moment and closes.
+With --ready-file it creates PATH once it has subscribed (a caller starts the flight then).
 
 Prints one JSON object: serverInfo's name, the advertised channels {topic: {schemaName,
 encoding, schemaEncoding}}, per subscribed topic the messages received, the first and last
 log times, the median log-time step between consecutive messages, and what the decoded
 messages hold (as mcap_check.py summarises them: FrameTransforms frames; SceneUpdate entity
-ids and primitive counts). Exit 0 when every topic got
+ids and primitive counts; JSON channels: the last message, as `last`). Exit 0 when every topic got
 its messages (or, with --stall, when the connection was used and closed), 1 otherwise.
 """
 
@@ -36,6 +38,7 @@ from mcap_check import protobuf_message_class, summarise_protobuf as summarise
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 SCENE_TOPICS = "/scene/tf,/scene/static,/scene/dynamic,/scene/targets"
+JSON = object()  # the decoder of JSON channels
 
 
 def protobuf_class(name, schema_b64):
@@ -82,11 +85,16 @@ async def run(args):
             decoder = None
             if c.get("encoding") == "protobuf":
                 decoder = protobuf_class(c["schemaName"], c["schema"])
+            elif c.get("encoding") == "json":
+                decoder = JSON
             subscribed[sid] = (c["topic"], decoder)
             subscriptions.append({"id": sid, "channelId": cid})
             report["received"][c["topic"]] = {"count": 0}
             times[c["topic"]] = []
         await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+        if args.ready_file:
+            with open(args.ready_file, "w") as f:
+                f.write("subscribed\n")
 
         if args.stall > 0:
             await asyncio.sleep(args.stall)
@@ -115,7 +123,12 @@ async def run(args):
                 entry = report["received"][topic]
                 entry["count"] += 1
                 times[topic].append(log_time)
-                if decoder is not None:
+                if decoder is JSON:
+                    try:
+                        entry["last"] = json.loads(raw[13:])
+                    except ValueError as e:
+                        report["errors"].append(f"{topic}: not JSON: {e}")
+                elif decoder is not None:
                     try:
                         summarise(entry, decoder.FromString(raw[13:]))
                     except Exception as e:
@@ -143,6 +156,7 @@ def main(argv):
     p.add_argument("--need", action="append", default=[], metavar="TOPIC=N")
     p.add_argument("--stall", type=float, default=0.0)
     p.add_argument("--timeout", type=float, default=60.0)
+    p.add_argument("--ready-file", default=None)
     args = p.parse_args(argv)
     try:
         report = asyncio.run(run(args))

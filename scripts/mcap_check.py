@@ -14,7 +14,8 @@ records, every channel with its schema name, encodings and message count, and ch
   - for a complete file, the summary's statistics agree with the messages streamed;
   - each --expect TOPIC=COUNT (a topic absent from the file counts 0);
   - with --require-complete, that the file ends with its footer (a finished run);
-  - every foxglove.CompressedImage decodes: base64, then PNG (signature, IHDR, CRCs, the
+  - every foxglove.CompressedImage decodes (protobuf, the Foxglove SDK's; or, in logs of format
+    version 1, JSON with base64 data), then PNG (signature, IHDR, CRCs, the
     inflated IDAT holding exactly height rows of width pixels) or JPEG (SOI/EOI markers); its
     size and a SHA-256 of its bytes per message are reported under "images" (by topic), and a
     PNG's size must match the width/height of the camera's foxglove.CameraCalibration;
@@ -121,9 +122,14 @@ def decode_png(data):
 
 
 def check_image(payload):
-    """(format, width or None, height or None, sha256) of a foxglove.CompressedImage."""
+    """(format, width or None, height or None, sha256) of a foxglove.CompressedImage in JSON
+    (log format version 1: the bytes in base64)."""
     data = base64.b64decode(payload.get("data", ""), validate=True)
-    fmt = payload.get("format")
+    return check_image_bytes(data, payload.get("format"))
+
+
+def check_image_bytes(data, fmt):
+    """(format, width or None, height or None, sha256) of an image's bytes in `fmt`."""
     digest = hashlib.sha256(data).hexdigest()
     if fmt == "png":
         w, h = decode_png(data)
@@ -231,6 +237,19 @@ def check(path, expected, require_complete):
     parsed_schemas = {}
     calibrations = {}
     stats = None
+
+    def note_image(topic, sequence, check):
+        entry = report["images"].setdefault(topic, {
+            "count": 0, "format": None, "width": None, "height": None, "sha256": []})
+        try:
+            fmt, w, h, digest = check()
+        except (ValueError, TypeError, zlib.error) as e:
+            errors.append(f"{topic} #{sequence}: image: {e}")
+            return
+        entry["count"] += 1
+        entry["format"], entry["width"], entry["height"] = fmt, w, h
+        entry["sha256"].append(digest)
+
     try:
         with open(path, "rb") as f:
             for record in StreamReader(f, validate_crcs=True).records:
@@ -277,6 +296,11 @@ def check(path, expected, require_complete):
                         entry = report["decoded"].setdefault(channel.topic, {"type": s.name, "count": 0})
                         entry["count"] += 1
                         summarise_protobuf(entry, message)
+                        if s.name == "foxglove.CompressedImage":
+                            note_image(channel.topic, record.sequence,
+                                       lambda m=message: check_image_bytes(bytes(m.data), m.format))
+                        elif s.name == "foxglove.CameraCalibration":
+                            calibrations[channel.topic] = (message.width, message.height)
                         continue
                     if channel.message_encoding != "json":
                         continue
@@ -301,17 +325,8 @@ def check(path, expected, require_complete):
                         errors.append(f"{channel.topic} #{record.sequence}: {problem}")
                     name = schemas[channel.schema_id].name if channel.schema_id in schemas else None
                     if name == "foxglove.CompressedImage":
-                        entry = report["images"].setdefault(channel.topic, {
-                            "count": 0, "format": None, "width": None, "height": None,
-                            "sha256": []})
-                        try:
-                            fmt, w, h, digest = check_image(payload)
-                        except (ValueError, TypeError, zlib.error) as e:
-                            errors.append(f"{channel.topic} #{record.sequence}: image: {e}")
-                            continue
-                        entry["count"] += 1
-                        entry["format"], entry["width"], entry["height"] = fmt, w, h
-                        entry["sha256"].append(digest)
+                        note_image(channel.topic, record.sequence,
+                                   lambda p=payload: check_image(p))
                     elif name == "foxglove.CameraCalibration":
                         calibrations[channel.topic] = (payload.get("width"), payload.get("height"))
     except OSError as e:

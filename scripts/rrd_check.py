@@ -3,6 +3,7 @@
 Rerun's own reader (`rerun.chunk.RrdReader`): what an independent viewer makes of the log.
 
 Usage: rrd_check.py FILE.mcap [--rrd OUT.rrd] [--expect-transforms] [--expect-scene]
+                   [--expect-images]
 
 Prints one JSON object: per entity path (one per MCAP topic) the Rerun archetypes and
 components it holds and its rows, and per topic whether Rerun understood it ("semantic": an
@@ -11,7 +12,9 @@ or kept only raw bytes.
 --expect-transforms: /scene/tf must hold Transform3D rows (Rerun's Foxglove decoder turned
 foxglove.FrameTransforms into transforms). --expect-scene: /scene/static, /scene/dynamic and
 /scene/targets must hold decoded fields (the protobuf decoder's structured SceneUpdate: its
-entities and primitives), not raw bytes. Exit 0 when the expectations hold, 1 otherwise.
+entities and primitives), not raw bytes. --expect-images: the log has camera channels, and
+every /camera/<name>/image holds EncodedImage rows (an image, not raw bytes), every
+/camera/<name>/calibration Pinhole rows and /camera/tf Transform3D rows. Exit 0 when the expectations hold, 1 otherwise.
 
 Run it with the opt-in Rerun venv (scripts/setup-rerun.sh prints its python).
 """
@@ -54,6 +57,7 @@ def main(argv):
     p.add_argument("--rrd")
     p.add_argument("--expect-transforms", action="store_true")
     p.add_argument("--expect-scene", action="store_true")
+    p.add_argument("--expect-images", action="store_true")
     args = p.parse_args(argv)
     rerun_cli = os.path.join(os.path.dirname(sys.executable), "rerun")
     out = args.rrd or os.path.join(tempfile.mkdtemp(prefix="rrd_check"), "log.rrd")
@@ -104,6 +108,20 @@ def main(argv):
                 report["errors"].append(f"no entity for {topic}")
             elif not entry["semantic"]:
                 report["errors"].append(f"{path}: raw bytes only ({entry['archetypes']})")
+    if args.expect_images:
+        wanted = {"/image": "EncodedImage", "/calibration": "Pinhole"}
+        cameras = [p for p in entities if "/camera/" in p and p.rstrip("/").endswith("/image")]
+        if not cameras:
+            report["errors"].append("no /camera/<name>/image entity")
+        for path, entry in entities.items():
+            topic = path.rstrip("/")
+            if "/camera/" not in topic:
+                continue
+            kind = next((a for end, a in wanted.items() if topic.endswith(end)), None)
+            if topic.endswith("/camera/tf"):
+                kind = "Transform3D"
+            if kind and (kind not in entry["archetypes"] or entry["rows"] == 0):
+                report["errors"].append(f"{path}: no {kind} rows ({entry['archetypes']})")
     print(json.dumps(report))
     return 1 if report["errors"] else 0
 

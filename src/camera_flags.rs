@@ -43,8 +43,9 @@ pub(crate) struct CameraFlags {
     /// rollout seed).
     #[arg(long, value_name = "on|off", default_value = "off")]
     pub visual_dr: OnOff,
-    /// With --cameras and an MCAP log: log the images (PNG, foxglove.CompressedImage +
-    /// CameraCalibration) of every N-th observation (0: none).
+    /// With --cameras and an MCAP log (or --live): log the images (PNG in the Foxglove
+    /// SDK's foxglove.CompressedImage + CameraCalibration, protobuf) of every N-th
+    /// observation (0: none).
     #[arg(long, value_name = "N", default_value_t = 4)]
     pub camera_log_every: u64,
 }

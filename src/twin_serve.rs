@@ -7,12 +7,18 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::Result;
+use platform::{ActuatorCommand, Vehicle};
+use policy_runtime::live::LiveServer;
+use policy_runtime::record::McapRecorder;
+use policy_runtime::twin_view::TwinView;
 use sim_twin::ipc::{Mode, ServeConfig, ServeError, TwinServer};
+use sim_twin::{Twin, TwinConfig, TwinObserver};
 use twin_autopilot::{
     Autopilot, AutopilotConfig, AutopilotError, Endpoint, RealtimePolicy, Signing,
 };
 
 use crate::cli_error::bad_input;
+use crate::track::{finish_live, start_live};
 use crate::twin_flags::{SceneFlag, TwinFlags};
 use crate::vehicles::find_vehicle;
 
@@ -154,6 +160,12 @@ pub struct ServeArgs {
     /// or fail (exit 1).
     #[arg(long, value_name = "warn|fail", default_value = "warn")]
     realtime_policy: String,
+    /// --ipc, --mavlink: stream the twin's own truth live over the Foxglove WebSocket protocol
+    /// (the 3D scene, /tf, poses, base state, joints, rotors, disturbances, task state):
+    /// open Foxglove, "Open connection", ws://ADDR. ADDR is IP:PORT [default: 127.0.0.1:8765].
+    /// The twin never waits for a viewer: a full queue drops messages and counts them.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = policy_runtime::live::DEFAULT_LIVE_ADDR, conflicts_with = "px4_hil")]
+    live: Option<String>,
     /// The twin's settings, as in `amstack track`; every session starts from the seed.
     #[command(flatten)]
     twin: TwinFlags,
@@ -213,10 +225,15 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
         flight_chooses_episode: args.flight_chooses_episode,
         ..ServeConfig::new(ipc, mode)
     };
+    let live = start_live(args.live.as_deref())?;
+    let view = twin_view(live.as_deref(), &vehicle, &twin)?;
     let mut server = TwinServer::new(vehicle, twin, config).map_err(|e| match e {
         ServeError::Taken(_) | ServeError::TooLarge(_) => bad_input(e.to_string()),
         e => anyhow::Error::new(e),
     })?;
+    if let Some(view) = view {
+        server.set_observer(view);
+    }
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
@@ -225,6 +242,7 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
         "twin: stopped after {} session(s), {} refused",
         summary.sessions, summary.refused
     );
+    finish_live(live.as_deref());
     Ok(())
 }
 
@@ -277,15 +295,69 @@ fn run_mavlink(args: &ServeArgs, link: &str) -> Result<()> {
         realtime_policy,
         ..AutopilotConfig::new(endpoint, mode)
     };
+    let live = start_live(args.live.as_deref())?;
+    let view = twin_view(live.as_deref(), &vehicle, &twin)?;
     let mut autopilot = Autopilot::new(vehicle, twin, config).map_err(|e| match e {
         AutopilotError::Vehicle(_) | AutopilotError::Link(_) => {
             bad_input(format!("--mavlink: {e}"))
         }
         e => anyhow::Error::new(e),
     })?;
+    if let Some(view) = view {
+        autopilot.set_observer(view);
+    }
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
-    autopilot.run(&stop, |event| eprintln!("autopilot: {event}"))?;
+    let ran = autopilot.run(&stop, |event| eprintln!("autopilot: {event}"));
+    finish_live(live.as_deref());
+    ran?;
     Ok(())
+}
+
+/// The twin's live view on `live`'s server (None without `--live`).
+fn twin_view(
+    live: Option<&LiveServer>,
+    vehicle: &Vehicle,
+    twin: &TwinConfig,
+) -> Result<Option<Box<dyn TwinObserver>>> {
+    let Some(live) = live else {
+        return Ok(None);
+    };
+    let recorder = McapRecorder::file_less(live.tap());
+    let view = TwinView::new(recorder, vehicle, twin.disturbances.saturation)?;
+    Ok(Some(Box::new(Reporting {
+        view,
+        reported: false,
+    })))
+}
+
+/// The live view, saying once on stderr when it stops on an error (the twin serves on).
+#[derive(Debug)]
+struct Reporting {
+    view: TwinView,
+    reported: bool,
+}
+
+impl Reporting {
+    fn report(&mut self) {
+        if !self.reported
+            && let Some(e) = self.view.error()
+        {
+            eprintln!("twin: live view stopped: {e}");
+            self.reported = true;
+        }
+    }
+}
+
+impl TwinObserver for Reporting {
+    fn reset(&mut self, twin: &Twin) {
+        self.view.reset(twin);
+        self.report();
+    }
+
+    fn stepped(&mut self, twin: &Twin, command: &ActuatorCommand) {
+        self.view.stepped(twin, command);
+        self.report();
+    }
 }

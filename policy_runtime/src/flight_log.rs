@@ -18,9 +18,9 @@
 //! | `/estimator/state` | amstack.EstimatorState | the estimate the controllers flew on (`--state-source estimator`), its deviations, biases, innovations |
 //! | `/autopilot/state` | amstack.AutopilotState | MAVLink flights: what the autopilot says about itself, the link's counters |
 //! | `/mavlink/raw` | amstack.MavlinkRaw | MAVLink flights: every frame in and out, bytes as on the wire |
-//! | `/camera/<name>/image` | foxglove.CompressedImage | flights with cameras: the camera's PNG every Nth observation |
-//! | `/camera/<name>/calibration` | foxglove.CameraCalibration | its intrinsics (K, P), with each image |
-//! | `/camera/tf` | foxglove.FrameTransforms | world→camera (ROS optical frame), with each image set |
+//! | `/camera/<name>/image` | foxglove.CompressedImage (protobuf, the Foxglove SDK's) | flights with cameras: the camera's PNG every Nth observation |
+//! | `/camera/<name>/calibration` | foxglove.CameraCalibration (protobuf) | its intrinsics (K, P), with each image |
+//! | `/camera/tf` | foxglove.FrameTransforms (protobuf) | world→camera (ROS optical frame), with each image set |
 //! | `/scene/tf`, `/scene/static`, `/scene/dynamic`, `/scene/targets` | foxglove.FrameTransforms, foxglove.SceneUpdate (protobuf, the Foxglove SDK's) | the flight as a 3D scene: [`crate::scene3d`] |
 //!
 //! A link's own channels (the MAVLink link: the last two) are the messages it returns from
@@ -42,9 +42,7 @@ pub use crate::link_channels::{
     AUTOPILOT_STATE_TOPIC, AutopilotStateMessage, LinkCounters, MAVLINK_RAW_TOPIC, MavlinkRawFrame,
 };
 use crate::link_channels::{LinkMessage, LinkPayload};
-use crate::record::foxglove::{
-    CameraCalibration, CompressedImage, FrameTransform, FrameTransforms, PoseInFrame, Time,
-};
+use crate::record::foxglove::{FrameTransform, FrameTransforms, PoseInFrame};
 use crate::record::{Channel, McapRecorder, RecordError, SchemaName};
 use crate::scene3d::{
     SCENE_DYNAMIC_TOPIC, SCENE_STATIC_TOPIC, SCENE_TARGETS_TOPIC, SCENE_TF_TOPIC, Scene3d,
@@ -485,8 +483,8 @@ schema_names!(
 #[derive(Debug)]
 struct CameraChannels {
     name: String,
-    image: Channel<CompressedImage>,
-    calibration: Channel<CameraCalibration>,
+    image: Channel<foxglove::schemas::CompressedImage>,
+    calibration: Channel<foxglove::schemas::CameraCalibration>,
 }
 
 /// The 3D scene's channels (Foxglove SDK types, protobuf).
@@ -531,7 +529,7 @@ pub struct FlightLog {
     /// The cameras' channels, opened on the first images logged.
     cameras: Vec<CameraChannels>,
     /// `/camera/tf`, opened with the cameras' channels.
-    camera_tf: Option<Channel<FrameTransforms>>,
+    camera_tf: Option<Channel<foxglove::schemas::FrameTransforms>>,
     /// The cameras are logged at every this many-th observation (0: never).
     camera_every: u64,
     /// PNG scratch.
@@ -610,11 +608,13 @@ impl FlightLog {
 
     /// Logs the images of one observation: per camera its PNG (`/camera/<name>/image`), its
     /// calibration (`/camera/<name>/calibration`), and the cameras' world poses
-    /// (`/camera/tf`), at the observation's time.
+    /// (`/camera/tf`), at the observation's time — the Foxglove SDK's protobuf types
+    /// (`foxglove.CompressedImage`, `foxglove.CameraCalibration`, `foxglove.FrameTransforms`),
+    /// as the 3D scene's channels.
     pub fn cameras(&mut self, frames: &Frames) -> Result<(), RecordError> {
-        use base64::Engine as _;
+        use foxglove::schemas::{CameraCalibration, CompressedImage, FrameTransforms};
         let t = nanos(frames.time_s);
-        let stamp = Time::from_nanos(t);
+        let stamp = crate::scene3d::timestamp(t);
         let mut tf = FrameTransforms::default();
         for frame in &frames.cameras {
             let index = match self.cameras.iter().position(|c| c.name == frame.name) {
@@ -623,8 +623,10 @@ impl FlightLog {
                     let topic = format!("/camera/{}", frame.name);
                     let channels = CameraChannels {
                         name: frame.name.clone(),
-                        image: self.recorder.channel(&format!("{topic}/image"))?,
-                        calibration: self.recorder.channel(&format!("{topic}/calibration"))?,
+                        image: self.recorder.encoded_channel(&format!("{topic}/image"))?,
+                        calibration: self
+                            .recorder
+                            .encoded_channel(&format!("{topic}/calibration"))?,
                     };
                     self.cameras.push(channels);
                     self.cameras.len() - 1
@@ -640,33 +642,40 @@ impl FlightLog {
                     message: e.to_string(),
                 })?;
             let image = CompressedImage {
-                timestamp: stamp,
+                timestamp: Some(stamp),
                 frame_id: frame.name.clone(),
-                data: base64::engine::general_purpose::STANDARD.encode(&self.png),
+                data: self.png.clone().into(),
                 format: "png".to_owned(),
             };
-            self.recorder.log(&channels.image, t, &image)?;
+            self.recorder.log_encoded(&channels.image, t, &image)?;
             let k = &frame.intrinsics;
-            let calibration = CameraCalibration::pinhole(
+            let calibration = CameraCalibration {
+                timestamp: Some(stamp),
+                frame_id: frame.name.clone(),
+                width: frame.image.width,
+                height: frame.image.height,
+                distortion_model: "plumb_bob".to_owned(),
+                d: Vec::new(),
+                k: vec![k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+                r: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                p: vec![
+                    k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+                ],
+            };
+            self.recorder
+                .log_encoded(&channels.calibration, t, &calibration)?;
+            tf.transforms.push(crate::scene3d::frame_transform(
                 stamp,
-                frame.name.clone(),
-                frame.image.width,
-                frame.image.height,
-                [k.fx, k.fy, k.cx, k.cy],
-            );
-            self.recorder.log(&channels.calibration, t, &calibration)?;
-            tf.transforms.push(FrameTransform::new(
-                t,
-                "world",
-                frame.name.clone(),
+                crate::scene3d::WORLD_FRAME,
+                &frame.name,
                 &frame.world_from_camera,
             ));
         }
         let channel = match self.camera_tf.take() {
             Some(c) => c,
-            None => self.recorder.channel("/camera/tf")?,
+            None => self.recorder.encoded_channel("/camera/tf")?,
         };
-        let logged = self.recorder.log(&channel, t, &tf);
+        let logged = self.recorder.log_encoded(&channel, t, &tf);
         self.camera_tf = Some(channel);
         logged
     }

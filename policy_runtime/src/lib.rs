@@ -47,6 +47,7 @@ pub mod state_source;
 pub mod task_policies;
 pub mod track;
 pub mod trajectory;
+pub mod twin_view;
 pub mod validation;
 pub mod video;
 

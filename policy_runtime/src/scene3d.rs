@@ -462,7 +462,8 @@ fn axes(at: &Isometry3<f64>, length: f64) -> Vec<ArrowPrimitive> {
         .collect()
 }
 
-fn frame_transform(
+/// The transform `parent_from_child` as a Foxglove `FrameTransform` at `timestamp`.
+pub(crate) fn frame_transform(
     timestamp: Timestamp,
     parent: &str,
     child: &str,

@@ -30,6 +30,7 @@ mod config;
 mod convert;
 mod error;
 pub mod ipc;
+mod observer;
 pub mod sensors;
 pub mod tasks;
 mod twin;
@@ -41,6 +42,7 @@ mod tests;
 
 pub use config::{Disturbances, MotorConfig, NoiseConfig, TiltThrust, TwinConfig};
 pub use error::TwinError;
+pub use observer::TwinObserver;
 pub use tasks::{GraspMode, TaskId, TaskObservation, TaskSnapshot, TaskStatus};
 pub use twin::Twin;
 pub use vehicle_body::{ROBOT_GROUP, WORLD_GROUP};

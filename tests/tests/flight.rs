@@ -503,6 +503,36 @@ fn rollout_camera_images_decode_at_their_size_and_repeat_with_the_seed() {
         };
         assert_eq!(count("/camera/ee_camera/calibration"), Some(images.into()));
         assert_eq!(count("/camera/tf"), Some(images.into()));
+        // The Foxglove SDK's protobuf types, decoded by the class built from each channel's
+        // own schema record (the 3D scene's encoding, on the same timeline).
+        for (topic, schema) in [
+            ("/camera/ee_camera/image", "foxglove.CompressedImage"),
+            (
+                "/camera/ee_camera/calibration",
+                "foxglove.CameraCalibration",
+            ),
+            ("/camera/tf", "foxglove.FrameTransforms"),
+        ] {
+            let c = report["channels"]
+                .as_array()
+                .and_then(|cs| cs.iter().find(|c| c["topic"] == topic))
+                .cloned()
+                .unwrap_or_default();
+            assert_eq!(c["schema_name"], schema, "{c}");
+            assert_eq!(c["schema_encoding"], "protobuf", "{c}");
+            assert_eq!(c["message_encoding"], "protobuf", "{c}");
+            assert_eq!(report["decoded"][topic]["count"], images, "{topic}");
+        }
+        let frames = report["decoded"]["/camera/tf"]["frames"].clone();
+        assert_eq!(
+            frames,
+            serde_json::json!(["world->ee_camera", "world->base_camera"])
+        );
+        let version = report["metadata"]
+            .as_array()
+            .and_then(|m| m.iter().find(|m| m["name"] == "amstack.run"))
+            .map(|m| m["metadata"]["log_format_version"].clone());
+        assert_eq!(version, Some("2".into()), "camera channels changed in 2");
     }
     assert_eq!(
         digests[0], digests[2],

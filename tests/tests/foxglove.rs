@@ -195,20 +195,38 @@ fn rerun_python() -> Option<PathBuf> {
 }
 
 #[test]
-fn rerun_converts_a_press_button_log_into_transforms_and_scene_entities() {
+fn rerun_converts_a_press_button_log_into_transforms_scene_entities_and_images() {
     let Some(rerun_python) = rerun_python() else {
         eprintln!(
-            "SKIPPED rerun_converts_a_press_button_log_into_transforms_and_scene_entities: the \
+            "SKIPPED rerun_converts_a_press_button_log_into_transforms_scene_entities_and_images: the \
              opt-in Rerun venv is absent (run scripts/setup-rerun.sh, ~790 MB, or set AMSTACK_RERUN=1)"
         );
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let mcap = press_button_log(dir.path());
+    // With the EE and base cameras' images (the SDK's CompressedImage, CameraCalibration).
+    let mcap = dir.path().join("press.mcap");
+    run(&[
+        "track",
+        "--platform",
+        "fa-hexa",
+        "--trajectory",
+        "scripted",
+        "--task",
+        "press-button",
+        "--seed",
+        "3",
+        "--cameras",
+        "ee,base",
+        "--camera-log-every",
+        "60",
+        "--mcap",
+        mcap.to_str().unwrap(),
+    ]);
     let out = Command::new(rerun_python)
         .arg(scripts_dir().join("rrd_check.py"))
         .arg(&mcap)
-        .args(["--expect-transforms", "--expect-scene"])
+        .args(["--expect-transforms", "--expect-scene", "--expect-images"])
         .output()
         .unwrap();
     let report: Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
@@ -225,6 +243,24 @@ fn rerun_converts_a_press_button_log_into_transforms_and_scene_entities() {
         .map(|(_, e)| e)
         .unwrap();
     assert!(strings(&tf["archetypes"]).contains(&"Transform3D"), "{tf}");
+    // The camera image comes through as an image, its calibration as a pinhole.
+    let entity = |topic: &str| {
+        entities
+            .iter()
+            .find(|(path, _)| path.trim_end_matches('/').ends_with(topic))
+            .map(|(_, e)| e)
+            .unwrap_or_else(|| panic!("no {topic}: {report}"))
+    };
+    let image = entity("/camera/ee_camera/image");
+    assert!(
+        strings(&image["archetypes"]).contains(&"EncodedImage"),
+        "{image}"
+    );
+    let calibration = entity("/camera/ee_camera/calibration");
+    assert!(
+        strings(&calibration["archetypes"]).contains(&"Pinhole"),
+        "{calibration}"
+    );
     // The hand-written JSON channels stay raw bytes to Rerun: the reason for the SDK's.
     let json_tf = entities
         .iter()
@@ -362,4 +398,230 @@ fn a_live_viewer_receives_the_scene_at_the_tick_rate_and_changes_nothing() {
         .unwrap_or(stats);
     assert!(stats.contains("dropped"), "{stats}");
     assert_eq!(results(&alone), results(&watched));
+}
+
+/// Waits until `path` exists (the client subscribed) or `client` exited.
+fn wait_for_file(path: &Path, client: &mut std::process::Child) {
+    let started = std::time::Instant::now();
+    while !path.exists() {
+        if let Ok(Some(status)) = client.try_wait() {
+            panic!("the client exited ({status}) before it subscribed");
+        }
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(120),
+            "the client never subscribed"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn a_served_twin_streams_its_truth_live_while_another_process_flies_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let service = format!("test-{}-live", std::process::id());
+    let port = free_port();
+    let addr = format!("127.0.0.1:{port}");
+    let common = ["--platform", "fa-hexa", "--seed", "3"];
+    let mut twin_args = vec![
+        "twin",
+        "serve",
+        "--ipc",
+        &service,
+        "--flight-chooses-episode",
+        "--sessions",
+        "1",
+        "--live",
+        &addr,
+    ];
+    twin_args.extend(common);
+    let mut twin = Proc::start("twin serve --live", &twin_args);
+    let line = twin.wait_for("live view: ws://");
+    assert!(line.contains(&addr), "{line}");
+    twin.wait_for("twin: serving");
+
+    // The viewer connects while the twin waits for a flight, subscribes, then the flight.
+    let ready = dir.path().join("subscribed");
+    let topics =
+        "/scene/tf,/scene/static,/scene/dynamic,/tf,/base/state,/joints,/rotors,/task/state";
+    let mut viewer = client(&[
+        &format!("ws://{addr}"),
+        "--topics",
+        topics,
+        "--messages",
+        "100",
+        "--need",
+        "/scene/static=2",
+        "--timeout",
+        "120",
+        "--ready-file",
+        ready.to_str().unwrap(),
+    ])
+    .stdout(std::process::Stdio::piped())
+    .spawn()
+    .unwrap();
+    wait_for_file(&ready, &mut viewer);
+    let link = format!("ipc:{service}");
+    let out = dir.path().join("bench");
+    let mut bench = vec![
+        "bench",
+        "--task",
+        "press-button",
+        "--rollouts",
+        "1",
+        "--link",
+        &link,
+        "--link-timeout-ms",
+        "10000",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    bench.extend(common);
+    let mut flight = Proc::start("bench --link ipc", &bench);
+    assert!(flight.wait().success(), "{}", flight.stderr());
+    let viewed = viewer.wait_with_output().unwrap();
+    let report: Value = serde_json::from_slice(&viewed.stdout)
+        .unwrap_or_else(|e| panic!("client: {e}: {}", String::from_utf8_lossy(&viewed.stdout)));
+    assert!(viewed.status.success(), "{report}");
+    assert!(twin.wait().success(), "{}", twin.stderr());
+    sim_twin::ipc::cleanup_dead_nodes_now();
+
+    // Advertised with the flight log's schemas: the SDK's protobuf scene, amstack's JSON.
+    let adv = &report["advertised"];
+    for (topic, schema, encoding) in [
+        ("/scene/tf", "foxglove.FrameTransforms", "protobuf"),
+        ("/scene/static", "foxglove.SceneUpdate", "protobuf"),
+        ("/scene/dynamic", "foxglove.SceneUpdate", "protobuf"),
+        ("/tf", "foxglove.FrameTransforms", "json"),
+        ("/base/state", "amstack.BaseState", "json"),
+        ("/rotors", "amstack.Rotors", "json"),
+        ("/task/state", "amstack.TaskState", "json"),
+    ] {
+        assert_eq!(adv[topic]["schemaName"], schema, "{topic}: {adv}");
+        assert_eq!(adv[topic]["encoding"], encoding, "{topic}: {adv}");
+    }
+    let got = &report["received"];
+    // Every step of the twin, one control period (1/120 s of its time) apart.
+    let tf = &got["/scene/tf"];
+    assert!(tf["count"].as_u64().unwrap() >= 100, "{tf}");
+    let step = tf["median_step_ns"].as_f64().unwrap();
+    assert!((step - 1e9 / 120.0).abs() <= 1.0, "median step {step} ns");
+    assert!(strings(&tf["frames"]).contains(&"world->base_link"), "{tf}");
+    for i in 0..6 {
+        assert!(
+            strings(&tf["frames"]).contains(&format!("base_link->rotor_{i}").as_str()),
+            "{tf}"
+        );
+    }
+    // The task scene the twin holds: floor and wall, the button's plunger, the rotors' thrust.
+    let statics = strings(&got["/scene/static"]["entities"]);
+    assert!(statics.contains(&"vehicle/base_link"), "{statics:?}");
+    assert!(statics.contains(&"scene/fixed"), "{statics:?}");
+    let dynamic = strings(&got["/scene/dynamic"]["entities"]);
+    assert!(dynamic.contains(&"scene/objects"), "{dynamic:?}");
+    assert!(dynamic.contains(&"rotor/5/thrust"), "{dynamic:?}");
+    // The twin's truth in amstack's JSON: the task it runs, six rotors, every joint.
+    assert_eq!(got["/task/state"]["last"]["task"], "press-button");
+    let rotors = &got["/rotors"]["last"];
+    assert_eq!(
+        rotors["realised_n"].as_array().unwrap().len(),
+        6,
+        "{rotors}"
+    );
+    let joints = &got["/joints"]["last"];
+    let names = joints["names"].as_array().unwrap().len();
+    assert!(names > 0, "{joints}");
+    assert_eq!(joints["position"].as_array().unwrap().len(), names);
+    assert_eq!(joints["target"].as_array().unwrap().len(), names);
+    let z = got["/base/state"]["last"]["position_m"][2]
+        .as_f64()
+        .unwrap();
+    assert!(z > 0.2, "flying, not on the floor: z = {z} m");
+
+    // The twin reports what it published and dropped.
+    let stats = twin.wait_for("messages published");
+    assert!(stats.contains("dropped"), "{stats}");
+}
+
+#[test]
+fn the_twins_mavlink_autopilot_streams_its_steps_live() {
+    let dir = tempfile::tempdir().unwrap();
+    let udp = std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .unwrap()
+        .port();
+    let mavlink = format!("udp:127.0.0.1:{udp}");
+    let addr = format!("127.0.0.1:{}", free_port());
+    let common = [
+        "--platform",
+        "fa-hexa",
+        "--disturbances",
+        "saturation",
+        "--seed",
+        "3",
+    ];
+    let mut args = vec![
+        "twin",
+        "serve",
+        "--mavlink",
+        &mavlink,
+        "--lockstep",
+        "--live",
+        &addr,
+    ];
+    args.extend(common);
+    let mut autopilot = Proc::start("twin serve --mavlink --live", &args);
+    autopilot.wait_for("live view: ws://");
+    let ready = dir.path().join("subscribed");
+    let mut viewer = client(&[
+        &format!("ws://{addr}"),
+        "--topics",
+        "/scene/tf,/scene/static,/scene/dynamic,/base/state,/rotors",
+        "--messages",
+        "100",
+        "--need",
+        "/scene/static=2",
+        "--timeout",
+        "120",
+        "--ready-file",
+        ready.to_str().unwrap(),
+    ])
+    .stdout(std::process::Stdio::piped())
+    .spawn()
+    .unwrap();
+    wait_for_file(&ready, &mut viewer);
+    let link = format!("mavlink:{mavlink}");
+    let mut fly = vec![
+        "fly",
+        "--link",
+        &link,
+        "--trajectory",
+        "step",
+        "--duration",
+        "4",
+    ];
+    fly.extend(common);
+    let mut flight = Proc::start("fly --link mavlink", &fly);
+    assert!(flight.wait().success(), "{}", flight.stderr());
+    let viewed = viewer.wait_with_output().unwrap();
+    let report: Value = serde_json::from_slice(&viewed.stdout).unwrap();
+    assert!(viewed.status.success(), "{report}");
+    autopilot.interrupt();
+    assert!(autopilot.wait().success(), "{}", autopilot.stderr());
+    let got = &report["received"];
+    // One message set per autopilot step, a control period of the twin's time apart.
+    for topic in ["/scene/tf", "/scene/dynamic", "/base/state", "/rotors"] {
+        let entry = &got[topic];
+        assert!(entry["count"].as_u64().unwrap() >= 100, "{topic}: {entry}");
+        let step = entry["median_step_ns"].as_f64().unwrap();
+        assert!((step - 1e9 / 120.0).abs() <= 1.0, "{topic}: {step} ns");
+    }
+    let statics = strings(&got["/scene/static"]["entities"]);
+    assert!(statics.contains(&"vehicle/base_link"), "{statics:?}");
+    // Armed and flying: the base above its resting height.
+    let z = got["/base/state"]["last"]["position_m"][2]
+        .as_f64()
+        .unwrap();
+    assert!(z > 0.5, "z = {z} m");
+    let stats = autopilot.wait_for("messages published");
+    assert!(stats.contains("dropped"), "{stats}");
 }

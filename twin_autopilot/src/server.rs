@@ -42,7 +42,7 @@ use firmware_bridge::{ActuatorUpdate, SetpointCodec};
 use guidance::Guidance;
 use sim_twin::ipc::Mode;
 use sim_twin::sensors::{NavigationModels, NavigationSensors};
-use sim_twin::{Twin, TwinConfig, TwinError};
+use sim_twin::{Twin, TwinConfig, TwinError, TwinObserver};
 
 /// The autopilot's MAVLink system id.
 pub const SYSTEM_ID: u8 = 1;
@@ -348,6 +348,8 @@ pub struct Autopilot {
     steps: u64,
     out: Vec<u8>,
     out_v1: Vec<u8>,
+    /// Hears every reset and step (the live view of `twin serve --live`).
+    observer: Option<Box<dyn TwinObserver>>,
 }
 
 impl fmt::Debug for Autopilot {
@@ -479,8 +481,16 @@ impl Autopilot {
             steps: 0,
             out: Vec::with_capacity(4096),
             out_v1: Vec::with_capacity(4096),
+            observer: None,
             config,
         })
+    }
+
+    /// Shows every step and reset of the twin to `observer` from now on (told of the twin's
+    /// current state at once).
+    pub fn set_observer(&mut self, mut observer: Box<dyn TwinObserver>) {
+        observer.reset(&self.twin);
+        self.observer = Some(observer);
     }
 
     /// The twin.
@@ -841,6 +851,9 @@ impl Autopilot {
         match self.twin.step(command) {
             Ok(_) => {
                 self.steps += 1;
+                if let Some(o) = &mut self.observer {
+                    o.stepped(&self.twin, command);
+                }
                 // Idle telemetry resumes a period after the last step.
                 self.next_idle_telemetry = Instant::now() + IDLE_TELEMETRY_PERIOD;
                 self.imu = telemetry::imu(&self.previous_base, self.truth(), self.dt_s);
@@ -861,6 +874,9 @@ impl Autopilot {
                 }
                 if self.twin.reset(self.seed).is_ok() {
                     self.joint_targets = self.twin.vehicle().initial_configuration();
+                    if let Some(o) = &mut self.observer {
+                        o.reset(&self.twin);
+                    }
                 }
                 self.clock_started = false;
             }

@@ -9,7 +9,11 @@ use super::RecordError;
 /// Version of the file layout described in the [module documentation](super). Bumped when a
 /// reader of older files would misread newer ones (renamed metadata key, changed time base,
 /// changed meaning of a topic), not when channels are added.
-pub const LOG_FORMAT_VERSION: u32 = 1;
+///
+/// 2: the camera channels (`/camera/<name>/image`, `/camera/<name>/calibration`,
+/// `/camera/tf`) are the Foxglove SDK's protobuf messages, no longer JSON. Version 1 logs
+/// are still read (`replay` and `compare` do not read the camera channels).
+pub const LOG_FORMAT_VERSION: u32 = 2;
 
 /// Name of the MCAP metadata record that carries a [`RunMetadata`].
 pub const RUN_METADATA_NAME: &str = "amstack.run";

@@ -305,7 +305,7 @@ fn a_missing_signal_is_named_with_the_available_ones() {
 }
 
 #[test]
-fn corrupt_truncated_and_too_new_files_are_refused_naming_the_file() {
+fn corrupt_truncated_and_too_new_files_are_refused_naming_the_file_older_ones_read() {
     let dir = tempfile::tempdir().unwrap();
     let log = hand_log(dir.path(), "whole.mcap", 120.0, (0, 600), |t| t, |_| 1.0);
     let bytes = std::fs::read(&log.path).unwrap();
@@ -337,6 +337,26 @@ fn corrupt_truncated_and_too_new_files_are_refused_naming_the_file() {
         err.contains("missing.mcap") && err.contains("cannot read"),
         "{err}"
     );
+
+    // Version 1 (the camera channels in JSON) is still read: replay and compare do not read
+    // the camera channels, the only ones version 2 changed.
+    assert_eq!(crate::record::LOG_FORMAT_VERSION, 2);
+    let older = dir.path().join("older.mcap");
+    let mut run = RunMetadata::new("fa-hexa", "pid6", 0);
+    run.log_format_version = 1;
+    let mut r = McapRecorder::create(&older, &run).unwrap();
+    let channel: crate::record::Channel<crate::flight_log::Disturbances> =
+        r.channel("/disturbances").unwrap();
+    let none = crate::flight_log::Disturbances {
+        drag_n: [0.0; 3],
+        wind_n: [0.0; 3],
+        ground_effect_n: [0.0; 3],
+        near_wall_n: [0.0; 3],
+    };
+    r.log(&channel, 0, &none).unwrap();
+    r.finish().unwrap();
+    let read = read_flight_log(&older, false).unwrap();
+    assert_eq!(read.recording.messages.len(), 1);
 
     let newer = dir.path().join("newer.mcap");
     let mut run = RunMetadata::new("fa-hexa", "pid6", 0);

@@ -23,7 +23,7 @@ use super::{
     node_alive,
 };
 use crate::sensors::ideal_imu;
-use crate::{TaskId, Twin, TwinConfig, TwinError};
+use crate::{TaskId, Twin, TwinConfig, TwinError, TwinObserver};
 
 /// How the twin's time advances.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -358,6 +358,8 @@ pub struct TwinServer {
     /// The measurement handed out last (with observation noise when on).
     observed: Measurement,
     summary: ServeSummary,
+    /// Hears every reset and step (the live view of `twin serve --live`).
+    observer: Option<Box<dyn TwinObserver>>,
 }
 
 impl fmt::Debug for TwinServer {
@@ -431,8 +433,16 @@ impl TwinServer {
             previous_base,
             observed,
             summary: ServeSummary::default(),
+            observer: None,
             config,
         })
+    }
+
+    /// Shows every session's reset and every step to `observer` from now on (told of the
+    /// twin's current state at once).
+    pub fn set_observer(&mut self, mut observer: Box<dyn TwinObserver>) {
+        observer.reset(&self.twin);
+        self.observer = Some(observer);
     }
 
     /// The twin served.
@@ -579,6 +589,9 @@ impl TwinServer {
             },
             false => self.twin.reset(self.seed)?,
         }
+        if let Some(o) = &mut self.observer {
+            o.reset(&self.twin);
+        }
         self.previous_base = self.twin.truth().base;
         // As the in-process link: the state at the start is the exact one.
         self.observed = self.twin.truth().clone();
@@ -665,6 +678,9 @@ impl TwinServer {
                     self.fail_session(&e, on_event)?;
                     return Ok(true);
                 }
+            }
+            if let Some(o) = &mut self.observer {
+                o.stepped(&self.twin, &command);
             }
             if let Some(s) = &mut self.session {
                 s.tick += 1;
@@ -817,6 +833,9 @@ impl TwinServer {
         match self.twin.step(&command) {
             Ok(m) => self.observed = m,
             Err(e) => return self.fail_session(&e, on_event),
+        }
+        if let Some(o) = &mut self.observer {
+            o.stepped(&self.twin, &command);
         }
         self.publish_with(now, flags.unwrap_or(0))
     }
