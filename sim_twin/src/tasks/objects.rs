@@ -144,13 +144,6 @@ pub(crate) fn contact_force_n(
         .map_or(0.0, |p| p.total_impulse_magnitude() / substep_s)
 }
 
-/// Whether two colliders touch (an active contact).
-pub(crate) fn touching(world: &PhysicsWorld, a: ColliderHandle, b: ColliderHandle) -> bool {
-    world
-        .contact_pair(a, b)
-        .is_some_and(|p| p.has_any_active_contact())
-}
-
 /// Quaternion from Euler x-y-z (roll, pitch, yaw) as Isaac Lab's `quat_from_euler_xyz`
 /// (R = Rz·Ry·Rx).
 pub(crate) fn euler_xyz(roll: f64, pitch: f64, yaw: f64) -> UnitQuaternion<f64> {
@@ -321,23 +314,61 @@ impl Grasp {
         if self.held.is_some() || !assisted {
             return;
         }
-        let touches = |world: &PhysicsWorld, finger: &[ColliderHandle], object: RigidBodyHandle| {
-            world.bodies.get(object).is_some_and(|rb| {
-                rb.colliders()
-                    .iter()
-                    .any(|o| finger.iter().any(|f| touching(world, *f, *o)))
-            })
+        // Each finger must press the object with its inner face: the contact normal (finger
+        // to object) within 60° of the way the finger closes, toward the other finger. A
+        // fingertip or an outer face touching (e.g. a door panel beside a jammed gripper) is
+        // no grip.
+        let (Some(a), Some(b)) = (
+            finger_origin(world, &fingers[0]),
+            finger_origin(world, &fingers[1]),
+        ) else {
+            return;
         };
-        let found = self
-            .graspable
-            .iter()
-            .copied()
-            .find(|o| touches(world, &fingers[0], *o) && touches(world, &fingers[1], *o));
+        let Some(inward) = (b - a).try_normalize(1e-9) else {
+            return;
+        };
+        let found = self.graspable.iter().copied().find(|o| {
+            presses(world, &fingers[0], &inward, *o) && presses(world, &fingers[1], &-inward, *o)
+        });
         if let Some(object) = found {
             // The fingers stopped on it: it slips out once they open past this width.
             self.attach(world, ee_body, object, width_m + RELEASE_MARGIN_M);
         }
     }
+}
+
+/// Smallest cosine between a finger's contact normal and its closing direction for the
+/// contact to count as a grip (60°).
+const GRIP_NORMAL_COS: f64 = 0.5;
+
+/// World position of the body a finger's first collider is attached to.
+fn finger_origin(world: &PhysicsWorld, finger: &[ColliderHandle]) -> Option<Vector3<f64>> {
+    let body = world.colliders.get(*finger.first()?)?.parent()?;
+    Some(pose_of(world, body).translation.vector)
+}
+
+/// Whether `finger` touches `object` with a contact whose normal (finger → object) points
+/// along `closing` (unit, world) within the grip cone.
+fn presses(
+    world: &PhysicsWorld,
+    finger: &[ColliderHandle],
+    closing: &Vector3<f64>,
+    object: RigidBodyHandle,
+) -> bool {
+    let Some(rb) = world.bodies.get(object) else {
+        return false;
+    };
+    finger.iter().any(|f| {
+        rb.colliders().iter().any(|o| {
+            world.contact_pair(*f, *o).is_some_and(|pair| {
+                let sign = if pair.collider1 == *f { 1.0 } else { -1.0 };
+                pair.manifolds().iter().any(|m| {
+                    !m.data.solver_contacts.is_empty()
+                        && sign * vector_from_rapier(m.data.normal).dot(closing) > GRIP_NORMAL_COS
+                })
+            })
+        })
+    })
 }
 
 /// Sets a dynamic body's linear velocity (throws, tests).

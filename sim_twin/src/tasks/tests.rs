@@ -220,3 +220,51 @@ fn wall_and_button_randomisation_stays_in_the_spec_ranges() {
         );
     }
 }
+
+/// Two fixed fingers 0.02 m either side of the x axis (their inner faces at y = ±`gap`/2), a
+/// dynamic graspable box at `object_at` with half extents `half`, after one step: whether the
+/// assisted grasp engages as the gripper closes.
+fn grasp_engages(gap: f64, object_at: Vector3<f64>, half: Vector3<f64>) -> bool {
+    use super::objects::Grasp;
+    let mut w = world();
+    w.gravity = Vector::ZERO;
+    let ee = fixed_body(&mut w, &Isometry3::identity());
+    let finger = |w: &mut PhysicsWorld, y: f64| {
+        let body = fixed_body(w, &Isometry3::translation(0.0, y, 0.0));
+        vec![w.insert_collider(ColliderBuilder::cuboid(0.05, 0.004, 0.01), Some(body))]
+    };
+    let fingers = [
+        finger(&mut w, -(gap / 2.0 + 0.004)),
+        finger(&mut w, gap / 2.0 + 0.004),
+    ];
+    let object =
+        w.insert_body(RigidBodyBuilder::dynamic().translation(vector_to_rapier(&object_at)));
+    w.insert_collider(
+        ColliderBuilder::cuboid(half.x, half.y, half.z),
+        Some(object),
+    );
+    w.step();
+    let mut grasp = Grasp {
+        graspable: vec![object],
+        ..Grasp::default()
+    };
+    grasp.update(&mut w, ee, &fingers, (true, gap, 0.0), true);
+    grasp.held.is_some()
+}
+
+#[test]
+fn the_assisted_grasp_engages_on_the_inner_faces_only() {
+    // Between the fingers, pressing both inner faces (0.5 mm deep): a grip.
+    assert!(grasp_engages(
+        0.04,
+        Vector3::zeros(),
+        Vector3::new(0.03, 0.0205, 0.03)
+    ));
+    // Against both fingertips (a panel across the gripper's front, 0.5 mm deep): no grip,
+    // though both fingers touch it.
+    assert!(!grasp_engages(
+        0.04,
+        Vector3::new(0.05 + 0.03 - 0.0005, 0.0, 0.0),
+        Vector3::new(0.03, 0.06, 0.03)
+    ));
+}
