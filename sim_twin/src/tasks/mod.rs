@@ -16,7 +16,7 @@
 //!   stable at any damping-to-inertia ratio). An impulse joint would let a load through its
 //!   anchor leak past a heavily damped drive.
 //! - Grasping ([`GraspMode`]): physical contact and friction between fingers and object,
-//!   plus, by default, a grasp constraint that engages only while both fingers touch the
+//!   plus, by default, a grasp constraint that engages only while both fingers press the
 //!   object with the gripper closing and releases when the gripper opens.
 //! - Where the reference keeps geometry or masses only in USD assets ([U] in the spec), each
 //!   scene module writes the value it chose beside the constant.
@@ -254,8 +254,9 @@ impl std::fmt::Display for TaskId {
 #[serde(rename_all = "kebab-case")]
 pub enum GraspMode {
     /// Contact and friction, plus a fixed constraint between the end-effector body and the
-    /// object while both fingers touch it and the gripper is closing (action < 0); released
-    /// as soon as the gripper opens (action ≥ 0). Pre-grasped objects start constrained.
+    /// object while both fingers press it with their inner faces and the gripper is closing
+    /// (action < 0); released as soon as the gripper opens (action ≥ 0). Pre-grasped objects
+    /// start constrained.
     #[default]
     Assisted,
     /// Contact and friction only (pre-grasped objects still start constrained).

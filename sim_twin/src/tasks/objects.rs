@@ -295,8 +295,9 @@ impl Grasp {
     /// One tick of the assisted grasp: release once the gripper opens (action ≥ 0) and its
     /// drives no longer squeeze the held object — their targets wider than the object (a
     /// friction grip lets go when the squeeze is gone, before the fingers have moved); engage
-    /// when it is closing and both fingers touch a graspable object. `width_m` is the measured
-    /// gripper width, `target_width_m` the width its drives are commanded to.
+    /// when it is closing and both fingers press a graspable object with their inner faces.
+    /// `width_m` is the measured gripper width, `target_width_m` the width its drives are
+    /// commanded to.
     pub fn update(
         &mut self,
         world: &mut PhysicsWorld,
