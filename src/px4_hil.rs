@@ -24,7 +24,7 @@ use policy_runtime::metrics::CriteriaLatch;
 use policy_runtime::record::foxglove::{FrameTransforms, PoseInFrame};
 use policy_runtime::record::{Channel, McapRecorder, RunMetadata};
 use sim_twin::ipc::Mode;
-use sim_twin::{Twin, TwinConfig};
+use sim_twin::{Twin, TwinConfig, TwinObserver};
 use twin_hil::{HilConfig, HilError, HilObserver, HilServer, HilTick, Px4Airframe, SessionStats};
 
 use crate::cli_error::bad_input;
@@ -49,9 +49,11 @@ pub struct Serve {
     pub sessions: Option<u64>,
     /// MCAP log of the sessions.
     pub mcap: Option<PathBuf>,
+    /// The live view (`--live`), told of every session start and tick.
+    pub live: Option<Box<dyn TwinObserver>>,
 }
 
-pub fn run_serve(serve: &Serve) -> Result<()> {
+pub fn run_serve(serve: Serve) -> Result<()> {
     let listen = twin_hil::parse_endpoint(&serve.endpoint)
         .map_err(|e| bad_input(format!("--px4-hil {e}")))?;
     if serve.stall_ms == 0 {
@@ -71,14 +73,50 @@ pub fn run_serve(serve: &Serve) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst));
-    let mut log = SessionLog::new(serve.mcap.clone(), &serve.vehicle, &serve.twin);
-    let sessions = server.run(&stop, &mut log, |event| eprintln!("px4-hil: {event}"))?;
+    let mut live = serve.live;
+    if let Some(view) = &mut live {
+        // Shown at once, as the other servers do when a view attaches: a viewer subscribes
+        // before PX4 connects (every session starts from this state).
+        view.reset(&Twin::new(serve.vehicle.clone(), serve.twin.clone())?);
+    }
+    let mut watch = Watch {
+        log: SessionLog::new(serve.mcap.clone(), &serve.vehicle, &serve.twin),
+        live,
+    };
+    let sessions = server.run(&stop, &mut watch, |event| eprintln!("px4-hil: {event}"))?;
+    let mut log = watch.log;
     log.close();
     if let Some(e) = log.error.take() {
         return Err(anyhow::anyhow!("MCAP log: {e}"));
     }
     eprintln!("px4-hil: stopped after {sessions} session(s)");
     Ok(())
+}
+
+/// The session log and the live view, each told of every session and tick.
+struct Watch {
+    log: SessionLog,
+    live: Option<Box<dyn TwinObserver>>,
+}
+
+impl HilObserver for Watch {
+    fn session_started(&mut self, session: u64, twin: &Twin) {
+        self.log.session_started(session, twin);
+        if let Some(live) = &mut self.live {
+            live.reset(twin);
+        }
+    }
+
+    fn tick(&mut self, tick: &HilTick<'_>) {
+        self.log.tick(tick);
+        if let Some(live) = &mut self.live {
+            live.stepped(tick.twin, tick.command);
+        }
+    }
+
+    fn session_ended(&mut self, session: u64, stats: &SessionStats) {
+        self.log.session_ended(session, stats);
+    }
 }
 
 /// The MCAP file of session `n` (1: `path` itself).

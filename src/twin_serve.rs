@@ -160,11 +160,11 @@ pub struct ServeArgs {
     /// or fail (exit 1).
     #[arg(long, value_name = "warn|fail", default_value = "warn")]
     realtime_policy: String,
-    /// --ipc, --mavlink: stream the twin's own truth live over the Foxglove WebSocket protocol
+    /// --ipc, --mavlink, --px4-hil: stream the twin's own truth live over the Foxglove WebSocket protocol
     /// (the 3D scene, /tf, poses, base state, joints, rotors, disturbances, task state):
     /// open Foxglove, "Open connection", ws://ADDR. ADDR is IP:PORT [default: 127.0.0.1:8765].
     /// The twin never waits for a viewer: a full queue drops messages and counts them.
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = policy_runtime::live::DEFAULT_LIVE_ADDR, conflicts_with = "px4_hil")]
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = policy_runtime::live::DEFAULT_LIVE_ADDR)]
     live: Option<String>,
     /// The twin's settings, as in `amstack track`; every session starts from the seed.
     #[command(flatten)]
@@ -189,9 +189,12 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
     if let Some(endpoint) = &args.px4_hil {
         let mut twin = args.twin.twin_config()?;
         args.scene.apply(&mut twin)?;
-        return crate::px4_hil::run_serve(&crate::px4_hil::Serve {
+        let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
+        let live = start_live(args.live.as_deref())?;
+        let view = twin_view(live.as_deref(), &vehicle, &twin)?;
+        let served = crate::px4_hil::run_serve(crate::px4_hil::Serve {
             endpoint: endpoint.clone(),
-            vehicle: find_vehicle(&args.vehicles, &args.platform)?,
+            vehicle,
             twin,
             mode: if args.realtime {
                 Mode::Realtime
@@ -202,7 +205,10 @@ fn run_serve(args: &ServeArgs) -> Result<()> {
             first_reply_ms: args.first_reply_ms,
             sessions: args.sessions,
             mcap: args.mcap.clone(),
+            live: view,
         });
+        finish_live(live.as_deref());
+        return served;
     }
     let ipc = args.ipc.clone().unwrap_or_default();
     if ipc.is_empty() || ipc.contains(char::is_whitespace) {

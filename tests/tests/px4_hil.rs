@@ -847,3 +847,65 @@ fn realtime_ticks_one_period_per_hil_sensor() {
         assert_eq!(s.time_usec, want, "tick {n}");
     }
 }
+
+#[test]
+fn a_px4_hil_twin_streams_its_steps_live() {
+    let _serial = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let addr = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .unwrap()
+        .to_string();
+    let (mut twin, port) = start_twin(&["--sessions", "1", "--live", &addr]);
+    twin.wait_for("live view: ws://");
+    let ready = dir.path().join("subscribed");
+    let mut viewer = std::process::Command::new(tests::python())
+        .arg(tests::scripts_dir().join("foxglove_ws_client.py"))
+        .args([
+            &format!("ws://{addr}"),
+            "--topics",
+            "/scene/tf,/scene/static,/base/state",
+            "--messages",
+            "100",
+            "--need",
+            "/scene/static=1",
+            "--timeout",
+            "120",
+            "--ready-file",
+            ready.to_str().unwrap(),
+        ])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    while !ready.exists() {
+        assert!(viewer.try_wait().unwrap().is_none(), "the viewer exited");
+        assert!(
+            started.elapsed().as_secs() < 120,
+            "the viewer never subscribed"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let vehicle = Vehicle::builtin("fa-hexa").unwrap();
+    let mut px4 = StandIn::connect(port, &vehicle);
+    px4.fly(
+        &[Leg {
+            from_tick: 0,
+            target_m: Vector3::new(0.0, 0.0, 1.0),
+        }],
+        300,
+    );
+    twin.wait_for("session 1 ended");
+    let viewed = viewer.wait_with_output().unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&viewed.stdout).unwrap();
+    assert!(viewed.status.success(), "{report}");
+    assert!(twin.wait().success(), "{}", twin.stderr());
+    let got = &report["received"];
+    // One message set per HIL tick, a control period of the twin's time apart.
+    for topic in ["/scene/tf", "/base/state"] {
+        let entry = &got[topic];
+        assert!(entry["count"].as_u64().unwrap() >= 100, "{topic}: {entry}");
+        let step = entry["median_step_ns"].as_f64().unwrap();
+        assert!((step - 1e9 / RATE_HZ).abs() <= 1.0, "{topic}: {step} ns");
+    }
+}
