@@ -243,21 +243,7 @@ pub fn run(args: &Args) -> Result<()> {
                 eprint!("\rexport-openpi: {e} episodes");
             };
             let export = export_openpi(dirs, out, *target_hz, &mut progress);
-            let export = export.map_err(|e| {
-                // The error on a line of its own, after the progress; no half-written --out.
-                if shown {
-                    eprintln!();
-                }
-                if existed {
-                    let _ = std::fs::remove_dir_all(out).and_then(|()| std::fs::create_dir(out));
-                } else {
-                    let _ = std::fs::remove_dir_all(out);
-                }
-                match e {
-                    DatasetError::Invalid { .. } => bad_input(e.to_string()),
-                    e => anyhow::Error::new(e),
-                }
-            })?;
+            let export = export.map_err(|e| failed_out(e, shown, existed, out))?;
             eprintln!();
             println!(
                 "exported {} episodes, {} frames at {} Hz (every {}th of {} raw frames){} to {}",
@@ -298,21 +284,7 @@ pub fn run(args: &Args) -> Result<()> {
                 eprint!("\rmerge: {e} episodes");
             };
             let w = merge(dirs, out, &mut progress);
-            let w = w.map_err(|e| {
-                // The error on a line of its own, after the progress; no half-written --out.
-                if shown {
-                    eprintln!();
-                }
-                if existed {
-                    let _ = std::fs::remove_dir_all(out).and_then(|()| std::fs::create_dir(out));
-                } else {
-                    let _ = std::fs::remove_dir_all(out);
-                }
-                match e {
-                    DatasetError::Invalid { .. } => bad_input(e.to_string()),
-                    e => anyhow::Error::new(e),
-                }
-            })?;
+            let w = w.map_err(|e| failed_out(e, shown, existed, out))?;
             eprintln!();
             println!(
                 "merged {} datasets: {} episodes, {} frames in {}",
@@ -323,5 +295,22 @@ pub fn run(args: &Args) -> Result<()> {
             );
             Ok(())
         }
+    }
+}
+
+/// A command writing `out` failed with `e`: the error on a line of its own after the
+/// progress (`shown`), and no half-written `out` (emptied if it `existed`, else removed).
+fn failed_out(e: DatasetError, shown: bool, existed: bool, out: &Path) -> anyhow::Error {
+    if shown {
+        eprintln!();
+    }
+    if existed {
+        let _ = std::fs::remove_dir_all(out).and_then(|()| std::fs::create_dir(out));
+    } else {
+        let _ = std::fs::remove_dir_all(out);
+    }
+    match e {
+        DatasetError::Invalid { .. } => bad_input(e.to_string()),
+        e => anyhow::Error::new(e),
     }
 }

@@ -133,16 +133,7 @@ fn pct(ours: f64, base: f64) -> f64 {
 }
 
 pub(super) fn run(a: &Args) -> Result<()> {
-    let jobs = runs::jobs(a.jobs)?;
-    runs::check_substeps(a.physics_substeps)?;
-    if let Some(d) = a.duration
-        && !(d.is_finite() && d > 2.0)
-    {
-        return Err(bad_input(format!(
-            "--duration {d}: must be longer than track's 2 s settling time"
-        )));
-    }
-    super::prepare_out(&a.out)?;
+    let jobs = runs::prepare(a.jobs, a.physics_substeps, a.duration, &a.out)?;
     let logs = a.out.join("logs");
     std::fs::create_dir_all(&logs)
         .map_err(|e| bad_input(format!("--out {}: {e}", a.out.display())))?;

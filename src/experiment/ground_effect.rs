@@ -14,7 +14,6 @@ use policy_runtime::validation::CompareReport;
 use serde_json::json;
 
 use super::runs::{self, Check};
-use crate::cli_error::bad_input;
 use crate::output::{significant, write_json};
 
 pub(super) const AFTER_HELP: &str = "\
@@ -87,16 +86,7 @@ fn cell(x: Option<f64>) -> String {
 }
 
 pub(super) fn run(a: &Args) -> Result<()> {
-    let jobs = runs::jobs(a.jobs)?;
-    runs::check_substeps(a.physics_substeps)?;
-    if let Some(d) = a.duration
-        && !(d.is_finite() && d > 2.0)
-    {
-        return Err(bad_input(format!(
-            "--duration {d}: must be longer than track's 2 s settling time"
-        )));
-    }
-    super::prepare_out(&a.out)?;
+    let jobs = runs::prepare(a.jobs, a.physics_substeps, a.duration, &a.out)?;
     let real = a.out.join("ge-real.mcap");
     let mut flags = runs::strings(&[
         "--platform",

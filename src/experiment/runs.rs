@@ -29,6 +29,27 @@ pub(super) fn check_substeps(n: Option<u32>) -> Result<()> {
     Ok(())
 }
 
+/// The checks every experiment makes before it flies (`--jobs`, `--physics-substeps`, a
+/// `--duration` past track's 2 s settling), then its `--out` folder made: the worker count.
+pub(super) fn prepare(
+    jobs_flag: Option<usize>,
+    substeps: Option<u32>,
+    duration: Option<f64>,
+    out: &Path,
+) -> Result<usize> {
+    let jobs = jobs(jobs_flag)?;
+    check_substeps(substeps)?;
+    if let Some(d) = duration
+        && !(d.is_finite() && d > 2.0)
+    {
+        return Err(bad_input(format!(
+            "--duration {d}: must be longer than track's 2 s settling time"
+        )));
+    }
+    super::prepare_out(out)?;
+    Ok(jobs)
+}
+
 /// `--physics-substeps N` when set (track's flag), else nothing.
 pub(super) fn substeps(n: Option<u32>) -> Vec<String> {
     n.map(|n| vec!["--physics-substeps".to_owned(), n.to_string()])

@@ -63,3 +63,30 @@ pub fn mcap_check(file: &Path, args: &[&str]) -> (i32, serde_json::Value) {
     });
     (out.status.code().unwrap_or(-1), report)
 }
+
+/// The Foxglove WebSocket test client (`scripts/foxglove_ws_client.py`) with `args`, run by
+/// the virtualenv's python.
+pub fn ws_client(args: &[&str]) -> Command {
+    let mut c = Command::new(python());
+    c.arg(scripts_dir().join("foxglove_ws_client.py"))
+        .args(args);
+    c
+}
+
+/// Waits until `path` exists (the client's `--ready-file`: it has subscribed).
+///
+/// # Panics
+/// If the client exits first, or after 120 s.
+pub fn wait_for_file(path: &Path, client: &mut std::process::Child) {
+    let started = std::time::Instant::now();
+    while !path.exists() {
+        if let Ok(Some(status)) = client.try_wait() {
+            panic!("the client exited ({status}) before it subscribed");
+        }
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(120),
+            "the client never subscribed"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}

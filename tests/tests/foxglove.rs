@@ -14,7 +14,7 @@ use std::process::Command;
 
 use serde_json::Value;
 use tests::process::{Proc, amstack};
-use tests::{mcap_check, python, scripts_dir};
+use tests::{mcap_check, scripts_dir, wait_for_file, ws_client};
 
 /// Runs amstack to completion; panics with its stderr on failure.
 fn run(args: &[&str]) -> String {
@@ -278,13 +278,6 @@ fn rerun_converts_a_press_button_log_into_transforms_scene_entities_and_images()
     }
 }
 
-fn client(args: &[&str]) -> Command {
-    let mut c = Command::new(python());
-    c.arg(scripts_dir().join("foxglove_ws_client.py"))
-        .args(args);
-    c
-}
-
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
@@ -343,10 +336,10 @@ fn a_live_viewer_receives_the_scene_at_the_tick_rate_and_changes_nothing() {
     let line = proc.wait_for("live view: ws://");
     assert!(line.contains(&addr), "{line}");
     let url = format!("ws://{addr}");
-    let slow = client(&[&url, "--stall", "3", "--timeout", "30"])
+    let slow = ws_client(&[&url, "--stall", "3", "--timeout", "30"])
         .spawn()
         .unwrap();
-    let out = client(&[
+    let out = ws_client(&[
         &url,
         "--messages",
         "60",
@@ -400,21 +393,6 @@ fn a_live_viewer_receives_the_scene_at_the_tick_rate_and_changes_nothing() {
     assert_eq!(results(&alone), results(&watched));
 }
 
-/// Waits until `path` exists (the client subscribed) or `client` exited.
-fn wait_for_file(path: &Path, client: &mut std::process::Child) {
-    let started = std::time::Instant::now();
-    while !path.exists() {
-        if let Ok(Some(status)) = client.try_wait() {
-            panic!("the client exited ({status}) before it subscribed");
-        }
-        assert!(
-            started.elapsed() < std::time::Duration::from_secs(120),
-            "the client never subscribed"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-}
-
 #[test]
 fn a_served_twin_streams_its_truth_live_while_another_process_flies_it() {
     let dir = tempfile::tempdir().unwrap();
@@ -443,7 +421,7 @@ fn a_served_twin_streams_its_truth_live_while_another_process_flies_it() {
     let ready = dir.path().join("subscribed");
     let topics =
         "/scene/tf,/scene/static,/scene/dynamic,/tf,/base/state,/joints,/rotors,/task/state";
-    let mut viewer = client(&[
+    let mut viewer = ws_client(&[
         &format!("ws://{addr}"),
         "--topics",
         topics,
@@ -572,7 +550,7 @@ fn the_twins_mavlink_autopilot_streams_its_steps_live() {
     let mut autopilot = Proc::start("twin serve --mavlink --live", &args);
     autopilot.wait_for("live view: ws://");
     let ready = dir.path().join("subscribed");
-    let mut viewer = client(&[
+    let mut viewer = ws_client(&[
         &format!("ws://{addr}"),
         "--topics",
         "/scene/tf,/scene/static,/scene/dynamic,/base/state,/rotors",

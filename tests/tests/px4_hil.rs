@@ -859,33 +859,23 @@ fn a_px4_hil_twin_streams_its_steps_live() {
     let (mut twin, port) = start_twin(&["--sessions", "1", "--live", &addr]);
     twin.wait_for("live view: ws://");
     let ready = dir.path().join("subscribed");
-    let mut viewer = std::process::Command::new(tests::python())
-        .arg(tests::scripts_dir().join("foxglove_ws_client.py"))
-        .args([
-            &format!("ws://{addr}"),
-            "--topics",
-            "/scene/tf,/scene/static,/base/state",
-            "--messages",
-            "100",
-            "--need",
-            "/scene/static=1",
-            "--timeout",
-            "120",
-            "--ready-file",
-            ready.to_str().unwrap(),
-        ])
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let started = std::time::Instant::now();
-    while !ready.exists() {
-        assert!(viewer.try_wait().unwrap().is_none(), "the viewer exited");
-        assert!(
-            started.elapsed().as_secs() < 120,
-            "the viewer never subscribed"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let mut viewer = tests::ws_client(&[
+        &format!("ws://{addr}"),
+        "--topics",
+        "/scene/tf,/scene/static,/base/state",
+        "--messages",
+        "100",
+        "--need",
+        "/scene/static=1",
+        "--timeout",
+        "120",
+        "--ready-file",
+        ready.to_str().unwrap(),
+    ])
+    .stdout(std::process::Stdio::piped())
+    .spawn()
+    .unwrap();
+    tests::wait_for_file(&ready, &mut viewer);
     let vehicle = Vehicle::builtin("fa-hexa").unwrap();
     let mut px4 = StandIn::connect(port, &vehicle);
     px4.fly(
