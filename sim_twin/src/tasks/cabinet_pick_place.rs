@@ -66,7 +66,9 @@ use crate::vehicle_body::material;
 /// Cabinet root position (env-local) [U]: see the module doc.
 pub(crate) const CABINET_ROOT: Vector3<f64> = Vector3::new(2.30, 0.0, 0.80);
 /// Default can position: root + (0.76, 0.3, 1.17).
-pub(crate) const CAN_DEFAULT: Vector3<f64> = Vector3::new(2.26, 0.3, 1.17);
+pub(crate) const CAN_DEFAULT: Vector3<f64> = Vector3::new(2.26, 0.3, CAN_Z_M);
+/// Default can centre height, m (spec).
+const CAN_Z_M: f64 = 1.17;
 /// Placement surface (the cabinet's top), m.
 pub(crate) const DRAWER_TOP_Z: f64 = 1.67;
 /// Success: can origin height above the top, [lo, hi), m.
@@ -113,7 +115,7 @@ const CARCASS: [([f64; 3], [f64; 3]); 5] = [
 
 /// The can stand's half section (x, y), m, and its z range [U].
 const STAND_HALF_M: f64 = 0.025;
-const STAND_Z: (f64, f64) = (0.25, 1.125);
+const STAND_Z: (f64, f64) = (0.25, CAN_Z_M - CAN_HALF_HEIGHT_M);
 
 /// World boxes of the closed door: panel, handle bar, two posts [U].
 const DOOR_BOXES: [([f64; 3], [f64; 3]); 4] = [
