@@ -268,3 +268,75 @@ fn the_assisted_grasp_engages_on_the_inner_faces_only() {
         Vector3::new(0.03, 0.06, 0.03)
     ));
 }
+
+/// An object of one `shape` (placed by `shape_pose` in its frame) held by the assisted grasp
+/// of a gripper fixed in the world, turned by `torque` (world, N·m) for 0.5 s: the angle it
+/// turned through, rad.
+fn turn_in_the_fingers(
+    shape: ColliderBuilder,
+    shape_pose: Isometry3<f64>,
+    torque: Vector3<f64>,
+) -> f64 {
+    let mut w = world_with(false);
+    w.gravity = Vector::ZERO;
+    let ee = fixed_body(&mut w, &Isometry3::translation(0.0, 0.0, 1.0));
+    let object = w.insert_body(
+        RigidBodyBuilder::dynamic()
+            .pose(crate::convert::pose_to_rapier(&Isometry3::translation(
+                0.18, 0.0, 1.0,
+            )))
+            .build(),
+    );
+    w.insert_collider(
+        shape
+            .density(100.0)
+            .position(crate::convert::pose_to_rapier(&shape_pose)),
+        Some(object),
+    );
+    let mut grasp = super::objects::Grasp::default();
+    grasp.attach(&mut w, ee, object, 0.04);
+    for _ in 0..240 {
+        if let Some(rb) = w.bodies.get_mut(object) {
+            rb.reset_torques(false);
+            rb.add_torque(vector_to_rapier(&torque), true);
+        }
+        w.step();
+    }
+    super::objects::pose_of(&w, object).rotation.angle()
+}
+
+#[test]
+fn a_grasped_round_bar_spins_about_its_own_axis_and_nothing_else_turns() {
+    // The valve's handle: a bar along x (rapier's cylinder stands along y).
+    let along_x = Isometry3::rotation(Vector3::z() * std::f64::consts::FRAC_PI_2);
+    let bar = || ColliderBuilder::cylinder(0.05, 0.015);
+    // 1e-5 N·m about its axis for 0.5 s turns the free bar ½·(τ/I)·t² = 1.571 rad
+    // (m = 100 kg/m³ · π · 0.015² · 0.1 m³ = 7.07 g, I = ½·m·r² = 7.95e-7 kg·m²): the grasp
+    // holds no torque about it.
+    let spun = turn_in_the_fingers(bar(), along_x, Vector3::new(1e-5, 0.0, 0.0));
+    let free = 0.5 * 1e-5 / (0.5 * 100.0 * std::f64::consts::PI * 0.015f64.powi(4) * 0.1) * 0.25;
+    assert!(
+        (spun - free).abs() < 0.02 * free,
+        "the bar turned {spun} rad about its axis, free {free}"
+    );
+    // 10 N·m across it: the fingers hold it (to the joint solver's slack).
+    for torque in [Vector3::new(0.0, 10.0, 0.0), Vector3::new(0.0, 0.0, 10.0)] {
+        let tipped = turn_in_the_fingers(bar(), along_x, torque);
+        assert!(
+            tipped < 1e-3,
+            "the bar tipped {tipped} rad under {torque:?}"
+        );
+    }
+    // A box is held about every axis.
+    for torque in [Vector3::x(), Vector3::y(), Vector3::z()] {
+        let turned = turn_in_the_fingers(
+            ColliderBuilder::cuboid(0.05, 0.015, 0.015),
+            Isometry3::identity(),
+            torque * 10.0,
+        );
+        assert!(
+            turned < 1e-3,
+            "the box turned {turned} rad under {torque:?}"
+        );
+    }
+}
