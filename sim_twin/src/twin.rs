@@ -41,6 +41,13 @@ use crate::vehicle_body::{self, ROBOT_GROUP, VehicleBody, WORLD_GROUP, material}
 /// Standard gravity of the world, m/s² (AMBENCH_SPEC §0).
 const GRAVITY_MPS2: f64 = platform::GRAVITY_MPS2;
 
+/// How far apart two colliders get contacts (rapier's speculative contacts), m: the
+/// reference's PhysX contact offset (0.005 m on its task objects, AMBENCH_SPEC §4.10, §4.12).
+/// rapier 0.36's default, 0.02 m, let the FA-Hexa's open fingers push the lemon from 18 mm
+/// away (the stem broke at 23 N before the fingers closed: 4 of 30 Lemon Harvesting rollouts
+/// failed so, on the FA-Hexa and on the EE-only oracle alike; none at 0.005 m).
+pub(crate) const PREDICTION_DISTANCE_M: f64 = 0.005;
+
 /// A rotor's force for the current tick, in its own frame (so it turns with the rotor
 /// during substeps), and where it is mounted.
 #[derive(Debug, Clone, Copy)]
@@ -189,6 +196,7 @@ impl Twin {
         world.integration_parameters.dt =
             config.control_dt_s() / f64::from(config.physics_substeps);
         world.integration_parameters.num_solver_iterations = config.solver_iterations as usize;
+        world.integration_parameters.normalized_prediction_distance = PREDICTION_DISTANCE_M;
         // The ground: a half-space at z = 0.
         let ground = world.insert_body(RigidBodyBuilder::fixed());
         let groups = InteractionGroups::new(WORLD_GROUP, Group::ALL, InteractionTestMode::And);

@@ -12,6 +12,7 @@ pub(crate) fn world_with(ground: bool) -> PhysicsWorld {
     let mut w = PhysicsWorld::new();
     w.gravity = Vector::new(0.0, 0.0, -9.81);
     w.integration_parameters.dt = 1.0 / 480.0;
+    w.integration_parameters.normalized_prediction_distance = crate::twin::PREDICTION_DISTANCE_M;
     if ground {
         let body = w.insert_body(RigidBodyBuilder::fixed());
         w.insert_collider(
