@@ -341,3 +341,33 @@ fn the_fa_hexa_reaches_the_standing_frame_without_pushing_it() {
         );
     }
 }
+
+/// The twin's contacts start 5 mm apart (the reference's PhysX contact offset), not at
+/// rapier's default 2 cm: with 2 cm the FA-Hexa's open fingers, sliding past the lemon 11 mm
+/// from it on the approach of seed 17, pushed it off its stem (23 N) before they closed. The
+/// lemon stays where it hangs until the gripper holds it.
+#[test]
+fn the_open_fingers_pass_the_lemon_without_knocking_it_off() {
+    let mut start = None;
+    let mut moved_before_grasp = 0.0_f64;
+    let mut held = false;
+    fly_scripted(TaskId::LemonHarvesting, "fa-hexa", 17, |step| {
+        if let Some(s) = step.scene {
+            let l = s
+                .observation
+                .vec3("lemon_pos", 0)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let l0 = *start.get_or_insert(l);
+            held |= s.holding;
+            if !held {
+                moved_before_grasp = moved_before_grasp.max((l - l0).norm());
+            }
+        }
+        true
+    });
+    assert!(held, "the gripper never took the lemon");
+    assert!(
+        moved_before_grasp < 1e-3,
+        "the lemon moved {moved_before_grasp} m before the grasp"
+    );
+}
