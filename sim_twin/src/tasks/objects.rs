@@ -387,8 +387,17 @@ fn finger_origin(world: &PhysicsWorld, finger: &[ColliderHandle]) -> Option<Vect
     Some(pose_of(world, body).translation.vector)
 }
 
-/// Whether `finger` touches `object` with a contact whose normal (finger → object) points
-/// along `closing` (unit, world) within the grip cone.
+/// How near a finger's face must come to the object to count as pressing it, m. The twin's
+/// contacts start at 5 mm (`PREDICTION_DISTANCE_M`); the grip's test keeps the 2 cm it had
+/// while rapier's default contact distance set it: the script closes the fingers as it
+/// starts to move (Rotate Valve: closed at the circle's first step), and the fingers, slow
+/// on their 100 N/m drives, stand 0.0199 m open then; with a 5 mm reach the far finger met
+/// the valve's handle only after the near one had dragged it aside, and 20 of 30 FA-Hexa
+/// valve rollouts never engaged (measured).
+const GRIP_REACH_M: f64 = 0.02;
+
+/// Whether `finger` is within [`GRIP_REACH_M`] of `object`, its nearest points' normal
+/// (finger → object) along `closing` (unit, world) within the grip cone.
 fn presses(
     world: &PhysicsWorld,
     finger: &[ColliderHandle],
@@ -398,17 +407,26 @@ fn presses(
     let Some(rb) = world.bodies.get(object) else {
         return false;
     };
-    finger.iter().any(|f| {
-        rb.colliders().iter().any(|o| {
-            world.contact_pair(*f, *o).is_some_and(|pair| {
-                let sign = if pair.collider1 == *f { 1.0 } else { -1.0 };
-                pair.manifolds().iter().any(|m| {
-                    !m.data.solver_contacts.is_empty()
-                        && sign * vector_from_rapier(m.data.normal).dot(closing) > GRIP_NORMAL_COS
+    finger
+        .iter()
+        .filter_map(|f| world.colliders.get(*f))
+        .any(|f| {
+            rb.colliders()
+                .iter()
+                .filter_map(|o| world.colliders.get(*o))
+                .any(|o| {
+                    rapier3d_f64::parry::query::contact(
+                        f.position(),
+                        f.shape(),
+                        o.position(),
+                        o.shape(),
+                        GRIP_REACH_M,
+                    )
+                    .ok()
+                    .flatten()
+                    .is_some_and(|c| vector_from_rapier(c.normal1).dot(closing) > GRIP_NORMAL_COS)
                 })
-            })
         })
-    })
 }
 
 /// Sets a dynamic body's linear velocity (throws, tests).
