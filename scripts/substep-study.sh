@@ -1,34 +1,46 @@
 #!/usr/bin/env bash
-# Fidelity of fewer physics substeps per 120 Hz control tick (docs/speed.md): the same flights
-# with --physics-substeps 1, 2 and 4 (the default), compared by scripts/substep_study.py.
+# Fidelity of cheaper twin physics (docs/speed.md): the same flights at each (P, I) pair of
+# physics substeps per 120 Hz tick (--physics-substeps P) and rapier solver iterations per
+# substep (--solver-iterations I), compared with the default 4x4 by scripts/substep_study.py.
+# rapier rebuilds the vehicle's mass matrix at each of the P x I solver steps of a tick.
 #
 #   bash scripts/substep-study.sh [OUT_DIR] [ROLLOUTS]     (default runs/substeps, 5)
 #
-#   AMSTACK   the amstack command (default: cargo run --release --quiet --)
-#   SUBSTEPS  the counts to fly (default "1 2 4")
-#   TASKS     the benchmark tasks (default push-slider,press-button,wipe-window,cabinet-pick-place)
+#   AMSTACK      the amstack command (default: cargo run --release --quiet --)
+#   PAIRS        the PxI pairs to fly (default "4x4 1x4 4x1 2x2 2x1 1x2 1x1")
+#   BENCH_PAIRS  the pairs that also run the benchmark (default: all of PAIRS; "" for none)
+#   TASKS        the benchmark tasks (default all)
+#   EXPERIMENTS  1 (default) to run `experiment actuator|ground-effect|wrench-limit` per pair
+#   JOBS         worker threads of the benchmark and the experiments (default 1)
 #
-# Flights per count: FA-Hexa hover 20 s and x step with the reference disturbances (base
-# tracking), an EE step (EE interface), the Omni-Hexa EE step with every disturbance, and the
-# benchmark on TASKS (FA-Hexa, IK-PID, reference disturbances, seed 0). Each flight's wall
-# time is kept, so the table shows the speed each count buys.
+# Flights per pair: FA-Hexa hover 20 s and x step with the reference disturbances (base
+# tracking), an EE step (EE interface), the Omni-Hexa EE step with every disturbance, the
+# validation experiments, and the benchmark on TASKS (FA-Hexa, IK-PID, reference
+# disturbances, seed 0; its MCAPs hold the grasped objects' trajectories). A pair's folder
+# that already holds a result is kept (re-run the study to fill in what is missing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT="${1:-runs/substeps}"
 ROLLOUTS="${2:-5}"
 read -r -a AM <<< "${AMSTACK:-cargo run --release --quiet --}"
-TASKS="${TASKS:-push-slider,press-button,wipe-window,cabinet-pick-place}"
+PAIRS="${PAIRS:-4x4 1x4 4x1 2x2 2x1 1x2 1x1}"
+BENCH_PAIRS="${BENCH_PAIRS-$PAIRS}"
+TASKS="${TASKS:-all}"
+JOBS="${JOBS:-1}"
 mkdir -p "$OUT"
-for n in ${SUBSTEPS:-1 2 4}; do
-    echo "== $n physics substep(s) per tick" >&2
-    d="$OUT/n$n"
+for pair in $PAIRS; do
+    p=${pair%x*}
+    i=${pair#*x}
+    d="$OUT/p${p}i${i}"
     mkdir -p "$d"
-    timed() { # NAME ARGS...: runs amstack, keeps its wall time in NAME.time
+    echo "== $p physics substep(s) x $i solver iteration(s) per tick -> $d" >&2
+    timed() { # NAME ARGS...: runs amstack at this pair unless NAME is done, keeps its wall time
         local name=$1
         shift
+        [[ -s "$d/$name.time" ]] && return 0
         local start end
         start=$(date +%s.%N)
-        "${AM[@]}" "$@" --physics-substeps "$n" >"$d/$name.log" 2>&1
+        "${AM[@]}" "$@" --physics-substeps "$p" --solver-iterations "$i" >"$d/$name.log" 2>&1
         end=$(date +%s.%N)
         echo "$end - $start" | bc >"$d/$name.time"
     }
@@ -40,7 +52,16 @@ for n in ${SUBSTEPS:-1 2 4}; do
         --disturbances reference --json "$d/ee-step.json"
     timed omni track --platform omni-hexa --trajectory step --interface ee --disturbances all \
         --seed 3 --json "$d/omni.json"
-    timed bench bench --platform fa-hexa --task "$TASKS" --rollouts "$ROLLOUTS" --jobs 1 \
-        --disturbances reference --seed 0 --out "$d/bench" --json "$d/bench.json"
+    if [[ "${EXPERIMENTS:-1}" == 1 ]]; then
+        for e in actuator ground-effect wrench-limit; do
+            [[ -s "$d/$e.time" ]] || rm -rf "$d/exp-$e"
+            timed "$e" experiment "$e" --jobs "$JOBS" --out "$d/exp-$e"
+        done
+    fi
+    if [[ " $BENCH_PAIRS " == *" $pair "* ]]; then
+        [[ -s "$d/bench.time" ]] || rm -rf "$d/bench"
+        timed bench bench --platform fa-hexa --task "$TASKS" --rollouts "$ROLLOUTS" \
+            --jobs "$JOBS" --disturbances reference --seed 0 --out "$d/bench" --json "$d/bench.json"
+    fi
 done
-python3 scripts/substep_study.py "$OUT"
+"${PYTHON:-python3}" scripts/substep_study.py "$OUT"

@@ -26,10 +26,62 @@ pub struct TwinFlags {
     /// Seed of every random draw (noise).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    #[command(flatten)]
+    pub physics: PhysicsFlags,
+}
+
+/// How finely the twin's physics runs: `--physics-substeps` and `--solver-iterations`
+/// (`track`, `fly`, `twin serve`, `bench`, the experiments). rapier rebuilds the vehicle's
+/// mass matrix at every solver iteration of every substep: the product is the physics cost.
+#[derive(Debug, Clone, Copy, Default, clap::Args)]
+pub struct PhysicsFlags {
     /// Physics steps per 120 Hz control tick (rotor forces re-applied at the current poses
     /// before each). Default 4; fewer run faster, at the fidelity measured in docs/speed.md.
     #[arg(long, value_name = "N")]
     pub physics_substeps: Option<u32>,
+    /// rapier's solver iterations per physics step (each one a constraint solve and a
+    /// rebuild of the vehicle's mass matrix). Default 4; see docs/speed.md.
+    #[arg(long, value_name = "N")]
+    pub solver_iterations: Option<u32>,
+}
+
+impl PhysicsFlags {
+    /// Refuses a 0 before anything is written.
+    pub fn check(&self) -> Result<()> {
+        if self.physics_substeps == Some(0) {
+            return Err(bad_input("--physics-substeps: 0; at least 1 step per tick"));
+        }
+        if self.solver_iterations == Some(0) {
+            return Err(bad_input(
+                "--solver-iterations: 0; at least 1 iteration per physics step",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Sets the given counts on `twin` (after [`Self::check`]).
+    pub fn apply(&self, twin: &mut TwinConfig) -> Result<()> {
+        self.check()?;
+        if let Some(n) = self.physics_substeps {
+            twin.physics_substeps = n;
+        }
+        if let Some(n) = self.solver_iterations {
+            twin.solver_iterations = n;
+        }
+        Ok(())
+    }
+
+    /// The same flags as a command line (`track`'s), the unset ones left out.
+    pub fn flag_line(&self) -> Vec<String> {
+        let mut f = Vec::new();
+        if let Some(n) = self.physics_substeps {
+            f.extend(["--physics-substeps".to_owned(), n.to_string()]);
+        }
+        if let Some(n) = self.solver_iterations {
+            f.extend(["--solver-iterations".to_owned(), n.to_string()]);
+        }
+        f
+    }
 }
 
 impl TwinFlags {
@@ -49,12 +101,7 @@ impl TwinFlags {
         if let Some(k) = self.ground_effect_k {
             twin.aero.ground_effect_k = k;
         }
-        if let Some(n) = self.physics_substeps {
-            if n == 0 {
-                return Err(bad_input("--physics-substeps: 0; at least 1 step per tick"));
-            }
-            twin.physics_substeps = n;
-        }
+        self.physics.apply(&mut twin)?;
         twin.validate()
             .map_err(|e| bad_input(format!("twin: {e}")))?;
         Ok(twin)

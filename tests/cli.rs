@@ -245,13 +245,31 @@ fn missing_files_and_unknown_flags_are_bad_input() {
 }
 
 #[test]
-fn physics_substeps_are_recorded_and_zero_is_bad_input() {
+fn physics_counts_are_recorded_and_zero_is_bad_input() {
     assert_bad_input(
         &amstack(&["track", "--platform", "fa-hexa", "--physics-substeps", "0"]),
         &["--physics-substeps", "0"],
     );
-    // The count reaches the twin: a bench run's config.json holds it.
+    assert_bad_input(
+        &amstack(&["track", "--platform", "fa-hexa", "--solver-iterations", "0"]),
+        &["--solver-iterations", "0"],
+    );
+    // An experiment refuses it before it writes anything.
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let refused = dir.path().join("refused");
+    assert_bad_input(
+        &amstack(&[
+            "experiment",
+            "wrench-limit",
+            "--solver-iterations",
+            "0",
+            "--out",
+            &refused.to_string_lossy(),
+        ]),
+        &["--solver-iterations", "0"],
+    );
+    assert!(!refused.exists(), "a refused experiment wrote {refused:?}");
+    // The counts reach the twin: a bench run's config.json holds them.
     let out_dir = dir.path().join("run");
     let out = amstack(&[
         "bench",
@@ -263,6 +281,8 @@ fn physics_substeps_are_recorded_and_zero_is_bad_input() {
         "1",
         "--physics-substeps",
         "2",
+        "--solver-iterations",
+        "3",
         "--out",
         &out_dir.to_string_lossy(),
     ]);
@@ -272,6 +292,7 @@ fn physics_substeps_are_recorded_and_zero_is_bad_input() {
     )
     .unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(config["twin"]["physics_substeps"], 2, "{config}");
+    assert_eq!(config["twin"]["solver_iterations"], 3, "{config}");
 }
 
 #[test]

@@ -1,8 +1,10 @@
 //! Twin throughput: control ticks per second of `Twin::step`, single thread, FA-Hexa
 //! hovering at 1 m with every disturbance on (ground and near-wall ray casts against a wall
-//! 0.8 m away), at 4 physics substeps per 120 Hz tick (the default) and at 2 and 1 (the
-//! substep study of docs/speed.md). A PID6 and the allocator close the loop outside the timed
-//! part. Run: `cargo bench -p sim_twin --bench twin`.
+//! 0.8 m away), at each (physics substeps per 120 Hz tick, solver iterations per substep)
+//! pair of the study of docs/speed.md: 4x4 (the default), then the cheaper ones. rapier
+//! rebuilds the vehicle's mass matrix at every solver iteration of every substep, so the cost
+//! follows the product. A PID6 and the allocator close the loop outside the timed part.
+//! Run: `cargo bench -p sim_twin --bench twin` (one pair: `... -- 2x2`).
 
 use std::time::{Duration, Instant};
 
@@ -14,18 +16,19 @@ use platform::{ActuatorCommand, Vehicle};
 use sim_twin::{Disturbances, Twin, TwinConfig};
 
 fn twin_step(c: &mut Criterion) {
-    for substeps in [4, 2, 1] {
-        twin_step_at(c, substeps);
+    for (substeps, iterations) in [(4, 4), (1, 4), (4, 1), (2, 2), (2, 1), (1, 2), (1, 1)] {
+        twin_step_at(c, substeps, iterations);
     }
 }
 
-fn twin_step_at(c: &mut Criterion, physics_substeps: u32) {
+fn twin_step_at(c: &mut Criterion, physics_substeps: u32, solver_iterations: u32) {
     let Ok(vehicle) = Vehicle::builtin("fa-hexa") else {
         return;
     };
     let config = TwinConfig {
         disturbances: Disturbances::all(),
         physics_substeps,
+        solver_iterations,
         ..TwinConfig::default()
     };
     let make = || -> Option<Twin> {
@@ -49,10 +52,10 @@ fn twin_step_at(c: &mut Criterion, physics_substeps: u32) {
     let dt = config.control_dt_s();
     let joints = vehicle.initial_configuration();
     // The default keeps its historical name, so criterion compares it with earlier runs.
-    let name = if physics_substeps == 4 {
+    let name = if (physics_substeps, solver_iterations) == (4, 4) {
         "twin_step/fa-hexa_hover_all_disturbances".to_owned()
     } else {
-        format!("twin_step/fa-hexa_hover_all_disturbances_{physics_substeps}_substeps")
+        format!("twin_step/fa-hexa_hover_all_disturbances_{physics_substeps}x{solver_iterations}")
     };
     c.bench_function(&name, |b| {
         b.iter_custom(|ticks| {

@@ -80,6 +80,9 @@ pub struct Twin {
     direct_wrench: Option<Wrench>,
     time_s: f64,
     truth: Measurement,
+    /// The realised rotor thrusts of the tick (kept: a step allocates nothing of its own
+    /// besides the measurement it returns).
+    realised_n: Vec<f64>,
     diverged_at: Option<f64>,
     task: TaskState,
 }
@@ -161,6 +164,7 @@ impl Twin {
             direct_wrench: None,
             time_s: 0.0,
             truth: Measurement::default(),
+            realised_n: Vec::new(),
             diverged_at: None,
             task,
         };
@@ -363,9 +367,13 @@ impl Twin {
 
     fn step_checked(&mut self, command: &ActuatorCommand) -> Result<Measurement, TwinError> {
         let dt = self.config.control_dt_s();
-        let realised = self.realise_thrusts(&command.rotor_thrusts_n, dt)?;
+        let mut realised = std::mem::take(&mut self.realised_n);
+        self.realise_thrusts(&command.rotor_thrusts_n, dt, &mut realised)?;
         self.place_tilting_rotors(&command.joint_targets);
-        let (reports, mut disturbances) = self.rotor_forces(&command.rotor_thrusts_n, &realised);
+        // The last tick's rotor reports make room for this tick's (no allocation).
+        let mut reports = std::mem::take(&mut self.truth.rotors);
+        let mut disturbances = self.rotor_forces(&command.rotor_thrusts_n, &realised, &mut reports);
+        self.realised_n = realised;
         self.base_forces(&mut disturbances);
         self.direct_wrench = command.direct_wrench_in_body;
         for (target, (q, dof)) in self
@@ -376,6 +384,7 @@ impl Twin {
             *target = dof.limits.map_or(*q, |(lo, hi)| q.clamp(lo, hi));
         }
         if let Some(when) = self.diverged_at {
+            self.truth.rotors = reports;
             return Err(TwinError::Diverged(format!(
                 "the simulation diverged at t = {when:.3} s; reset the twin"
             )));
@@ -388,6 +397,7 @@ impl Twin {
             // A non-finite body state would make rapier panic on the next step: stop here.
             if !self.bodies_are_physical() {
                 self.diverged_at = Some(self.time_s);
+                self.truth.rotors = reports;
                 return Err(TwinError::Diverged(format!(
                     "the simulation diverged at t = {:.3} s (a body state is not finite); reset the twin",
                     self.time_s
@@ -395,7 +405,9 @@ impl Twin {
             }
         }
         self.time_s += dt;
-        self.truth = self.measure(&reports, disturbances);
+        let mut truth = std::mem::take(&mut self.truth);
+        self.measure_into(reports, disturbances, &mut truth);
+        self.truth = truth;
         self.update_task();
         Ok(self.observe())
     }
@@ -424,16 +436,23 @@ impl Twin {
     }
 
     /// Motor model: the rotor actuator with limits on, the raw command otherwise.
-    fn realise_thrusts(&mut self, commanded: &[f64], dt: f64) -> Result<Vec<f64>, TwinError> {
+    fn realise_thrusts(
+        &mut self,
+        commanded: &[f64],
+        dt: f64,
+        realised: &mut Vec<f64>,
+    ) -> Result<(), TwinError> {
+        realised.clear();
         match &mut self.actuator {
-            Some(a) => Ok(a
-                .step(commanded, dt)
-                .map_err(|e| TwinError::Command(e.to_string()))?
-                .iter()
-                .map(|t| t.thrust_n)
-                .collect()),
-            None => Ok(commanded.to_vec()),
+            Some(a) => realised.extend(
+                a.step(commanded, dt)
+                    .map_err(|e| TwinError::Command(e.to_string()))?
+                    .iter()
+                    .map(|t| t.thrust_n),
+            ),
+            None => realised.extend_from_slice(commanded),
         }
+        Ok(())
     }
 
     fn world_from(&self, body: RigidBodyHandle) -> Isometry3<f64> {
@@ -486,12 +505,13 @@ impl Twin {
     }
 
     /// Per-rotor thrust vectors after the proximity effects, fixed in each rotor's frame for
-    /// this tick, and what each effect added.
+    /// this tick, and what each effect added (`reports`: one per rotor, replaced).
     fn rotor_forces(
         &mut self,
         commanded: &[f64],
         realised: &[f64],
-    ) -> (Vec<RotorReport>, DisturbanceReport) {
+        reports: &mut Vec<RotorReport>,
+    ) -> DisturbanceReport {
         let d = self.config.disturbances;
         let aero = self.config.aero;
         let radius = self.vehicle.rotors.propeller_radius_m;
@@ -499,8 +519,7 @@ impl Twin {
         let world_from_base = self.world_from(self.body.base);
         let base_rotation = world_from_base.rotation;
         let mut disturbances = DisturbanceReport::default();
-        let telemetry = self.actuator.as_ref().map(|a| a.telemetry().to_vec());
-        let mut reports = Vec::with_capacity(self.rotors.len());
+        reports.clear();
         for i in 0..self.rotors.len() {
             let mount = self.rotors[i];
             let world_from_rotor = self.world_from(mount.body) * mount.body_from_rotor;
@@ -510,7 +529,10 @@ impl Twin {
             let mut report = RotorReport {
                 commanded_n: commanded[i],
                 realised_n: realised[i],
-                saturated: telemetry.as_ref().is_some_and(|t| t[i].saturated),
+                saturated: self
+                    .actuator
+                    .as_ref()
+                    .is_some_and(|a| a.telemetry().get(i).is_some_and(|t| t.saturated)),
                 ground_effect_gain: 1.0,
                 ground_distance_m: max,
                 wall_distance_m: max,
@@ -549,7 +571,7 @@ impl Twin {
             self.rotors[i].force_in_rotor = world_from_rotor.rotation.inverse() * after_wall;
             reports.push(report);
         }
-        (reports, disturbances)
+        disturbances
     }
 
     /// Drag and wind on the base, body frame, held over the tick.
@@ -625,6 +647,18 @@ impl Twin {
 
     /// The exact state now.
     fn measure(&self, rotors: &[RotorReport], disturbances: DisturbanceReport) -> Measurement {
+        let mut m = Measurement::default();
+        self.measure_into(rotors.to_vec(), disturbances, &mut m);
+        m
+    }
+
+    /// [`Self::measure`] into `m`, reusing its joint vectors (no allocation).
+    fn measure_into(
+        &self,
+        rotors: Vec<RotorReport>,
+        disturbances: DisturbanceReport,
+        m: &mut Measurement,
+    ) {
         let base = self
             .world
             .bodies
@@ -643,24 +677,18 @@ impl Twin {
                 }
             })
             .unwrap_or_default();
-        let mut joint_positions = Vec::new();
-        let mut joint_velocities = Vec::new();
         vehicle_body::joint_states(
             &self.world,
             &self.body.dofs,
-            &mut joint_positions,
-            &mut joint_velocities,
+            &mut m.joint_positions,
+            &mut m.joint_velocities,
         );
         let (ee_body, body_from_ee) = self.body.of_link(self.vehicle.ee_link);
-        Measurement {
-            time_s: self.time_s,
-            base,
-            joint_positions,
-            joint_velocities,
-            world_from_ee: self.world_from(ee_body) * body_from_ee,
-            rotors: rotors.to_vec(),
-            disturbances,
-        }
+        m.time_s = self.time_s;
+        m.base = base;
+        m.world_from_ee = self.world_from(ee_body) * body_from_ee;
+        m.rotors = rotors;
+        m.disturbances = disturbances;
     }
 
     fn sample_observation_bias(&mut self) {

@@ -43,9 +43,8 @@ pub(crate) struct Args {
     /// Length of each flight, s [default: track's, 30 s for the sines].
     #[arg(long, value_name = "S")]
     duration: Option<f64>,
-    /// Physics steps per 120 Hz control tick, as `track --physics-substeps` [default: 4].
-    #[arg(long, value_name = "N")]
-    physics_substeps: Option<u32>,
+    #[command(flatten)]
+    physics: crate::twin_flags::PhysicsFlags,
     /// Output folder (created; an existing one must be empty).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -114,7 +113,7 @@ fn flags(a: &Args, model: &Model, band: &str, mcap: &std::path::Path) -> Vec<Str
         "saturation",
     ]);
     f.extend(["--seed".to_owned(), a.seed.to_string()]);
-    f.extend(runs::substeps(a.physics_substeps));
+    f.extend(a.physics.flag_line());
     if let Some(tau) = model.tau_s {
         f.extend(["--motor-tau".to_owned(), tau.to_string()]);
     }
@@ -133,7 +132,7 @@ fn pct(ours: f64, base: f64) -> f64 {
 }
 
 pub(super) fn run(a: &Args) -> Result<()> {
-    let jobs = runs::prepare(a.jobs, a.physics_substeps, a.duration, &a.out)?;
+    let jobs = runs::prepare(a.jobs, &a.physics, a.duration, &a.out)?;
     let logs = a.out.join("logs");
     std::fs::create_dir_all(&logs)
         .map_err(|e| bad_input(format!("--out {}: {e}", a.out.display())))?;
@@ -274,6 +273,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "disturbances": ["saturation"],
         "seed": a.seed,
         "physics_substeps": configs.first().map(|c| c.twin.physics_substeps),
+        "solver_iterations": configs.first().map(|c| c.twin.solver_iterations),
         "thrust_max_n": thrust_max_n,
         "rows": rows,
         "checks": checks,

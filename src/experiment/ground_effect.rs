@@ -50,9 +50,8 @@ pub(crate) struct Args {
     /// Ground-effect intensity k of the stand-in flight (the paper's rho).
     #[arg(long, value_name = "K", default_value_t = 3.4)]
     ground_effect_k: f64,
-    /// Physics steps per 120 Hz control tick, as `track --physics-substeps` [default: 4].
-    #[arg(long, value_name = "N")]
-    physics_substeps: Option<u32>,
+    #[command(flatten)]
+    physics: crate::twin_flags::PhysicsFlags,
     /// Output folder (created; an existing one must be empty).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -86,7 +85,7 @@ fn cell(x: Option<f64>) -> String {
 }
 
 pub(super) fn run(a: &Args) -> Result<()> {
-    let jobs = runs::prepare(a.jobs, a.physics_substeps, a.duration, &a.out)?;
+    let jobs = runs::prepare(a.jobs, &a.physics, a.duration, &a.out)?;
     let real = a.out.join("ge-real.mcap");
     let mut flags = runs::strings(&[
         "--platform",
@@ -110,7 +109,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         flags.extend(["--duration".to_owned(), d.to_string()]);
     }
     // The replays fly the logged twin configuration, substeps included.
-    flags.extend(runs::substeps(a.physics_substeps));
+    flags.extend(a.physics.flag_line());
     let config = runs::track_config(&flags)?;
     let total = runs::seconds(std::slice::from_ref(&config));
     // The replays fly the same length again, each.
@@ -230,6 +229,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "seed": a.seed,
         "ground_effect_k": a.ground_effect_k,
         "physics_substeps": config.twin.physics_substeps,
+        "solver_iterations": config.twin.solver_iterations,
         "intervals": {"near_ground": NEAR, "high": HIGH},
         "stand_in": {"mcap": real, "track": stand_in},
         "replays": replays,

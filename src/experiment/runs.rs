@@ -15,30 +15,23 @@ use policy_runtime::validation::{CompareReport, ErrorStats, FlightLogFile, read_
 use policy_runtime::{TrackConfig, TrackResult, run_track};
 
 use crate::cli_error::bad_input;
+use crate::twin_flags::PhysicsFlags;
 
 /// Strings from string slices (flag lists).
 pub(super) fn strings(items: &[&str]) -> Vec<String> {
     items.iter().map(|s| (*s).to_owned()).collect()
 }
 
-/// Refuses `--physics-substeps 0` before anything is written.
-pub(super) fn check_substeps(n: Option<u32>) -> Result<()> {
-    if n == Some(0) {
-        return Err(bad_input("--physics-substeps: 0; at least 1 step per tick"));
-    }
-    Ok(())
-}
-
-/// The checks every experiment makes before it flies (`--jobs`, `--physics-substeps`, a
+/// The checks every experiment makes before it flies (`--jobs`, the physics counts, a
 /// `--duration` past track's 2 s settling), then its `--out` folder made: the worker count.
 pub(super) fn prepare(
     jobs_flag: Option<usize>,
-    substeps: Option<u32>,
+    physics: &PhysicsFlags,
     duration: Option<f64>,
     out: &Path,
 ) -> Result<usize> {
     let jobs = jobs(jobs_flag)?;
-    check_substeps(substeps)?;
+    physics.check()?;
     if let Some(d) = duration
         && !(d.is_finite() && d > 2.0)
     {
@@ -48,12 +41,6 @@ pub(super) fn prepare(
     }
     super::prepare_out(out)?;
     Ok(jobs)
-}
-
-/// `--physics-substeps N` when set (track's flag), else nothing.
-pub(super) fn substeps(n: Option<u32>) -> Vec<String> {
-    n.map(|n| vec!["--physics-substeps".to_owned(), n.to_string()])
-        .unwrap_or_default()
 }
 
 /// An `amstack track FLAGS` flight, configured (every bad-input error raised here, before

@@ -45,9 +45,8 @@ pub(crate) struct Args {
     /// Length of each flight, s (the step is at 1 s).
     #[arg(long, value_name = "S", default_value_t = 6.0)]
     duration: f64,
-    /// Physics steps per 120 Hz control tick, as `track --physics-substeps` [default: 4].
-    #[arg(long, value_name = "N")]
-    physics_substeps: Option<u32>,
+    #[command(flatten)]
+    physics: crate::twin_flags::PhysicsFlags,
     /// Output folder (created; an existing one must be empty).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -146,7 +145,7 @@ fn time(t: Option<f64>) -> String {
 
 pub(super) fn run(a: &Args) -> Result<()> {
     let jobs = runs::jobs(a.jobs)?;
-    runs::check_substeps(a.physics_substeps)?;
+    a.physics.check()?;
     if !(a.duration.is_finite() && a.duration > 1.0) {
         return Err(bad_input(format!(
             "--duration {}: must be longer than 1 s (the step is at 1 s)",
@@ -178,7 +177,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
                 "--mcap".to_owned(),
                 log(name).display().to_string(),
             ]);
-            f.extend(runs::substeps(a.physics_substeps));
+            f.extend(a.physics.flag_line());
             runs::track_config(&f)
         })
         .collect::<Result<Vec<_>>>()?;
@@ -296,6 +295,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "seed": a.seed,
         "duration_s": a.duration,
         "physics_substeps": configs.first().map(|c| c.twin.physics_substeps),
+        "solver_iterations": configs.first().map(|c| c.twin.solver_iterations),
         "thrust_limits_n": [lo, hi],
         "arrival_share": ARRIVED,
         "responses": responses,
