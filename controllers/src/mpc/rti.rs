@@ -195,6 +195,7 @@ impl SqpRti {
         let mut qp = StructuredQp::zeros(n);
         qp.a = a;
         qp.b = b;
+        qp.soft_penalty = config.state_row_penalty;
         for (k, c) in qp.constraints.iter_mut().enumerate() {
             if k > 0 {
                 c.state_indices = STATE_BOUND_INDICES.to_vec();
@@ -274,6 +275,11 @@ impl SqpRti {
     /// Forgets the previous solution: the next step starts cold.
     pub fn reset(&mut self) {
         self.warm = false;
+    }
+
+    /// Whether the next step starts from the previous solution.
+    pub fn is_warm(&self) -> bool {
+        self.warm
     }
 
     /// Predicted states x_0..x_N of the current iterate.
