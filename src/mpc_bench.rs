@@ -49,7 +49,8 @@ Scenarios:
 interior point of this crate) and clarabel (the sparse multiple-shooting QP); --paths picks.
 --state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
 contact) from the rollout and the replay.
-Build with --release for meaningful times.
+Times: the wall time of each RTI step, and the thread's CPU time over it (not inflated by
+other processes on a loaded machine). Build with --release for meaningful times.
 
 Examples:
   amstack mpc-bench
@@ -81,10 +82,15 @@ pub struct Args {
     json: Option<PathBuf>,
 }
 
-/// The figures of one path.
+/// The figures of one path. `solve_ms_*`: wall time of an RTI step; `solve_cpu_ms_*`: the
+/// thread's CPU time over it (what other processes of a loaded machine do not inflate).
 #[derive(Debug, Clone, Serialize)]
 struct PathFigures {
     ticks: usize,
+    solve_cpu_ms_median: f64,
+    solve_cpu_ms_p90: f64,
+    solve_cpu_ms_p99: f64,
+    solve_cpu_ms_max: f64,
     solve_ms_median: f64,
     solve_ms_p90: f64,
     solve_ms_p99: f64,
@@ -168,9 +174,33 @@ fn name_of<T: Serialize>(v: &T) -> String {
         .unwrap_or_default()
 }
 
+/// This thread's CPU time, ms (NaN where the clock is not available).
+fn thread_cpu_ms() -> f64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_THREAD_CPUTIME_ID).map_or(f64::NAN, |t| {
+        t.tv_sec() as f64 * 1e3 + t.tv_nsec() as f64 * 1e-6
+    })
+}
+
+/// When an RTI step started: wall clock and thread CPU time.
+#[derive(Clone, Copy)]
+struct Stamp {
+    wall: Instant,
+    cpu_ms: f64,
+}
+
+impl Stamp {
+    fn now() -> Self {
+        Self {
+            wall: Instant::now(),
+            cpu_ms: thread_cpu_ms(),
+        }
+    }
+}
+
 /// Timings and reports of one path over a run, reduced to [`PathFigures`].
 #[derive(Default)]
 struct Samples {
+    cpu: Vec<f64>,
     total: Vec<f64>,
     prepare: Vec<f64>,
     qp: Vec<f64>,
@@ -183,7 +213,9 @@ struct Samples {
 }
 
 impl Samples {
-    fn push(&mut self, t0: Instant, t1: Instant, t2: Instant, report: &RtiReport) {
+    fn push(&mut self, start: Stamp, t1: Instant, end: Stamp, report: &RtiReport) {
+        let (t0, t2) = (start.wall, end.wall);
+        self.cpu.push(end.cpu_ms - start.cpu_ms);
         self.prepare.push((t1 - t0).as_secs_f64() * 1e3);
         self.qp.push((t2 - t1).as_secs_f64() * 1e3);
         self.total.push((t2 - t0).as_secs_f64() * 1e3);
@@ -198,6 +230,7 @@ impl Samples {
     fn figures(mut self) -> PathFigures {
         let mean = self.iterations.iter().sum::<f64>() / self.iterations.len().max(1) as f64;
         for v in [
+            &mut self.cpu,
             &mut self.total,
             &mut self.prepare,
             &mut self.qp,
@@ -207,6 +240,10 @@ impl Samples {
         }
         PathFigures {
             ticks: self.total.len(),
+            solve_cpu_ms_median: quantile(&self.cpu, 0.5),
+            solve_cpu_ms_p90: quantile(&self.cpu, 0.9),
+            solve_cpu_ms_p99: quantile(&self.cpu, 0.99),
+            solve_cpu_ms_max: self.cpu.last().copied().unwrap_or(f64::NAN),
             solve_ms_median: quantile(&self.total, 0.5),
             solve_ms_p90: quantile(&self.total, 0.9),
             solve_ms_p99: quantile(&self.total, 0.99),
@@ -239,11 +276,11 @@ fn fly(
     let mut run = WallStepScenario::new(vehicle, config)?;
     let mut samples = Samples::default();
     for _ in 0..iterations {
-        let t0 = Instant::now();
+        let t0 = Stamp::now();
         run.prepare();
         let t1 = Instant::now();
         let report = run.feedback(path);
-        let t2 = Instant::now();
+        let t2 = Stamp::now();
         samples.push(t0, t1, t2, &report);
         run.advance();
     }
@@ -360,11 +397,11 @@ fn replay(
         if !p.warm {
             rti.reset();
         }
-        let t0 = Instant::now();
+        let t0 = Stamp::now();
         rti.prepare(&p.x_hat, &p.reference, &p.limits, p.elapsed_s);
         let t1 = Instant::now();
         let report = rti.feedback(path);
-        let t2 = Instant::now();
+        let t2 = Stamp::now();
         samples.push(t0, t1, t2, &report);
         matches += usize::from(
             report.status == tick.report.status
@@ -483,6 +520,7 @@ pub fn run(args: &Args) -> Result<()> {
     let mut table = Table::new();
     table.load_style(presets::ASCII_MARKDOWN).set_header([
         "path",
+        "CPU ms (med/p90/p99/max)",
         "median ms",
         "p90 ms",
         "p99 ms",
@@ -496,6 +534,10 @@ pub fn run(args: &Args) -> Result<()> {
     for (name, f) in &paths {
         table.add_row([
             (*name).to_owned(),
+            format!(
+                "{:.3} / {:.3} / {:.3} / {:.3}",
+                f.solve_cpu_ms_median, f.solve_cpu_ms_p90, f.solve_cpu_ms_p99, f.solve_cpu_ms_max
+            ),
             format!("{:.3}", f.solve_ms_median),
             format!("{:.3}", f.solve_ms_p90),
             format!("{:.3}", f.solve_ms_p99),
