@@ -48,14 +48,16 @@ Scenarios:
 32 intervals over 0.8 s, 120 Hz. Both QP paths run: riccati (the structure-exploiting
 interior point of this crate) and clarabel (the sparse multiple-shooting QP); --paths picks.
 --state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
-contact) from the rollout and the replay.
+contact) from the rollout and the replay; --replay-state-rows replays the same recorded
+problems with the other setting.
 Times: the wall time of each RTI step, and the thread's CPU time over it (not inflated by
 other processes on a loaded machine). Build with --release for meaningful times.
 
 Examples:
   amstack mpc-bench
   amstack mpc-bench --scenario push-slider --paths riccati --json slider.json
-  amstack mpc-bench --scenario wipe-window --state-rows hard")]
+  amstack mpc-bench --scenario wipe-window --state-rows hard
+  amstack mpc-bench --scenario push-slider --state-rows hard --replay-state-rows soft")]
 pub struct Args {
     /// `standard`, `push-slider` or `wipe-window`.
     #[arg(long, default_value = "standard")]
@@ -73,8 +75,12 @@ pub struct Args {
     /// `soft` (the config's exact-penalty slacks on the state rows) or `hard` (none).
     #[arg(long, default_value = "soft")]
     state_rows: String,
-    /// With soft state rows: their penalty weight ρ in place of the config's
-    /// (`state_row_penalty`).
+    /// Recorded scenarios: replay with these state rows (`soft` or `hard`) instead of the
+    /// rollout's (`--state-rows`), so both solvers see the same problems.
+    #[arg(long, value_name = "ROWS")]
+    replay_state_rows: Option<String>,
+    /// With soft state rows (rollout or replay): their penalty weight ρ in place of the
+    /// config's (`state_row_penalty`).
     #[arg(long, value_name = "RHO")]
     penalty: Option<f64>,
     /// Write the figures as JSON (`paths.<name>.solve_ms_median`, ...).
@@ -138,6 +144,9 @@ struct RolloutFigures {
 struct Report {
     scenario: String,
     state_rows: String,
+    /// The replay's state rows, when not the rollout's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    replay_state_rows: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     standard: Option<Scenario>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -382,12 +391,14 @@ fn record(
     Ok((recorder.ticks, figures))
 }
 
-/// Replays recorded problems in order through a fresh solver on `path`.
+/// Replays recorded problems in order through a fresh solver on `path`; `as_recorded`: the
+/// solver is the rollout's (its reports must be reproduced).
 fn replay(
     vehicle: &Vehicle,
     config: MpcConfig,
     path: QpPath,
     ticks: &[RecordedTick],
+    as_recorded: bool,
 ) -> Result<PathFigures> {
     let mut rti = SqpRti::new(vehicle, config)?;
     let mut samples = Samples::default();
@@ -409,7 +420,7 @@ fn replay(
         );
     }
     let mut figures = samples.figures();
-    if path == config.qp_path {
+    if as_recorded && path == config.qp_path {
         figures.replay_matches_rollout_ticks = Some(matches);
     }
     Ok(figures)
@@ -454,8 +465,10 @@ pub fn run(args: &Args) -> Result<()> {
                 config.state_row_penalty = Some(rho);
             }
         }
-        "hard" if args.penalty.is_some() => {
-            return Err(bad_input("--penalty: needs --state-rows soft"));
+        "hard" if args.penalty.is_some() && args.replay_state_rows.as_deref() != Some("soft") => {
+            return Err(bad_input(
+                "--penalty: needs --state-rows soft (or --replay-state-rows soft)",
+            ));
         }
         "hard" => config.state_row_penalty = None,
         other => {
@@ -465,6 +478,27 @@ pub fn run(args: &Args) -> Result<()> {
     config
         .validate()
         .map_err(|e| bad_input(format!("--penalty: {e}")))?;
+    let replay_config = match args.replay_state_rows.as_deref() {
+        None => config,
+        Some("soft") => MpcConfig {
+            state_row_penalty: args.penalty.or(MpcConfig::fa_hexa().state_row_penalty),
+            ..config
+        },
+        Some("hard") => MpcConfig {
+            state_row_penalty: None,
+            ..config
+        },
+        Some(other) => {
+            return Err(bad_input(format!(
+                "--replay-state-rows {other}: not soft or hard"
+            )));
+        }
+    };
+    if args.replay_state_rows.is_some() && task.is_none() {
+        return Err(bad_input(
+            "--replay-state-rows: only with a recorded scenario (push-slider, wipe-window)",
+        ));
+    }
     let paths_wanted = parse_paths(&args.paths)?;
     if let Some(p) = &args.json {
         check_writable("--json", p)?;
@@ -495,7 +529,16 @@ pub fn run(args: &Args) -> Result<()> {
                 figures.ticks, figures.success
             );
             for &path in &paths_wanted {
-                paths.insert(path.name(), replay(&vehicle, config, path, &ticks)?);
+                paths.insert(
+                    path.name(),
+                    replay(
+                        &vehicle,
+                        replay_config,
+                        path,
+                        &ticks,
+                        replay_config == config,
+                    )?,
+                );
             }
             rollout = Some(figures);
         }
@@ -571,6 +614,7 @@ pub fn run(args: &Args) -> Result<()> {
         let report = Report {
             scenario: args.scenario.clone(),
             state_rows: args.state_rows.clone(),
+            replay_state_rows: args.replay_state_rows.clone(),
             standard: task.is_none().then(|| Scenario {
                 vehicle: "fa-hexa",
                 ee_step_m: scenario::STEP_M,
