@@ -615,7 +615,7 @@ pub fn run(args: &Args) -> Result<()> {
             scenario: args.scenario.clone(),
             state_rows: args.state_rows.clone(),
             replay_state_rows: args.replay_state_rows.clone(),
-            standard: task.is_none().then(|| Scenario {
+            standard: task.is_none().then_some(Scenario {
                 vehicle: "fa-hexa",
                 ee_step_m: scenario::STEP_M,
                 wall_face_x_m: scenario::WALL_FACE_X_M,
