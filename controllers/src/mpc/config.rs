@@ -161,6 +161,12 @@ pub struct MpcConfig {
     /// controllers soft_state_rows_leave`), so the default leaves four orders of magnitude.
     /// None: hard state rows, as in the reference (a contact can make the QP infeasible).
     pub state_row_penalty: Option<f64>,
+    /// With soft state rows: a solution whose largest slack exceeds this (m or rad) has
+    /// found the hard QP infeasible. It is reported as `infeasible` and not taken, so the
+    /// controller's fallback starts as with hard rows (flying such solutions, which violate
+    /// the ±0.01 rad tilt band or the wall, tips the vehicle over in contact: see
+    /// `docs/speed.md`). Default 1e-3. None: the soft solution is taken whatever its slack.
+    pub state_row_slack_limit: Option<f64>,
     /// QP settings.
     pub qp: QpSettings,
     /// Which QP path the controller uses. Default `riccati`.
@@ -204,6 +210,7 @@ impl Default for MpcConfig {
             output_filter_gain: [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.5],
             recovery_time_constant_s: 0.2,
             state_row_penalty: Some(1e5),
+            state_row_slack_limit: Some(1e-3),
             qp: QpSettings::default(),
             qp_path: QpPath::Riccati,
             rotor_margin_for_force: Some(0.6),
@@ -354,6 +361,9 @@ impl MpcConfig {
         }
         if let Some(rho) = self.state_row_penalty {
             positive("state_row_penalty", rho)?;
+        }
+        if let Some(limit) = self.state_row_slack_limit {
+            positive("state_row_slack_limit", limit)?;
         }
         if let Some(b) = self.solve_budget_s {
             positive("solve_budget_s", b)?;

@@ -97,7 +97,8 @@ pub struct MpcReference {
 /// What one RTI step did.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct RtiReport {
-    /// QP outcome (not `solved`: the shifted previous solution was kept).
+    /// QP outcome (not `solved`: the shifted previous solution was kept; `infeasible`: the
+    /// soft state rows needed a slack beyond `state_row_slack_limit`).
     pub status: QpStatus,
     /// QP interior-point iterations.
     pub qp_iterations: u32,
@@ -569,7 +570,14 @@ impl SqpRti {
             QpPath::Riccati => &mut self.riccati,
             QpPath::Clarabel => &mut self.clarabel,
         };
-        let status = solver.solve(&self.qp, &mut self.solution);
+        let mut status = solver.solve(&self.qp, &mut self.solution);
+        // Soft state rows: a slack beyond the limit means the hard QP has no solution.
+        if status == QpStatus::Solved
+            && let Some(limit) = self.config.state_row_slack_limit
+            && self.solution.slack.iter().any(|t| *t > limit)
+        {
+            status = QpStatus::Infeasible;
+        }
         if status == QpStatus::Solved {
             for (x, dx) in self.xs.iter_mut().zip(&self.solution.x) {
                 *x += dx;

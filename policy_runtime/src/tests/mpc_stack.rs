@@ -186,10 +186,30 @@ fn mpc_settles_a_30cm_ee_step_in_the_twin() {
         polish: false,
     });
     assert_eq!(recorded.len(), 7);
-    for (i, qp) in recorded.iter().enumerate() {
+    for (i, soft) in recorded.iter().enumerate() {
+        // The paths are compared on the QPs with hard state rows; the flown (soft) QP has the
+        // same solution, every slack zero (the exact penalty: `controllers`'
+        // soft_state_rows_leave_a_feasible_qp_unchanged), checked here on the Riccati path.
+        let mut hard = soft.clone();
+        hard.soft_penalty = None;
+        let qp = &hard;
         let mut a = QpSolution::zeros(qp.intervals);
         let mut b = QpSolution::zeros(qp.intervals);
+        assert_eq!(
+            riccati.solve(soft, &mut a),
+            QpStatus::Solved,
+            "soft, QP {i}"
+        );
+        let soft_solution = a.clone();
         let riccati_status = riccati.solve(qp, &mut a);
+        // Measured up to 1.5e-6: the soft rows' multipliers near ρ = 1e5 keep their interior
+        // point a little short of the hard one's 1e-14.
+        let diff = soft_solution.max_difference(&a);
+        assert!(diff < 1e-5, "QP {i}: soft and hard rows differ by {diff}");
+        assert!(
+            soft_solution.slack.iter().all(|t| *t < 1e-12),
+            "QP {i}: slack"
+        );
         assert_eq!(riccati_status, QpStatus::Solved, "riccati, QP {i}");
         if i == 0 {
             let mut c = ClarabelQp::new(QpSettings {
