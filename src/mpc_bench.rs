@@ -1,43 +1,102 @@
-//! `amstack mpc-bench`: the solve time of the whole-body MPC on its standard scenario, per QP
-//! path.
+//! `amstack mpc-bench`: the solve time of the whole-body MPC, per QP path, on its standard
+//! scenario or on a recorded benchmark rollout in contact.
 //!
-//! Each path flies the scenario of `controllers::mpc::scenario` (the FA-Hexa tracking a 0.3 m
-//! EE step toward a wall, the loop closed on the prediction model) for `--iterations` control
-//! ticks. Every RTI step is timed as a whole (preparation: shift, roll-out, linearisation and
-//! QP assembly; feedback: the QP solve and the step) and by part.
+//! - `--scenario standard`: each path flies the scenario of `controllers::mpc::scenario` (the
+//!   FA-Hexa tracking a 0.3 m EE step toward a wall, the loop closed on the prediction model)
+//!   for `--iterations` control ticks.
+//! - `--scenario push-slider|wipe-window`: the command first flies one benchmark rollout of the
+//!   task (FA-Hexa, `mpc` controller, in-process twin, default disturbances, `--seed`) and keeps
+//!   what every tick's RTI step was given ([`controllers::mpc::MpcProblem`]: the measured
+//!   state, the EE target, the last applied input, the base limits, the shift); then each path
+//!   replays those problems in order through a fresh solver (open loop: the states are the
+//!   rollout's). Regenerated on every run, so the scenario follows the code; deterministic
+//!   from the seed.
+//!
+//! Every RTI step is timed as a whole (preparation: shift, roll-out, linearisation and QP
+//! assembly; feedback: the QP solve and the step) and by part.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use anyhow::Result;
+use anyhow::{Result, anyhow};
+use clap::Parser;
 use comfy_table::{Table, presets};
+use controllers::ControllerConfig;
 use controllers::mpc::scenario::{self, WallStepScenario};
-use controllers::mpc::{MpcConfig, QpPath, QpStatus};
+use controllers::mpc::{MpcConfig, MpcMode, MpcProblem, QpPath, QpStatus, RtiReport, SqpRti};
 use platform::Vehicle;
+use policy_runtime::bench::{RolloutHooks, run_rollout_with};
+use policy_runtime::flight::{Decided, FlightError, Observer};
 use serde::Serialize;
+use sim_twin::TaskId;
 
 use crate::cli_error::bad_input;
 use crate::output::{check_writable, write_json};
 
 #[derive(Debug, clap::Args)]
 #[command(after_help = "\
-The scenario: FA-Hexa hovering at (0, 0, 1) m steps its end effector 0.3 m along x toward a
-wall at x = 1.15 m (the base may not pass x = 0.3 m); 32 intervals over 0.8 s, 120 Hz, the
-loop closed on the MPC's own model. Both QP paths fly it: riccati (the structure-exploiting
-interior point of this crate) and clarabel (the sparse multiple-shooting QP).
-Build with --release for meaningful times.")]
+Scenarios:
+  standard     FA-Hexa hovering at (0, 0, 1) m steps its end effector 0.3 m along x toward a
+               wall at x = 1.15 m (the base may not pass x = 0.3 m); the loop closed on the
+               MPC's own model, --iterations ticks.
+  push-slider  one benchmark rollout of the task (FA-Hexa, mpc controller, in-process twin,
+  wipe-window  default disturbances, --seed) is flown first and every tick's MPC problem kept
+               (measured state, EE target, last input, base limits); each path then replays
+               them in order (open loop), so the QPs are those of the vehicle in contact.
+32 intervals over 0.8 s, 120 Hz. Both QP paths run: riccati (the structure-exploiting
+interior point of this crate) and clarabel (the sparse multiple-shooting QP); --paths picks.
+--state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
+contact) from the rollout and the replay; --replay-state-rows replays the same recorded
+problems with the other setting.
+Times: the wall time of each RTI step, and the thread's CPU time over it (not inflated by
+other processes on a loaded machine). Build with --release for meaningful times.
+
+Examples:
+  amstack mpc-bench
+  amstack mpc-bench --scenario push-slider --paths riccati --json slider.json
+  amstack mpc-bench --scenario wipe-window --state-rows hard
+  amstack mpc-bench --scenario push-slider --state-rows hard --replay-state-rows soft")]
 pub struct Args {
-    /// Control ticks (RTI steps) per path.
+    /// `standard`, `push-slider` or `wipe-window`.
+    #[arg(long, default_value = "standard")]
+    scenario: String,
+    /// Control ticks (RTI steps) per path (standard scenario; a recorded one replays every
+    /// tick of its rollout).
     #[arg(long, default_value_t = 600)]
     iterations: usize,
+    /// Seed of the recorded rollout (its disturbances and noise), as `amstack bench --seed`.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Comma-separated QP paths: riccati, clarabel.
+    #[arg(long, default_value = "riccati,clarabel")]
+    paths: String,
+    /// `soft` (the config's exact-penalty slacks on the state rows) or `hard` (none).
+    #[arg(long, default_value = "soft")]
+    state_rows: String,
+    /// Recorded scenarios: replay with these state rows (`soft` or `hard`) instead of the
+    /// rollout's (`--state-rows`), so both solvers see the same problems.
+    #[arg(long, value_name = "ROWS")]
+    replay_state_rows: Option<String>,
+    /// With soft state rows (rollout or replay): their penalty weight ρ in place of the
+    /// config's (`state_row_penalty`).
+    #[arg(long, value_name = "RHO")]
+    penalty: Option<f64>,
     /// Write the figures as JSON (`paths.<name>.solve_ms_median`, ...).
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
 }
 
-/// The figures of one path.
+/// The figures of one path. `solve_ms_*`: wall time of an RTI step; `solve_cpu_ms_*`: the
+/// thread's CPU time over it (what other processes of a loaded machine do not inflate).
 #[derive(Debug, Clone, Serialize)]
 struct PathFigures {
+    ticks: usize,
+    solve_cpu_ms_median: f64,
+    solve_cpu_ms_p90: f64,
+    solve_cpu_ms_p99: f64,
+    solve_cpu_ms_max: f64,
     solve_ms_median: f64,
     solve_ms_p90: f64,
     solve_ms_p99: f64,
@@ -45,21 +104,56 @@ struct PathFigures {
     prepare_ms_median: f64,
     qp_ms_median: f64,
     qp_iterations_median: f64,
+    qp_iterations_p90: f64,
+    qp_iterations_p99: f64,
     qp_iterations_max: u32,
+    qp_iterations_mean: f64,
+    /// Ticks per QP status.
+    statuses: BTreeMap<String, usize>,
     failed_solves: usize,
     cost_first: f64,
     cost_last: f64,
     max_constraint_violation: f64,
-    final_ee_error_m: f64,
-    final_base_x_m: f64,
+    /// Standard scenario only: EE distance from the goal after the last tick, m.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    final_ee_error_m: Option<f64>,
+    /// Standard scenario only: the base's final x, m.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    final_base_x_m: Option<f64>,
+    /// Recorded scenarios, the rollout's own path: ticks whose replayed status and iteration
+    /// count equal the rollout's (the replay poses the same QPs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    replay_matches_rollout_ticks: Option<usize>,
+}
+
+/// The recorded rollout a replay comes from.
+#[derive(Debug, Clone, Serialize)]
+struct RolloutFigures {
+    task: &'static str,
+    seed: u64,
+    success: bool,
+    ticks: usize,
+    /// Ticks per mode (`mpc`, `hold`, `ik_pid`).
+    modes: BTreeMap<String, usize>,
+    /// Ticks per QP status in the rollout.
+    statuses: BTreeMap<String, usize>,
+    env_steps_per_s: f64,
 }
 
 #[derive(Debug, Serialize)]
 struct Report {
-    scenario: Scenario,
+    scenario: String,
+    state_rows: String,
+    /// The replay's state rows, when not the rollout's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    replay_state_rows: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    standard: Option<Scenario>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    rollout: Option<RolloutFigures>,
     iterations: usize,
     build: &'static str,
-    paths: std::collections::BTreeMap<&'static str, PathFigures>,
+    paths: BTreeMap<&'static str, PathFigures>,
 }
 
 #[derive(Debug, Serialize)]
@@ -82,105 +176,446 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
     sorted[rank.clamp(1, sorted.len()) - 1]
 }
 
-fn fly(vehicle: &Vehicle, path: QpPath, iterations: usize) -> Result<PathFigures> {
-    let mut run = WallStepScenario::new(vehicle, MpcConfig::fa_hexa())?;
-    let mut total = Vec::with_capacity(iterations);
-    let mut prepare = Vec::with_capacity(iterations);
-    let mut qp = Vec::with_capacity(iterations);
-    let mut qp_iterations = Vec::with_capacity(iterations);
-    let mut failed = 0;
-    let mut violation: f64 = 0.0;
-    let mut cost_first = f64::NAN;
-    let mut cost_last = f64::NAN;
-    for tick in 0..iterations {
-        let t0 = Instant::now();
+fn name_of<T: Serialize>(v: &T) -> String {
+    serde_json::to_value(v)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_owned))
+        .unwrap_or_default()
+}
+
+/// This thread's CPU time, ms (NaN where the clock is not available).
+fn thread_cpu_ms() -> f64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_THREAD_CPUTIME_ID).map_or(f64::NAN, |t| {
+        t.tv_sec() as f64 * 1e3 + t.tv_nsec() as f64 * 1e-6
+    })
+}
+
+/// When an RTI step started: wall clock and thread CPU time.
+#[derive(Clone, Copy)]
+struct Stamp {
+    wall: Instant,
+    cpu_ms: f64,
+}
+
+impl Stamp {
+    fn now() -> Self {
+        Self {
+            wall: Instant::now(),
+            cpu_ms: thread_cpu_ms(),
+        }
+    }
+}
+
+/// Timings and reports of one path over a run, reduced to [`PathFigures`].
+#[derive(Default)]
+struct Samples {
+    cpu: Vec<f64>,
+    total: Vec<f64>,
+    prepare: Vec<f64>,
+    qp: Vec<f64>,
+    iterations: Vec<f64>,
+    statuses: BTreeMap<String, usize>,
+    failed: usize,
+    violation: f64,
+    cost_first: Option<f64>,
+    cost_last: f64,
+}
+
+impl Samples {
+    fn push(&mut self, start: Stamp, t1: Instant, end: Stamp, report: &RtiReport) {
+        let (t0, t2) = (start.wall, end.wall);
+        self.cpu.push(end.cpu_ms - start.cpu_ms);
+        self.prepare.push((t1 - t0).as_secs_f64() * 1e3);
+        self.qp.push((t2 - t1).as_secs_f64() * 1e3);
+        self.total.push((t2 - t0).as_secs_f64() * 1e3);
+        self.iterations.push(f64::from(report.qp_iterations));
+        *self.statuses.entry(name_of(&report.status)).or_default() += 1;
+        self.failed += usize::from(report.status != QpStatus::Solved);
+        self.violation = self.violation.max(report.max_constraint_violation);
+        self.cost_first.get_or_insert(report.cost);
+        self.cost_last = report.cost;
+    }
+
+    fn figures(mut self) -> PathFigures {
+        let mean = self.iterations.iter().sum::<f64>() / self.iterations.len().max(1) as f64;
+        for v in [
+            &mut self.cpu,
+            &mut self.total,
+            &mut self.prepare,
+            &mut self.qp,
+            &mut self.iterations,
+        ] {
+            v.sort_by(f64::total_cmp);
+        }
+        PathFigures {
+            ticks: self.total.len(),
+            solve_cpu_ms_median: quantile(&self.cpu, 0.5),
+            solve_cpu_ms_p90: quantile(&self.cpu, 0.9),
+            solve_cpu_ms_p99: quantile(&self.cpu, 0.99),
+            solve_cpu_ms_max: self.cpu.last().copied().unwrap_or(f64::NAN),
+            solve_ms_median: quantile(&self.total, 0.5),
+            solve_ms_p90: quantile(&self.total, 0.9),
+            solve_ms_p99: quantile(&self.total, 0.99),
+            solve_ms_max: self.total.last().copied().unwrap_or(f64::NAN),
+            prepare_ms_median: quantile(&self.prepare, 0.5),
+            qp_ms_median: quantile(&self.qp, 0.5),
+            qp_iterations_median: quantile(&self.iterations, 0.5),
+            qp_iterations_p90: quantile(&self.iterations, 0.9),
+            qp_iterations_p99: quantile(&self.iterations, 0.99),
+            qp_iterations_max: self.iterations.last().map_or(0, |v| *v as u32),
+            qp_iterations_mean: mean,
+            statuses: self.statuses,
+            failed_solves: self.failed,
+            cost_first: self.cost_first.unwrap_or(f64::NAN),
+            cost_last: self.cost_last,
+            max_constraint_violation: self.violation,
+            final_ee_error_m: None,
+            final_base_x_m: None,
+            replay_matches_rollout_ticks: None,
+        }
+    }
+}
+
+fn fly(
+    vehicle: &Vehicle,
+    config: MpcConfig,
+    path: QpPath,
+    iterations: usize,
+) -> Result<PathFigures> {
+    let mut run = WallStepScenario::new(vehicle, config)?;
+    let mut samples = Samples::default();
+    for _ in 0..iterations {
+        let t0 = Stamp::now();
         run.prepare();
         let t1 = Instant::now();
         let report = run.feedback(path);
-        let t2 = Instant::now();
-        prepare.push((t1 - t0).as_secs_f64() * 1e3);
-        qp.push((t2 - t1).as_secs_f64() * 1e3);
-        total.push((t2 - t0).as_secs_f64() * 1e3);
-        qp_iterations.push(f64::from(report.qp_iterations));
-        failed += usize::from(report.status != QpStatus::Solved);
-        violation = violation.max(report.max_constraint_violation);
-        if tick == 0 {
-            cost_first = report.cost;
-        }
-        cost_last = report.cost;
+        let t2 = Stamp::now();
+        samples.push(t0, t1, t2, &report);
         run.advance();
     }
-    for v in [&mut total, &mut prepare, &mut qp, &mut qp_iterations] {
-        v.sort_by(f64::total_cmp);
+    let mut figures = samples.figures();
+    figures.final_ee_error_m = Some(run.ee_error_m());
+    figures.final_base_x_m = Some(run.state()[0]);
+    Ok(figures)
+}
+
+/// One tick of a recorded rollout: what the MPC was given and what its step reported.
+#[derive(Debug, Clone, Copy)]
+struct RecordedTick {
+    problem: MpcProblem,
+    report: RtiReport,
+    mode: MpcMode,
+}
+
+/// Keeps every tick's MPC problem of a rollout.
+#[derive(Default)]
+struct Recorder {
+    ticks: Vec<RecordedTick>,
+}
+
+impl Observer for Recorder {
+    fn decided(&mut self, tick: &Decided<'_>) -> Result<(), FlightError> {
+        if let Some(status) = &tick.record.mpc
+            && let (Some(problem), Some(report)) = (status.problem, status.rti)
+        {
+            self.ticks.push(RecordedTick {
+                problem,
+                report,
+                mode: status.mode,
+            });
+        }
+        Ok(())
     }
-    Ok(PathFigures {
-        solve_ms_median: quantile(&total, 0.5),
-        solve_ms_p90: quantile(&total, 0.9),
-        solve_ms_p99: quantile(&total, 0.99),
-        solve_ms_max: total.last().copied().unwrap_or(f64::NAN),
-        prepare_ms_median: quantile(&prepare, 0.5),
-        qp_ms_median: quantile(&qp, 0.5),
-        qp_iterations_median: quantile(&qp_iterations, 0.5),
-        qp_iterations_max: qp_iterations.last().map_or(0, |v| *v as u32),
-        failed_solves: failed,
-        cost_first,
-        cost_last,
-        max_constraint_violation: violation,
-        final_ee_error_m: run.ee_error_m(),
-        final_base_x_m: run.state()[0],
-    })
+}
+
+/// Flies one benchmark rollout of `task` with the MPC and keeps its problems.
+fn record(
+    task: TaskId,
+    seed: u64,
+    config: MpcConfig,
+) -> Result<(Vec<RecordedTick>, RolloutFigures)> {
+    let argv = [
+        "amstack",
+        "bench",
+        "--platform",
+        "fa-hexa",
+        "--controller",
+        "mpc",
+        "--task",
+        task.name(),
+        "--rollouts",
+        "1",
+        "--jobs",
+        "1",
+        "--seed",
+        &seed.to_string(),
+    ];
+    let cli = crate::Cli::try_parse_from(argv).map_err(|e| anyhow!("mpc-bench: {e}"))?;
+    let crate::Command::Bench(args) = cli.command else {
+        return Err(anyhow!(
+            "mpc-bench: the benchmark's arguments did not parse"
+        ));
+    };
+    let mut bench = crate::bench::config(&args)?;
+    bench.controller = ControllerConfig::Mpc(config);
+    let mut recorder = Recorder::default();
+    let stop = AtomicBool::new(false);
+    let started = Instant::now();
+    let result = run_rollout_with(
+        &bench,
+        task,
+        0,
+        &stop,
+        None,
+        RolloutHooks {
+            source: None,
+            observers: vec![&mut recorder],
+        },
+    )?;
+    let wall = started.elapsed().as_secs_f64();
+    let mut modes = BTreeMap::new();
+    let mut statuses = BTreeMap::new();
+    for t in &recorder.ticks {
+        *modes.entry(name_of(&t.mode)).or_default() += 1;
+        *statuses.entry(name_of(&t.report.status)).or_default() += 1;
+    }
+    let figures = RolloutFigures {
+        task: task.name(),
+        seed: result.seed,
+        success: result.success,
+        ticks: recorder.ticks.len(),
+        modes,
+        statuses,
+        env_steps_per_s: result.executed_steps as f64 / wall.max(1e-9),
+    };
+    Ok((recorder.ticks, figures))
+}
+
+/// Replays recorded problems in order through a fresh solver on `path`; `as_recorded`: the
+/// solver is the rollout's (its reports must be reproduced).
+fn replay(
+    vehicle: &Vehicle,
+    config: MpcConfig,
+    path: QpPath,
+    ticks: &[RecordedTick],
+    as_recorded: bool,
+) -> Result<PathFigures> {
+    let mut rti = SqpRti::new(vehicle, config)?;
+    let mut samples = Samples::default();
+    let mut matches = 0;
+    for tick in ticks {
+        let p = &tick.problem;
+        if !p.warm {
+            rti.reset();
+        }
+        let t0 = Stamp::now();
+        rti.prepare(&p.x_hat, &p.reference, &p.limits, p.elapsed_s);
+        let t1 = Instant::now();
+        let report = rti.feedback(path);
+        let t2 = Stamp::now();
+        samples.push(t0, t1, t2, &report);
+        matches += usize::from(
+            report.status == tick.report.status
+                && report.qp_iterations == tick.report.qp_iterations,
+        );
+    }
+    let mut figures = samples.figures();
+    if as_recorded && path == config.qp_path {
+        figures.replay_matches_rollout_ticks = Some(matches);
+    }
+    Ok(figures)
+}
+
+fn parse_paths(text: &str) -> Result<Vec<QpPath>> {
+    let mut paths = Vec::new();
+    for name in text.split(',').map(str::trim) {
+        let path = QpPath::ALL
+            .into_iter()
+            .find(|p| p.name() == name)
+            .ok_or_else(|| {
+                bad_input(format!(
+                    "--paths {text}: {name:?} is not riccati or clarabel"
+                ))
+            })?;
+        if !paths.contains(&path) {
+            paths.push(path);
+        }
+    }
+    Ok(paths)
 }
 
 pub fn run(args: &Args) -> Result<()> {
     if args.iterations == 0 {
         return Err(bad_input("--iterations 0: must be at least 1"));
     }
+    let task = match args.scenario.as_str() {
+        "standard" => None,
+        "push-slider" => Some(TaskId::PushSlider),
+        "wipe-window" => Some(TaskId::WipeWindow),
+        other => {
+            return Err(bad_input(format!(
+                "--scenario {other}: not standard, push-slider or wipe-window"
+            )));
+        }
+    };
+    let mut config = MpcConfig::fa_hexa();
+    match args.state_rows.as_str() {
+        "soft" => {
+            if let Some(rho) = args.penalty {
+                config.state_row_penalty = Some(rho);
+            }
+        }
+        "hard" if args.penalty.is_some() && args.replay_state_rows.as_deref() != Some("soft") => {
+            return Err(bad_input(
+                "--penalty: needs --state-rows soft (or --replay-state-rows soft)",
+            ));
+        }
+        "hard" => config.state_row_penalty = None,
+        other => {
+            return Err(bad_input(format!("--state-rows {other}: not soft or hard")));
+        }
+    }
+    config
+        .validate()
+        .map_err(|e| bad_input(format!("--penalty: {e}")))?;
+    let replay_config = match args.replay_state_rows.as_deref() {
+        None => config,
+        Some("soft") => MpcConfig {
+            state_row_penalty: args.penalty.or(MpcConfig::fa_hexa().state_row_penalty),
+            ..config
+        },
+        Some("hard") => MpcConfig {
+            state_row_penalty: None,
+            ..config
+        },
+        Some(other) => {
+            return Err(bad_input(format!(
+                "--replay-state-rows {other}: not soft or hard"
+            )));
+        }
+    };
+    if args.replay_state_rows.is_some() && task.is_none() {
+        return Err(bad_input(
+            "--replay-state-rows: only with a recorded scenario (push-slider, wipe-window)",
+        ));
+    }
+    let paths_wanted = parse_paths(&args.paths)?;
     if let Some(p) = &args.json {
         check_writable("--json", p)?;
     }
-    let vehicle = Vehicle::builtin("fa-hexa").map_err(|e| anyhow::anyhow!("{e}"))?;
-    let config = MpcConfig::fa_hexa();
-    eprintln!(
-        "mpc-bench: {} RTI steps per path (FA-Hexa, 0.3 m EE step toward a wall)",
-        args.iterations
-    );
-    let mut paths = std::collections::BTreeMap::new();
-    for path in QpPath::ALL {
-        paths.insert(path.name(), fly(&vehicle, path, args.iterations)?);
+    let vehicle = Vehicle::builtin("fa-hexa").map_err(|e| anyhow!("{e}"))?;
+    let mut paths = BTreeMap::new();
+    let mut rollout = None;
+    match task {
+        None => {
+            eprintln!(
+                "mpc-bench: {} RTI steps per path (FA-Hexa, 0.3 m EE step toward a wall, {} state rows)",
+                args.iterations, args.state_rows
+            );
+            for &path in &paths_wanted {
+                paths.insert(path.name(), fly(&vehicle, config, path, args.iterations)?);
+            }
+        }
+        Some(task) => {
+            eprintln!(
+                "mpc-bench: flying one {} rollout (FA-Hexa, mpc, seed {}, {} state rows) to record its MPC problems",
+                task.name(),
+                args.seed,
+                args.state_rows
+            );
+            let (ticks, figures) = record(task, args.seed, config)?;
+            eprintln!(
+                "mpc-bench: {} ticks recorded (success: {}); replaying them per path",
+                figures.ticks, figures.success
+            );
+            for &path in &paths_wanted {
+                paths.insert(
+                    path.name(),
+                    replay(
+                        &vehicle,
+                        replay_config,
+                        path,
+                        &ticks,
+                        replay_config == config,
+                    )?,
+                );
+            }
+            rollout = Some(figures);
+        }
+    }
+    if let Some(r) = &rollout {
+        let list = |m: &BTreeMap<String, usize>| {
+            m.iter()
+                .map(|(k, v)| format!("{k} {v}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        println!(
+            "rollout: {} seed {}, {} ticks, success {}, modes: {}; QP statuses: {}",
+            r.task,
+            r.seed,
+            r.ticks,
+            r.success,
+            list(&r.modes),
+            list(&r.statuses)
+        );
     }
     let mut table = Table::new();
     table.load_style(presets::ASCII_MARKDOWN).set_header([
         "path",
+        "CPU ms (med/p90/p99/max)",
         "median ms",
         "p90 ms",
         "p99 ms",
         "max ms",
         "prepare ms",
         "QP ms",
-        "QP iters (med/max)",
-        "failed",
+        "QP iters (med/p90/p99/max)",
+        "not solved",
         "max violation",
-        "final EE error (mm)",
     ]);
     for (name, f) in &paths {
         table.add_row([
             (*name).to_owned(),
+            format!(
+                "{:.3} / {:.3} / {:.3} / {:.3}",
+                f.solve_cpu_ms_median, f.solve_cpu_ms_p90, f.solve_cpu_ms_p99, f.solve_cpu_ms_max
+            ),
             format!("{:.3}", f.solve_ms_median),
             format!("{:.3}", f.solve_ms_p90),
             format!("{:.3}", f.solve_ms_p99),
             format!("{:.3}", f.solve_ms_max),
             format!("{:.3}", f.prepare_ms_median),
             format!("{:.3}", f.qp_ms_median),
-            format!("{:.0} / {}", f.qp_iterations_median, f.qp_iterations_max),
-            f.failed_solves.to_string(),
+            format!(
+                "{:.0} / {:.0} / {:.0} / {}",
+                f.qp_iterations_median,
+                f.qp_iterations_p90,
+                f.qp_iterations_p99,
+                f.qp_iterations_max
+            ),
+            format!("{} of {}", f.failed_solves, f.ticks),
             format!("{:.2e}", f.max_constraint_violation),
-            format!("{:.2}", f.final_ee_error_m * 1e3),
         ]);
     }
     println!("{table}");
+    for (name, f) in &paths {
+        if let (Some(e), Some(x)) = (f.final_ee_error_m, f.final_base_x_m) {
+            println!("{name}: final EE error {:.2} mm, base x {x:.4} m", e * 1e3);
+        }
+        if let Some(m) = f.replay_matches_rollout_ticks {
+            println!(
+                "{name}: the replay reproduced the rollout's QP status and iterations on {m} of {} ticks",
+                f.ticks
+            );
+        }
+    }
     if let Some(path) = &args.json {
         let report = Report {
-            scenario: Scenario {
+            scenario: args.scenario.clone(),
+            state_rows: args.state_rows.clone(),
+            replay_state_rows: args.replay_state_rows.clone(),
+            standard: task.is_none().then_some(Scenario {
                 vehicle: "fa-hexa",
                 ee_step_m: scenario::STEP_M,
                 wall_face_x_m: scenario::WALL_FACE_X_M,
@@ -188,7 +623,8 @@ pub fn run(args: &Args) -> Result<()> {
                 horizon_s: config.horizon_s,
                 intervals: config.intervals,
                 rate_hz: scenario::RATE_HZ,
-            },
+            }),
+            rollout,
             iterations: args.iterations,
             build: if cfg!(debug_assertions) {
                 "debug"

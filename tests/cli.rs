@@ -387,6 +387,71 @@ fn mpc_bench_reports_both_qp_paths_and_refuses_bad_input() {
         &amstack(&["mpc-bench", "--iterations", "many"]),
         &["--iterations"],
     );
+    assert_bad_input(
+        &amstack(&["mpc-bench", "--scenario", "hover"]),
+        &["--scenario hover"],
+    );
+    assert_bad_input(
+        &amstack(&["mpc-bench", "--state-rows", "squishy"]),
+        &["--state-rows squishy"],
+    );
+    assert_bad_input(
+        &amstack(&["mpc-bench", "--replay-state-rows", "hard"]),
+        &["--replay-state-rows"],
+    );
+    assert_bad_input(&amstack(&["mpc-bench", "--penalty", "0"]), &["--penalty"]);
+}
+
+#[test]
+fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
+    let dir = match tempfile::tempdir() {
+        Ok(d) => d,
+        Err(e) => panic!("{e}"),
+    };
+    let json = dir.path().join("slider.json");
+    let json_arg = json.to_string_lossy().into_owned();
+    let out = amstack(&[
+        "mpc-bench",
+        "--scenario",
+        "push-slider",
+        "--paths",
+        "riccati",
+        "--json",
+        &json_arg,
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{e}"));
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+    let rollout = &v["rollout"];
+    assert_eq!(rollout["task"], "push-slider");
+    assert_eq!(rollout["success"], true, "{rollout}");
+    let ticks = rollout["ticks"].as_u64().unwrap_or(0);
+    // The scripted push lasts several seconds at 120 Hz.
+    assert!(ticks > 600, "{rollout}");
+    let p = &v["paths"]["riccati"];
+    assert!(v["paths"]["clarabel"].is_null(), "--paths riccati only");
+    assert_eq!(p["ticks"].as_u64(), Some(ticks));
+    // The replay poses the rollout's QPs again: the same reports on every tick.
+    assert_eq!(
+        p["replay_matches_rollout_ticks"].as_u64(),
+        Some(ticks),
+        "{p}"
+    );
+    // With the state rows soft, every QP of the contact ends within the iteration budget:
+    // solved, or proven infeasible (a slack beyond the limit), never at the 40-iteration cap
+    // or broken down (with hard rows one tick in six is).
+    let statuses = p["statuses"].as_object().unwrap_or_else(|| panic!("{p}"));
+    for status in statuses.keys() {
+        assert!(["solved", "infeasible"].contains(&status.as_str()), "{p}");
+    }
+    let solved = p["statuses"]["solved"].as_u64().unwrap_or(0);
+    let infeasible = p["statuses"]["infeasible"].as_u64().unwrap_or(0);
+    assert_eq!(solved + infeasible, ticks, "{p}");
+    assert!(solved > ticks / 2, "{p}");
+    assert!(
+        p["qp_iterations_max"].as_u64().is_some_and(|i| i < 40),
+        "{p}"
+    );
 }
 
 #[test]

@@ -4,6 +4,8 @@
 //! form `A z + s = b`: the zero cone holds `x_0 = x̄_0` and `x_{k+1} − A x_k − B u_k = c_k`;
 //! the non-negative cone holds every inequality row as `G z ≤ h`, in the same order as the
 //! Riccati solver's rows. P is the upper triangle of each stage's dense `[Q Sᵀ; S R]` block.
+//! With soft state rows, one slack variable per soft row follows z (cost ρ each): each soft
+//! row reads `G z − t ≤ h`, and `−t ≤ 0` rows close the non-negative cone.
 //!
 //! The solver is built on the first QP and then only updated in place (P, q, the general
 //! rows of A, and b): the sparsity pattern is fixed, so presolve and zero-dropping are off.
@@ -162,6 +164,8 @@ impl ClarabelQp {
             out.extend(qp.r_vec[k].iter());
         }
         out.extend(qp.q_vec[qp.intervals].iter());
+        let rho = qp.soft_penalty.unwrap_or(0.0);
+        out.extend(std::iter::repeat_n(rho, qp.soft_rows()));
     }
 
     /// b, with the inequality rows in the Riccati solver's order.
@@ -196,11 +200,14 @@ impl ClarabelQp {
                 }
             }
         }
+        out.extend(std::iter::repeat_n(0.0, qp.soft_rows()));
     }
 
     fn build(&self, qp: &StructuredQp) -> Option<Built> {
         let n = qp.intervals;
-        let vars = NZ * n + NX;
+        let z_vars = NZ * n + NX;
+        let soft_rows = qp.soft_rows();
+        let vars = z_vars + soft_rows;
         // P: the upper triangle of each stage block, column by column.
         let mut p_values = Vec::new();
         Self::p_values(qp, &mut p_values);
@@ -215,6 +222,9 @@ impl ClarabelQp {
                 colptr.push(rowval.len());
             }
         }
+        for _ in 0..soft_rows {
+            colptr.push(rowval.len());
+        }
         let p = CscMatrix::new(vars, vars, colptr, rowval, p_values.clone());
 
         let eq_rows = NX * (n + 1);
@@ -227,6 +237,7 @@ impl ClarabelQp {
                 ineq_rows += 2 * (c.input_indices.len() + c.input_general.len());
             }
         }
+        ineq_rows += soft_rows;
         let mut a = CscBuilder::new(eq_rows + ineq_rows, vars);
         for i in 0..NX {
             a.push(i, x_col(0) + i, 1.0, None);
@@ -249,11 +260,21 @@ impl ClarabelQp {
         }
         let mut row = eq_rows;
         let mut tag = 0;
+        // The next soft row's slack column (soft rows only when soft_rows > 0).
+        let mut slack = z_vars;
+        let mut soften = |a: &mut CscBuilder, row: usize| {
+            if soft_rows > 0 {
+                a.push(row, slack, -1.0, None);
+                a.push(row + 1, slack + 1, -1.0, None);
+                slack += 2;
+            }
+        };
         for (k, c) in qp.constraints.iter().enumerate() {
             if k > 0 {
                 for &i in &c.state_indices {
                     a.push(row, x_col(k) + i, -1.0, None);
                     a.push(row + 1, x_col(k) + i, 1.0, None);
+                    soften(&mut a, row);
                     row += 2;
                 }
             }
@@ -279,9 +300,13 @@ impl ClarabelQp {
                         a.push(row + 1, x_col(k) + j, g[j], Some(tag + 1));
                         tag += 2;
                     }
+                    soften(&mut a, row);
                     row += 2;
                 }
             }
+        }
+        for i in 0..soft_rows {
+            a.push(row + i, z_vars + i, -1.0, None);
         }
         let (a_csc, general_positions) = a.build(tag);
         let a_values = a_csc.nzval.clone();
@@ -384,6 +409,13 @@ impl QpSolver for ClarabelQp {
             _ => QpStatus::NumericalFailure,
         };
         let finite = sol.x.iter().all(|v| v.is_finite());
+        let z_vars = NZ * n + NX;
+        out.slack.clear();
+        out.slack.extend(
+            sol.x[z_vars.min(sol.x.len())..]
+                .iter()
+                .map(|t| if finite { *t } else { 0.0 }),
+        );
         for k in 0..=n {
             for i in 0..NX {
                 out.x[k][i] = if finite { sol.x[x_col(k) + i] } else { 0.0 };

@@ -151,6 +151,22 @@ pub struct MpcConfig {
     /// A bound the measured state already violates is approached at this rate over the
     /// horizon instead of at once (keeps the QP feasible after a disturbance), s. Default 0.2.
     pub recovery_time_constant_s: f64,
+    /// Weight ρ of the exact L1 penalty on the slacks of the state rows (position, attitude,
+    /// joint and EE-height bounds of stages 1..N): in the QP a row `g(x) ≤ b` becomes
+    /// `g(x) ≤ b + t`, `t ≥ 0`, with `ρ·t` added to the cost. The QP is then feasible from any
+    /// measured state (the rotor and arm-reference rows on the inputs stay hard), and whenever
+    /// the hard QP is feasible with multipliers below ρ its solution is the soft QP's (the
+    /// exact-penalty property). Unit: the QP cost per m or rad of violation. Default 1e5: the
+    /// hard QPs' multipliers stay below 11 on the standard scenario (`cargo test -p
+    /// controllers soft_state_rows_leave`), so the default leaves four orders of magnitude.
+    /// None: hard state rows, as in the reference (a contact can make the QP infeasible).
+    pub state_row_penalty: Option<f64>,
+    /// With soft state rows: a solution whose largest slack exceeds this (m or rad) has
+    /// found the hard QP infeasible. It is reported as `infeasible` and not taken, so the
+    /// controller's fallback starts as with hard rows (flying such solutions, which violate
+    /// the ±0.01 rad tilt band or the wall, tips the vehicle over in contact: see
+    /// `docs/speed.md`). Default 1e-3. None: the soft solution is taken whatever its slack.
+    pub state_row_slack_limit: Option<f64>,
     /// QP settings.
     pub qp: QpSettings,
     /// Which QP path the controller uses. Default `riccati`.
@@ -193,6 +209,8 @@ impl Default for MpcConfig {
             ee_height_max_m: 2.5,
             output_filter_gain: [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.5],
             recovery_time_constant_s: 0.2,
+            state_row_penalty: Some(1e5),
+            state_row_slack_limit: Some(1e-3),
             qp: QpSettings::default(),
             qp_path: QpPath::Riccati,
             rotor_margin_for_force: Some(0.6),
@@ -340,6 +358,12 @@ impl MpcConfig {
                 f,
                 "must be within (0, 1]",
             ));
+        }
+        if let Some(rho) = self.state_row_penalty {
+            positive("state_row_penalty", rho)?;
+        }
+        if let Some(limit) = self.state_row_slack_limit {
+            positive("state_row_slack_limit", limit)?;
         }
         if let Some(b) = self.solve_budget_s {
             positive("solve_budget_s", b)?;

@@ -96,6 +96,23 @@ pub enum SolveFailure {
     RotorSaturation,
 }
 
+/// What one tick's RTI step was given: enough to pose the same QP again ([`SqpRti::step`]
+/// with these arguments, after [`SqpRti::reset`] when `warm` is false). `amstack mpc-bench`
+/// replays a benchmark rollout's problems through the solver this way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MpcProblem {
+    /// The measured state x̂.
+    pub x_hat: StateVector,
+    /// The EE target and the last applied input.
+    pub reference: MpcReference,
+    /// The base limits.
+    pub limits: BaseLimits,
+    /// Time since the previous solution, s (the shift of the warm start).
+    pub elapsed_s: f64,
+    /// Whether the solver started from its previous solution (false: a cold start).
+    pub warm: bool,
+}
+
 /// The controller's report of one tick.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct MpcStatus {
@@ -115,6 +132,9 @@ pub struct MpcStatus {
     pub ee_error_m: f64,
     /// Predicted base position at the end of the horizon, m.
     pub predicted_terminal_position_m: Vector3<f64>,
+    /// What the RTI step was given (None when nothing was solved); not logged.
+    #[serde(skip)]
+    pub problem: Option<MpcProblem>,
 }
 
 /// What the controller commands.
@@ -174,6 +194,7 @@ impl WholeBodyMpc {
                 solve_time_s: None,
                 ee_error_m: 0.0,
                 predicted_terminal_position_m: Vector3::zeros(),
+                problem: None,
             },
             last_command: None,
         })
@@ -265,6 +286,7 @@ impl WholeBodyMpc {
         let dt = dt_ok.map_or(crate::controller::DT_MIN_S, |(dt, _)| dt);
         let mut failure = None;
         let mut report = None;
+        let mut problem = None;
         if inputs_finite {
             let reference = MpcReference {
                 ee_position_m: target_world_from_ee.translation.vector,
@@ -272,6 +294,13 @@ impl WholeBodyMpc {
                 input_previous: self.u_last.unwrap_or_else(|| self.seed_input(&x_hat)),
             };
             let elapsed = if self.solved_once { dt } else { 0.0 };
+            problem = Some(MpcProblem {
+                x_hat,
+                reference,
+                limits: *limits,
+                elapsed_s: elapsed,
+                warm: self.rti.is_warm(),
+            });
             let r = self
                 .rti
                 .step(&x_hat, &reference, limits, elapsed, self.config.qp_path);
@@ -336,6 +365,7 @@ impl WholeBodyMpc {
                 failed_ticks: self.failed,
                 rti: None,
                 solve_time_s,
+                problem: None,
                 ..command.status
             };
             command.status = self.status;
@@ -364,6 +394,7 @@ impl WholeBodyMpc {
                 terminal[IX_P + 1],
                 terminal[IX_P + 2],
             ),
+            problem,
         };
         command.status = self.status;
         self.last_command = Some(command.clone());

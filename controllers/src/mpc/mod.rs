@@ -36,7 +36,9 @@ mod tests;
 
 pub use clarabel_qp::ClarabelQp;
 pub use config::{MpcConfig, MpcConfigError, MpcWeights, QpPath, QpSettings};
-pub use controller::{FallbackEvent, MpcCommand, MpcMode, MpcStatus, SolveFailure, WholeBodyMpc};
+pub use controller::{
+    FallbackEvent, MpcCommand, MpcMode, MpcProblem, MpcStatus, SolveFailure, WholeBodyMpc,
+};
 pub use model::{EeKinematics, ModelError, MpcModel};
 pub use qp::{
     InputVector, NU, NX, QpSolution, QpSolver, QpStatus, StageConstraints, StateVector,

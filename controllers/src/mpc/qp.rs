@@ -8,6 +8,11 @@
 //!      lower ≤ e_jᵀ u_k ≤ upper (general rows on the input)
 //! ```
 //!
+//! With a `soft_penalty` ρ the state rows (bounds and general rows on x_k, k ≥ 1) are soft:
+//! each one-sided row `r(x) ≤ b` becomes `r(x) ≤ b + t`, `t ≥ 0`, and `ρ·Σt` is added to the
+//! objective (an exact L1 penalty: when the hard QP is feasible and its multipliers are below
+//! ρ, both have the same solution and every t is 0). The input rows stay hard.
+//!
 //! In an SQP step the variables are the deltas from the linearisation point. A and B do not
 //! change between stages (the MPC's integrator is time-invariant); their sparsity is found once
 //! and used by the Riccati solver.
@@ -141,6 +146,8 @@ pub struct StructuredQp {
     /// Inequalities of stage k ≤ N (stage N: state rows only; stage 0: its state is fixed, so
     /// its state rows are ignored).
     pub constraints: Vec<StageConstraints>,
+    /// Weight ρ of the L1 penalty on the state rows' slacks (None: the state rows are hard).
+    pub soft_penalty: Option<f64>,
 }
 
 impl StructuredQp {
@@ -158,13 +165,28 @@ impl StructuredQp {
             q_vec: vec![StateVector::zeros(); intervals + 1],
             r_vec: vec![InputVector::zeros(); intervals],
             constraints: vec![StageConstraints::default(); intervals + 1],
+            soft_penalty: None,
         }
+    }
+
+    /// Number of soft rows (one-sided): two per state bound and general row of stages 1..N
+    /// with a `soft_penalty`, none without.
+    pub fn soft_rows(&self) -> usize {
+        if self.soft_penalty.is_none() {
+            return 0;
+        }
+        self.constraints
+            .iter()
+            .skip(1)
+            .map(|c| 2 * (c.state_indices.len() + c.general.len()))
+            .sum()
     }
 
     /// Same dimensions and constraint rows as `other` (what a solver built for one QP needs to
     /// take the other's values).
     pub fn same_structure(&self, other: &Self) -> bool {
         self.intervals == other.intervals
+            && self.soft_penalty.is_some() == other.soft_penalty.is_some()
             && self
                 .constraints
                 .iter()
@@ -242,6 +264,10 @@ pub struct QpSolution {
     pub x: Vec<StateVector>,
     /// u_0..u_{N−1}.
     pub u: Vec<InputVector>,
+    /// Slacks t ≥ 0 of the soft rows ([`StructuredQp::soft_rows`]), in row order: per stage
+    /// 1..N, each state bound's lower then upper row, then each general row's lower then
+    /// upper row. Empty without soft rows.
+    pub slack: Vec<f64>,
     /// Interior-point iterations.
     pub iterations: u32,
     /// Outcome.
@@ -254,6 +280,7 @@ impl QpSolution {
         Self {
             x: vec![StateVector::zeros(); intervals + 1],
             u: vec![InputVector::zeros(); intervals],
+            slack: Vec::new(),
             iterations: 0,
             status: QpStatus::Solved,
         }

@@ -23,6 +23,20 @@
 //! once per solve, and every product with them walks only those (the FA-Hexa's integrator
 //! chains make A 16 + 10 non-zeros off the identity and B two per column).
 //!
+//! # Soft rows
+//!
+//! A soft row (a state row of a QP with a `soft_penalty` ρ) is `G z − t ≤ h` with its own
+//! slack `t ≥ 0`, multiplier `ν ≥ 0` and the dual equation `ρ − λ − ν = 0` (r_t). Eliminating
+//! dt, dν, ds, the Newton system keeps its stage-wise form with
+//!
+//! ```text
+//! W = 1/(s/λ + t/ν),   coefficient λ + W r̃,   r̃ = r_i − r_c/λ + (r_ν + t r_t)/ν
+//! dλ = W(G dz + r̃),  dν = r_t − dλ,  dt = −(r_ν + t dν)/ν,  ds = −r_i − G dz + dt
+//! ```
+//!
+//! (r_ν = t∘ν − σμ (+ Mehrotra term), μ averaged over both pairs). A hard row is the limit
+//! t → 0: the recursion is the same, so a soft QP costs the same per iteration.
+//!
 //! Cost per iteration: one recursion of N stages with ~6k flops each (dense P: `VᵀV` and the
 //! triangular solves dominate), two vector sweeps. No allocation after the first solve.
 
@@ -76,12 +90,13 @@ fn support<const N: usize>(v: &SMatrix<f64, N, 1>) -> (usize, usize) {
     (lo, hi)
 }
 
-/// One inequality `sign·(row of z) ≤ h`.
+/// One inequality `sign·(row of z) ≤ h` (`≤ h + t` for a soft row).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Row {
     kind: RowKind,
     sign: f64,
     h: f64,
+    soft: bool,
 }
 
 /// Non-zeros of a matrix, by column: (row, value).
@@ -187,6 +202,20 @@ pub struct RiccatiIpm {
     costates: bool,
     dx: Vec<StateVector>,
     du: Vec<InputVector>,
+    /// Penalty ρ of the soft rows (0 without).
+    rho: f64,
+    /// Soft rows.
+    soft_count: usize,
+    /// Per row (used on soft rows only): slack t, its multiplier ν, the dual residual
+    /// r_t = ρ − λ − ν, r̃ of the Newton coefficient, and the steps.
+    t: Vec<f64>,
+    nu: Vec<f64>,
+    r_t: Vec<f64>,
+    r_tilde: Vec<f64>,
+    dt: Vec<f64>,
+    dnu: Vec<f64>,
+    dt_aff: Vec<f64>,
+    dnu_aff: Vec<f64>,
 }
 
 impl RiccatiIpm {
@@ -227,6 +256,16 @@ impl RiccatiIpm {
             costates: true,
             dx: Vec::new(),
             du: Vec::new(),
+            rho: 0.0,
+            soft_count: 0,
+            t: Vec::new(),
+            nu: Vec::new(),
+            r_t: Vec::new(),
+            r_tilde: Vec::new(),
+            dt: Vec::new(),
+            dnu: Vec::new(),
+            dt_aff: Vec::new(),
+            dnu_aff: Vec::new(),
         }
     }
 
@@ -240,12 +279,20 @@ impl RiccatiIpm {
         self.settings = settings;
     }
 
+    /// Largest inequality multiplier λ of the last solve (0 without rows): what an exact
+    /// penalty on the soft rows must exceed for the soft and hard QPs to agree.
+    pub fn max_multiplier(&self) -> f64 {
+        self.lambda.iter().copied().fold(0.0, f64::max)
+    }
+
     fn setup(&mut self, qp: &StructuredQp) {
         let n = qp.intervals;
         self.a.set(&qp.a);
         self.b.set(&qp.b);
         self.rows.clear();
         self.start.clear();
+        let soft = qp.soft_penalty.is_some();
+        self.rho = qp.soft_penalty.unwrap_or(0.0);
         for (k, c) in qp.constraints.iter().enumerate() {
             self.start.push(self.rows.len());
             if k > 0 {
@@ -254,6 +301,7 @@ impl RiccatiIpm {
                         RowKind::State(i),
                         c.state_lower[j],
                         c.state_upper[j],
+                        soft,
                     ));
                 }
             }
@@ -263,6 +311,7 @@ impl RiccatiIpm {
                         RowKind::Input(i),
                         c.input_lower[j],
                         c.input_upper[j],
+                        false,
                     ));
                 }
             }
@@ -273,11 +322,13 @@ impl RiccatiIpm {
                         kind: RowKind::InputGeneral(j, lo, hi),
                         sign: -1.0,
                         h: -c.input_general_lower[j],
+                        soft: false,
                     });
                     self.rows.push(Row {
                         kind: RowKind::InputGeneral(j, lo, hi),
                         sign: 1.0,
                         h: c.input_general_upper[j],
+                        soft: false,
                     });
                 }
             }
@@ -288,16 +339,19 @@ impl RiccatiIpm {
                         kind: RowKind::General(j, lo, hi),
                         sign: -1.0,
                         h: -c.general_lower[j],
+                        soft,
                     });
                     self.rows.push(Row {
                         kind: RowKind::General(j, lo, hi),
                         sign: 1.0,
                         h: c.general_upper[j],
+                        soft,
                     });
                 }
             }
         }
         self.start.push(self.rows.len());
+        self.soft_count = self.rows.iter().filter(|r| r.soft).count();
         let m = self.rows.len();
         for v in [
             &mut self.s,
@@ -309,6 +363,14 @@ impl RiccatiIpm {
             &mut self.ds_aff,
             &mut self.dlambda_aff,
             &mut self.coef,
+            &mut self.t,
+            &mut self.nu,
+            &mut self.r_t,
+            &mut self.r_tilde,
+            &mut self.dt,
+            &mut self.dnu,
+            &mut self.dt_aff,
+            &mut self.dnu_aff,
         ] {
             v.clear();
             v.resize(m, 0.0);
@@ -648,13 +710,30 @@ impl RiccatiIpm {
         }
     }
 
-    /// ds = −r_i − G dz and dλ = −(r_c + λ∘ds)/s, with r_c from `rc(i)`.
+    /// ds = −r_i − G dz and dλ = −(r_c + λ∘ds)/s (hard rows), or the soft rows' steps (see
+    /// the module documentation), with the predictor's (None) or corrector's r_c.
     fn recover(&mut self, qp: &StructuredQp, sigma_mu: Option<f64>) {
         let n = qp.intervals;
         for k in 0..=n {
             for idx in self.start[k]..self.start[k + 1] {
                 let row = &self.rows[idx];
                 let g_dz = Self::row_value(qp, k, row, &self.dx[k], self.du.get(k));
+                if row.soft {
+                    let r_nu = match sigma_mu {
+                        None => self.t[idx] * self.nu[idx],
+                        Some(sm) => {
+                            self.t[idx] * self.nu[idx] + self.dt_aff[idx] * self.dnu_aff[idx] - sm
+                        }
+                    };
+                    let dlambda = self.w[idx] * (g_dz + self.r_tilde[idx]);
+                    let dnu = self.r_t[idx] - dlambda;
+                    let dt = -(r_nu + self.t[idx] * dnu) / self.nu[idx];
+                    self.dlambda[idx] = dlambda;
+                    self.dnu[idx] = dnu;
+                    self.dt[idx] = dt;
+                    self.ds[idx] = -self.r_ineq[idx] - g_dz + dt;
+                    continue;
+                }
                 let ds = -self.r_ineq[idx] - g_dz;
                 let rc = match sigma_mu {
                     None => self.s[idx] * self.lambda[idx],
@@ -706,7 +785,48 @@ impl RiccatiIpm {
                 alpha = alpha.min(-self.lambda[i] / self.dlambda[i]);
             }
         }
+        if self.soft_count > 0 {
+            for i in 0..self.s.len() {
+                if !self.rows[i].soft {
+                    continue;
+                }
+                if self.dt[i] < 0.0 {
+                    alpha = alpha.min(-self.t[i] / self.dt[i]);
+                }
+                if self.dnu[i] < 0.0 {
+                    alpha = alpha.min(-self.nu[i] / self.dnu[i]);
+                }
+            }
+        }
         alpha
+    }
+
+    /// Mean complementarity of the iterate, or after a step `alpha` along the current
+    /// direction.
+    fn mean_complementarity(&self, alpha: f64) -> f64 {
+        let pairs = self.s.len() + self.soft_count;
+        if pairs == 0 {
+            return 0.0;
+        }
+        let mut sum: f64 = (0..self.s.len())
+            .map(|i| (self.s[i] + alpha * self.ds[i]) * (self.lambda[i] + alpha * self.dlambda[i]))
+            .sum();
+        if self.soft_count > 0 {
+            sum += (0..self.s.len())
+                .filter(|&i| self.rows[i].soft)
+                .map(|i| (self.t[i] + alpha * self.dt[i]) * (self.nu[i] + alpha * self.dnu[i]))
+                .sum::<f64>();
+        }
+        sum / pairs as f64
+    }
+
+    /// The soft rows' W and Newton coefficient for complementarity residuals r_c (s∘λ) and
+    /// r_ν (t∘ν) of row i; keeps r̃ for the recovery.
+    fn soft_coefficient(&mut self, i: usize, r_c: f64, r_nu: f64) -> f64 {
+        let (l, t, nu) = (self.lambda[i], self.t[i], self.nu[i]);
+        let r_tilde = self.r_ineq[i] - r_c / l + (r_nu + t * self.r_t[i]) / nu;
+        self.r_tilde[i] = r_tilde;
+        l + self.w[i] * r_tilde
     }
 
     /// Polish (as OSQP does): with the rows whose multiplier exceeds their slack taken as
@@ -722,10 +842,19 @@ impl RiccatiIpm {
         let mut x = out.x.clone();
         let mut u = out.u.clone();
         let mut lambda = vec![0.0; m];
+        // A soft row whose slack is positive (t above its multiplier) keeps it: its active
+        // row is G z = h + t.
+        let mut h = vec![0.0; m];
         for i in 0..m {
             let active = self.lambda[i] > self.s[i];
             self.w[i] = if active { rho } else { 0.0 };
             lambda[i] = if active { self.lambda[i] } else { 0.0 };
+            h[i] = self.rows[i].h
+                + if self.rows[i].soft && self.t[i] > self.nu[i] {
+                    self.t[i]
+                } else {
+                    0.0
+                };
         }
         if !self.factorize(qp) {
             return false;
@@ -735,7 +864,7 @@ impl RiccatiIpm {
             for k in 0..=n {
                 for idx in self.start[k]..self.start[k + 1] {
                     let row = self.rows[idx];
-                    let r = Self::row_value(qp, k, &row, &x[k], u.get(k)) - row.h;
+                    let r = Self::row_value(qp, k, &row, &x[k], u.get(k)) - h[idx];
                     self.coef[idx] = if self.w[idx] > 0.0 {
                         lambda[idx] + rho * r
                     } else {
@@ -755,14 +884,21 @@ impl RiccatiIpm {
                 for idx in self.start[k]..self.start[k + 1] {
                     if self.w[idx] > 0.0 {
                         let row = self.rows[idx];
-                        let r = Self::row_value(qp, k, &row, &x[k], u.get(k)) - row.h;
+                        let r = Self::row_value(qp, k, &row, &x[k], u.get(k)) - h[idx];
                         lambda[idx] += rho * r;
                     }
                 }
             }
         }
         let tol = self.settings.tolerance.max(1e-12);
-        let feasible = qp.inequality_violation(&x, &u) <= 10.0 * tol;
+        let mut worst: f64 = 0.0;
+        for k in 0..=n {
+            for idx in self.start[k]..self.start[k + 1] {
+                let row = self.rows[idx];
+                worst = worst.max(Self::row_value(qp, k, &row, &x[k], u.get(k)) - h[idx]);
+            }
+        }
+        let feasible = worst <= 10.0 * tol;
         let dual_ok = lambda.iter().all(|l| *l >= -1e-9 * rho.max(1.0));
         let better = qp.objective(&x, &u) <= qp.objective(&out.x, &out.u) + 1e-12;
         let finite = x.iter().all(|v| v.iter().all(|e| e.is_finite()))
@@ -834,6 +970,20 @@ impl QpSolver for RiccatiIpm {
                 let v = Self::row_value(qp, k, &row, &out.x[k], out.u.get(k));
                 self.s[idx] = (row.h - v).max(INITIAL_SLACK_MIN);
                 self.lambda[idx] = INITIAL_MULTIPLIER;
+                if row.soft {
+                    // Dual feasible (λ + ν = ρ) with λ as for a hard row; the slack t covers
+                    // what the start violates (a row starting with a tiny t behaves as hard:
+                    // t cannot grow faster than ν may shrink, and the iterate crawls), and
+                    // elsewhere starts with the hard rows' pair product.
+                    let small = (0.5 * self.rho).min(INITIAL_MULTIPLIER);
+                    self.lambda[idx] = small;
+                    self.nu[idx] = self.rho - small;
+                    self.t[idx] = if v > row.h {
+                        v - row.h + INITIAL_SLACK_MIN
+                    } else {
+                        self.s[idx] * small / self.nu[idx]
+                    };
+                }
             }
         }
         for y in &mut self.y {
@@ -857,15 +1007,33 @@ impl QpSolver for RiccatiIpm {
             // Residuals at the iterate.
             self.cost_gradient(qp, &out.x, &out.u);
             let mut r_ineq_max: f64 = 0.0;
+            let mut r_t_max: f64 = 0.0;
             for k in 0..=n {
                 for idx in self.start[k]..self.start[k + 1] {
                     let row = self.rows[idx];
                     let v = Self::row_value(qp, k, &row, &out.x[k], out.u.get(k));
                     self.r_ineq[idx] = v + self.s[idx] - row.h;
+                    if row.soft {
+                        self.r_ineq[idx] -= self.t[idx];
+                        self.r_t[idx] = self.rho - self.lambda[idx] - self.nu[idx];
+                        r_t_max = r_t_max.max(self.r_t[idx].abs());
+                    }
                     r_ineq_max = r_ineq_max.max(self.r_ineq[idx].abs());
                 }
             }
-            let mu = if m > 0 {
+            let mu = if self.soft_count > 0 {
+                let pairs: f64 = (0..m)
+                    .map(|i| {
+                        self.s[i] * self.lambda[i]
+                            + if self.rows[i].soft {
+                                self.t[i] * self.nu[i]
+                            } else {
+                                0.0
+                            }
+                    })
+                    .sum();
+                pairs / (m + self.soft_count) as f64
+            } else if m > 0 {
                 self.s
                     .iter()
                     .zip(&self.lambda)
@@ -880,7 +1048,9 @@ impl QpSolver for RiccatiIpm {
                 status = QpStatus::NumericalFailure;
                 break;
             }
-            if stationarity <= tol * gradient_scale && r_ineq_max <= tol && mu <= tol {
+            // The soft rows' dual equation ρ − λ − ν = 0, relative to ρ.
+            let dual_ok = r_t_max <= tol * gradient_scale.max(self.rho);
+            if stationarity <= tol * gradient_scale && r_ineq_max <= tol && mu <= tol && dual_ok {
                 status = QpStatus::Solved;
                 break;
             }
@@ -892,7 +1062,11 @@ impl QpSolver for RiccatiIpm {
             }
             iterations += 1;
             for i in 0..m {
-                self.w[i] = self.lambda[i] / self.s[i];
+                self.w[i] = if self.rows[i].soft {
+                    1.0 / (self.s[i] / self.lambda[i] + self.t[i] / self.nu[i])
+                } else {
+                    self.lambda[i] / self.s[i]
+                };
             }
             if !self.factorize(qp) {
                 status = QpStatus::NumericalFailure;
@@ -900,7 +1074,12 @@ impl QpSolver for RiccatiIpm {
             }
             // Predictor (affine scaling): r_c = s∘λ, coefficient W r_i.
             for i in 0..m {
-                self.coef[i] = self.w[i] * self.r_ineq[i];
+                self.coef[i] = if self.rows[i].soft {
+                    let (r_c, r_nu) = (self.s[i] * self.lambda[i], self.t[i] * self.nu[i]);
+                    self.soft_coefficient(i, r_c, r_nu)
+                } else {
+                    self.w[i] * self.r_ineq[i]
+                };
             }
             self.newton_rhs(qp);
             // The predictor's direction only sets the centring: no costates, no refinement.
@@ -908,17 +1087,7 @@ impl QpSolver for RiccatiIpm {
             self.sweep(qp);
             self.recover(qp, None);
             let alpha_aff = self.max_step();
-            let mu_aff = if m > 0 {
-                (0..m)
-                    .map(|i| {
-                        (self.s[i] + alpha_aff * self.ds[i])
-                            * (self.lambda[i] + alpha_aff * self.dlambda[i])
-                    })
-                    .sum::<f64>()
-                    / m as f64
-            } else {
-                0.0
-            };
+            let mu_aff = self.mean_complementarity(alpha_aff);
             let sigma = if mu > 0.0 {
                 (mu_aff / mu).clamp(0.0, 1.0).powi(3)
             } else {
@@ -926,11 +1095,22 @@ impl QpSolver for RiccatiIpm {
             };
             self.ds_aff.copy_from_slice(&self.ds);
             self.dlambda_aff.copy_from_slice(&self.dlambda);
+            if self.soft_count > 0 {
+                self.dt_aff.copy_from_slice(&self.dt);
+                self.dnu_aff.copy_from_slice(&self.dnu);
+            }
             // Corrector: r_c = s∘λ + ds_aff∘dλ_aff − σμ.
             let sigma_mu = sigma * mu;
             for i in 0..m {
-                self.coef[i] = self.w[i] * self.r_ineq[i]
-                    - (self.ds_aff[i] * self.dlambda_aff[i] - sigma_mu) / self.s[i];
+                self.coef[i] = if self.rows[i].soft {
+                    let r_c = self.s[i] * self.lambda[i] + self.ds_aff[i] * self.dlambda_aff[i]
+                        - sigma_mu;
+                    let r_nu = self.t[i] * self.nu[i] + self.dt_aff[i] * self.dnu_aff[i] - sigma_mu;
+                    self.soft_coefficient(i, r_c, r_nu)
+                } else {
+                    self.w[i] * self.r_ineq[i]
+                        - (self.ds_aff[i] * self.dlambda_aff[i] - sigma_mu) / self.s[i]
+                };
             }
             self.newton_rhs(qp);
             self.back_solve(qp);
@@ -950,6 +1130,14 @@ impl QpSolver for RiccatiIpm {
                 self.s[i] += alpha * self.ds[i];
                 self.lambda[i] += alpha * self.dlambda[i];
             }
+            if self.soft_count > 0 {
+                for i in 0..m {
+                    if self.rows[i].soft {
+                        self.t[i] += alpha * self.dt[i];
+                        self.nu[i] += alpha * self.dnu[i];
+                    }
+                }
+            }
         }
         if status == QpStatus::Solved && self.settings.polish {
             self.polish(qp, out);
@@ -965,6 +1153,14 @@ impl QpSolver for RiccatiIpm {
         }
         out.iterations = iterations;
         out.status = status;
+        out.slack.clear();
+        out.slack.extend(
+            self.rows
+                .iter()
+                .zip(&self.t)
+                .filter(|(r, _)| r.soft)
+                .map(|(_, t)| *t),
+        );
         if status == QpStatus::NumericalFailure
             || out.x.iter().any(|x| !x.iter().all(|v| v.is_finite()))
             || out.u.iter().any(|u| !u.iter().all(|v| v.is_finite()))
@@ -976,6 +1172,9 @@ impl QpSolver for RiccatiIpm {
             for u in &mut out.u {
                 *u = InputVector::zeros();
             }
+            for t in &mut out.slack {
+                *t = 0.0;
+            }
         }
         out.status
     }
@@ -986,17 +1185,19 @@ impl QpSolver for RiccatiIpm {
 }
 
 /// The two rows of `lower ≤ v ≤ upper` on the variable of `kind`: −v ≤ −lower, v ≤ upper.
-fn bound_rows(kind: RowKind, lower: f64, upper: f64) -> [Row; 2] {
+fn bound_rows(kind: RowKind, lower: f64, upper: f64, soft: bool) -> [Row; 2] {
     [
         Row {
             kind,
             sign: -1.0,
             h: -lower,
+            soft,
         },
         Row {
             kind,
             sign: 1.0,
             h: upper,
+            soft,
         },
     ]
 }

@@ -97,7 +97,8 @@ pub struct MpcReference {
 /// What one RTI step did.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct RtiReport {
-    /// QP outcome (not `solved`: the shifted previous solution was kept).
+    /// QP outcome (not `solved`: the shifted previous solution was kept; `infeasible`: the
+    /// soft state rows needed a slack beyond `state_row_slack_limit`).
     pub status: QpStatus,
     /// QP interior-point iterations.
     pub qp_iterations: u32,
@@ -195,6 +196,7 @@ impl SqpRti {
         let mut qp = StructuredQp::zeros(n);
         qp.a = a;
         qp.b = b;
+        qp.soft_penalty = config.state_row_penalty;
         for (k, c) in qp.constraints.iter_mut().enumerate() {
             if k > 0 {
                 c.state_indices = STATE_BOUND_INDICES.to_vec();
@@ -274,6 +276,11 @@ impl SqpRti {
     /// Forgets the previous solution: the next step starts cold.
     pub fn reset(&mut self) {
         self.warm = false;
+    }
+
+    /// Whether the next step starts from the previous solution.
+    pub fn is_warm(&self) -> bool {
+        self.warm
     }
 
     /// Predicted states x_0..x_N of the current iterate.
@@ -563,7 +570,14 @@ impl SqpRti {
             QpPath::Riccati => &mut self.riccati,
             QpPath::Clarabel => &mut self.clarabel,
         };
-        let status = solver.solve(&self.qp, &mut self.solution);
+        let mut status = solver.solve(&self.qp, &mut self.solution);
+        // Soft state rows: a slack beyond the limit means the hard QP has no solution.
+        if status == QpStatus::Solved
+            && let Some(limit) = self.config.state_row_slack_limit
+            && self.solution.slack.iter().any(|t| *t > limit)
+        {
+            status = QpStatus::Infeasible;
+        }
         if status == QpStatus::Solved {
             for (x, dx) in self.xs.iter_mut().zip(&self.solution.x) {
                 *x += dx;

@@ -15,6 +15,11 @@ const PATH_AGREEMENT: f64 = 1e-6;
 /// feasibility tests are its own).
 const RICCATI_TIGHT: f64 = 1e-14;
 const CLARABEL_TIGHT: f64 = 1e-13;
+/// Tolerance of both paths on an infeasible-for-hard-rows QP (multipliers at ρ = 1e5: the
+/// absolute complementarity test cannot go as low as the hard QPs' 1e-13).
+const SOFT_TIGHT: f64 = 1e-10;
+/// A feasible QP's slacks are below this (complementarity t·ν ≤ 1e-14 with ν ≈ ρ = 1e5).
+const SOFT_ZERO: f64 = 1e-15;
 /// Largest violation of the EE-height band allowed at a knot (RTI's linearisation), m.
 const HEIGHT_LINEARISATION_TOLERANCE: f64 = 5e-3;
 /// Control period of the closed loops, s.
@@ -451,4 +456,150 @@ fn predicted_forces_stay_inside_their_share_of_the_rotor_envelope() {
     )
     .unwrap_or_else(|e| panic!("{e}"));
     assert!(unbounded.rotor_envelope().is_none());
+}
+
+/// Values of the soft rows of `qp` at (x, u), minus their bounds, in the order of
+/// [`QpSolution::slack`] (positive: the hard row is violated).
+fn soft_row_excess(qp: &StructuredQp, x: &[StateVector]) -> Vec<f64> {
+    let mut out = Vec::new();
+    for (k, c) in qp.constraints.iter().enumerate().skip(1) {
+        for (j, &i) in c.state_indices.iter().enumerate() {
+            out.push(c.state_lower[j] - x[k][i]);
+            out.push(x[k][i] - c.state_upper[j]);
+        }
+        for (j, g) in c.general.iter().enumerate() {
+            let v = g.dot(&x[k]);
+            out.push(c.general_lower[j] - v);
+            out.push(v - c.general_upper[j]);
+        }
+    }
+    out
+}
+
+/// The standard scenario's first QP with the base already moving at 3 m/s toward the wall
+/// 0.3 m ahead: the force the rotor rows allow cannot stop it in time, so the hard position
+/// rows cannot all hold.
+fn contact_like_qp() -> StructuredQp {
+    let mut run = scenario::WallStepScenario::new(&fa_hexa(), MpcConfig::default())
+        .unwrap_or_else(|e| panic!("mpc: {e}"));
+    run.prepare();
+    let mut qp = run.rti().qp().clone();
+    qp.x0[model::IX_V] = 3.0;
+    qp
+}
+
+#[test]
+fn soft_state_rows_make_an_infeasible_qp_solvable_with_slack_on_the_violated_rows_only() {
+    let qp = contact_like_qp();
+    let settings = QpSettings::default();
+    // Hard rows: no feasible point, so the interior point runs to its cap (or breaks down).
+    let mut hard = qp.clone();
+    hard.soft_penalty = None;
+    let mut riccati = RiccatiIpm::new(settings);
+    let mut sol = QpSolution::zeros(qp.intervals);
+    let status = riccati.solve(&hard, &mut sol);
+    assert_ne!(status, QpStatus::Solved, "the hard QP must be infeasible");
+    // Soft rows: solved well within the cap.
+    let status = riccati.solve(&qp, &mut sol);
+    assert_eq!(status, QpStatus::Solved);
+    assert!(
+        sol.iterations < settings.max_iterations,
+        "{} iterations",
+        sol.iterations
+    );
+    assert_eq!(sol.slack.len(), qp.soft_rows());
+    // Each slack is the violation of its hard row (0 where the row holds), to the
+    // interior point's tolerance scale.
+    let excess = soft_row_excess(&qp, &sol.x);
+    let mut violated = 0;
+    for (i, (t, e)) in sol.slack.iter().zip(&excess).enumerate() {
+        assert!(*t >= 0.0, "row {i}: slack {t}");
+        assert!(
+            (t - e.max(0.0)).abs() < 1e-5,
+            "row {i}: slack {t}, excess {e}"
+        );
+        if *e > 1e-4 {
+            violated += 1;
+        }
+    }
+    assert!(violated > 0, "no row is violated");
+    assert!(qp.dynamics_violation(&sol.x, &sol.u) < 1e-9);
+    // clarabel on the same soft QP: the same solution and slacks.
+    let mut clarabel = ClarabelQp::new(QpSettings {
+        max_iterations: 200,
+        tolerance: SOFT_TIGHT,
+        polish: false,
+    });
+    let mut reference = QpSolution::zeros(qp.intervals);
+    assert_eq!(clarabel.solve(&qp, &mut reference), QpStatus::Solved);
+    let mut tight = RiccatiIpm::new(QpSettings {
+        max_iterations: 200,
+        tolerance: SOFT_TIGHT,
+        polish: false,
+    });
+    assert_eq!(tight.solve(&qp, &mut sol), QpStatus::Solved);
+    // The L1 penalty leaves flat directions (violations traded between rows at the same
+    // price), so the two paths are compared on the optimal value: equal to 1e-12 relative
+    // (riccati's is the lower of the two here).
+    let penalised = |q: &StructuredQp, s: &QpSolution| {
+        q.objective(&s.x, &s.u) + q.soft_penalty.unwrap_or(0.0) * s.slack.iter().sum::<f64>()
+    };
+    let (a, b) = (penalised(&qp, &sol), penalised(&qp, &reference));
+    assert!(
+        (a - b).abs() <= 1e-12 * b.abs(),
+        "optimal values {a} and {b}"
+    );
+    assert!(qp.dynamics_violation(&reference.x, &reference.u) < 1e-9);
+}
+
+#[test]
+fn soft_state_rows_leave_a_feasible_qp_unchanged() {
+    // QPs of the standard scenario (feasible with hard rows, bounds active).
+    let mut recorded = Vec::new();
+    nominal_closed_loop(150, |tick, rti, _| {
+        if [0, 1, 4, 15, 40, 80, 149].contains(&tick) {
+            recorded.push(rti.qp().clone());
+        }
+    });
+    let rho = MpcConfig::default()
+        .state_row_penalty
+        .unwrap_or_else(|| panic!("the default softens the state rows"));
+    // Both to the hard QPs' attainable accuracy (as in the agreement of the two paths).
+    let settings = QpSettings {
+        max_iterations: 200,
+        tolerance: RICCATI_TIGHT,
+        polish: true,
+    };
+    let mut riccati = RiccatiIpm::new(settings);
+    for (i, qp) in recorded.iter().enumerate() {
+        assert_eq!(qp.soft_penalty, Some(rho));
+        let mut hard_qp = qp.clone();
+        hard_qp.soft_penalty = None;
+        let mut hard = QpSolution::zeros(qp.intervals);
+        assert_eq!(
+            riccati.solve(&hard_qp, &mut hard),
+            QpStatus::Solved,
+            "QP {i}"
+        );
+        assert!(hard.slack.is_empty());
+        // The exact-penalty condition: every multiplier of the hard QP is below ρ (with
+        // three orders of magnitude to spare).
+        let lambda = riccati.max_multiplier();
+        assert!(
+            lambda > 0.0 && lambda < 1e-3 * rho,
+            "QP {i}: λ max {lambda}"
+        );
+        let mut soft = QpSolution::zeros(qp.intervals);
+        assert_eq!(riccati.solve(qp, &mut soft), QpStatus::Solved, "QP {i}");
+        let diff = soft.max_difference(&hard);
+        assert!(
+            diff < PATH_AGREEMENT,
+            "QP {i}: soft and hard differ by {diff}"
+        );
+        let slack = soft.slack.iter().copied().fold(0.0, f64::max);
+        assert!(
+            soft.slack.len() == qp.soft_rows() && slack < SOFT_ZERO,
+            "QP {i}: slack {slack}"
+        );
+    }
 }
