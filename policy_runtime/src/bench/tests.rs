@@ -317,29 +317,36 @@ fn the_fa_hexa_reaches_the_can_from_the_cabinets_ik_margin() {
 #[test]
 fn the_fa_hexa_reaches_the_standing_frame_without_pushing_it() {
     for seed in 0..6 {
-        let mut start = None;
-        let mut moved_before_grasp = 0.0_f64;
-        let mut held = false;
-        fly_scripted(TaskId::FrameAssembly, "fa-hexa", seed, |step| {
-            if let Some(s) = step.scene {
-                let f = s
-                    .observation
-                    .vec3("frame_pos", 0)
-                    .unwrap_or_else(|e| panic!("{e}"));
-                let f0 = *start.get_or_insert(f);
-                held |= s.holding;
-                if !held {
-                    moved_before_grasp = moved_before_grasp.max((f - f0).norm());
-                }
-            }
-            true
-        });
-        assert!(held, "seed {seed}: the gripper never took the frame");
+        let moved = moved_before_grasp(TaskId::FrameAssembly, seed, "frame_pos");
         assert!(
-            moved_before_grasp < 5e-3,
-            "seed {seed}: the frame moved {moved_before_grasp} m before the grasp"
+            moved < 5e-3,
+            "seed {seed}: the frame moved {moved} m before the grasp"
         );
     }
+}
+
+/// How far the object observed as `key` moved before the FA-Hexa's gripper first held it, in
+/// the scripted rollout of `task` at `seed`, m; panics if the gripper never held it.
+fn moved_before_grasp(task: TaskId, seed: u64, key: &str) -> f64 {
+    let mut start = None;
+    let mut moved = 0.0_f64;
+    let mut held = false;
+    fly_scripted(task, "fa-hexa", seed, |step| {
+        if let Some(s) = step.scene {
+            let p = s.observation.vec3(key, 0).unwrap_or_else(|e| panic!("{e}"));
+            let p0 = *start.get_or_insert(p);
+            held |= s.holding;
+            if !held {
+                moved = moved.max((p - p0).norm());
+            }
+        }
+        true
+    });
+    assert!(
+        held,
+        "{task:?} seed {seed}: the gripper never took the object"
+    );
+    moved
 }
 
 /// The twin's contacts start 5 mm apart (the reference's PhysX contact offset), not at
@@ -348,26 +355,6 @@ fn the_fa_hexa_reaches_the_standing_frame_without_pushing_it() {
 /// lemon stays where it hangs until the gripper holds it.
 #[test]
 fn the_open_fingers_pass_the_lemon_without_knocking_it_off() {
-    let mut start = None;
-    let mut moved_before_grasp = 0.0_f64;
-    let mut held = false;
-    fly_scripted(TaskId::LemonHarvesting, "fa-hexa", 17, |step| {
-        if let Some(s) = step.scene {
-            let l = s
-                .observation
-                .vec3("lemon_pos", 0)
-                .unwrap_or_else(|e| panic!("{e}"));
-            let l0 = *start.get_or_insert(l);
-            held |= s.holding;
-            if !held {
-                moved_before_grasp = moved_before_grasp.max((l - l0).norm());
-            }
-        }
-        true
-    });
-    assert!(held, "the gripper never took the lemon");
-    assert!(
-        moved_before_grasp < 1e-3,
-        "the lemon moved {moved_before_grasp} m before the grasp"
-    );
+    let moved = moved_before_grasp(TaskId::LemonHarvesting, 17, "lemon_pos");
+    assert!(moved < 1e-3, "the lemon moved {moved} m before the grasp");
 }
