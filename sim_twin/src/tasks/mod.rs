@@ -253,10 +253,11 @@ impl std::fmt::Display for TaskId {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum GraspMode {
-    /// Contact and friction, plus a fixed constraint between the end-effector body and the
-    /// object while both fingers press it with their inner faces and the gripper is closing
-    /// (action < 0); released as soon as the gripper opens (action ≥ 0). Pre-grasped objects
-    /// start constrained.
+    /// Contact and friction, plus a constraint between the end-effector body and the object
+    /// (fixed; a round bar may spin about its own axis) while both fingers press it with their
+    /// inner faces (each within 2 cm, normal within 60° of the closing direction) and the
+    /// gripper is closing (action < 0); released as soon as the gripper opens (action ≥ 0).
+    /// Pre-grasped objects start constrained.
     #[default]
     Assisted,
     /// Contact and friction only (pre-grasped objects still start constrained).
