@@ -627,7 +627,8 @@ fn controller_on_the_model(
     let mut x = mpc.state_vector(&state, &q);
     let mut configuration = q.clone();
     for tick in 0..ticks {
-        let orientation = UnitQuaternion::from_euler_angles(x[IX_ETA], x[IX_ETA + 1], x[IX_ETA + 2]);
+        let orientation =
+            UnitQuaternion::from_euler_angles(x[IX_ETA], x[IX_ETA + 1], x[IX_ETA + 2]);
         let mut measured = platform::RigidBodyState::at_rest(nalgebra::Isometry3::from_parts(
             Vector3::new(x[IX_P], x[IX_P + 1], x[IX_P + 2]).into(),
             orientation,
@@ -684,11 +685,11 @@ fn the_ee_offset_removes_the_steady_state_error_of_the_arm_regularisation() {
 fn the_ee_offset_does_not_integrate_an_unreachable_target() {
     // 1.5 m forward: beyond the arm's reach from the wall bound, the predicted terminal
     // error stays above `ee_offset_limit_m`, so nothing is integrated.
-    let (error, mpc) = controller_on_the_model(
-        MpcConfig::default(),
-        Vector3::new(1.5, 0.0, 0.0),
-        240,
+    let (error, mpc) =
+        controller_on_the_model(MpcConfig::default(), Vector3::new(1.5, 0.0, 0.0), 240);
+    assert!(
+        error.norm() > MpcConfig::default().ee_offset_limit_m,
+        "{error}"
     );
-    assert!(error.norm() > MpcConfig::default().ee_offset_limit_m, "{error}");
     assert_eq!(mpc.ee_offset(), Vector3::zeros());
 }
