@@ -167,6 +167,9 @@ pub struct WholeBodyMpc {
     mode: MpcMode,
     status: MpcStatus,
     last_command: Option<MpcCommand>,
+    /// The offset added to the EE position target (world, m): see
+    /// [`MpcConfig::ee_offset_rate_per_s`].
+    ee_offset: Vector3<f64>,
 }
 
 impl WholeBodyMpc {
@@ -197,6 +200,7 @@ impl WholeBodyMpc {
                 problem: None,
             },
             last_command: None,
+            ee_offset: Vector3::zeros(),
         })
     }
 
@@ -237,6 +241,7 @@ impl WholeBodyMpc {
         self.ik_pid_ticks = 0;
         self.mode = MpcMode::Mpc;
         self.last_command = None;
+        self.ee_offset = Vector3::zeros();
         let _ = (state, configuration);
         self.status.event = None;
         self.status.failure = None;
@@ -289,7 +294,7 @@ impl WholeBodyMpc {
         let mut problem = None;
         if inputs_finite {
             let reference = MpcReference {
-                ee_position_m: target_world_from_ee.translation.vector,
+                ee_position_m: target_world_from_ee.translation.vector + self.ee_offset,
                 ee_rotation: target_world_from_ee.rotation,
                 input_previous: self.u_last.unwrap_or_else(|| self.seed_input(&x_hat)),
             };
@@ -353,6 +358,9 @@ impl WholeBodyMpc {
         } else {
             0
         };
+        if self.mode == MpcMode::Mpc {
+            self.integrate_ee_offset(&target_world_from_ee.translation.vector, dt);
+        }
         // A non-finite state cannot be flown by either path: hold the last command.
         if failure == Some(SolveFailure::NonFiniteInput)
             && let Some(last) = &self.last_command
@@ -399,6 +407,44 @@ impl WholeBodyMpc {
         command.status = self.status;
         self.last_command = Some(command.clone());
         command
+    }
+
+    /// The input the MPC path applied last (world force without gravity, world torque, arm
+    /// references; None before the first tick).
+    pub fn last_input(&self) -> Option<InputVector> {
+        self.u_last
+    }
+
+    /// The offset added to the EE position target, world, m (zero without
+    /// [`MpcConfig::ee_offset_rate_per_s`]).
+    pub fn ee_offset(&self) -> Vector3<f64> {
+        self.ee_offset
+    }
+
+    /// One step of the offset-free EE reference after a solve the MPC flies:
+    /// `b ← b + rate·dt·(p_target − p_ee(x_N))` with x_N the solution's terminal state, taken
+    /// only while that predicted error is within `ee_offset_limit_m` (a larger one is a move
+    /// still under way, not a steady-state offset), and `‖b‖` clipped to the same bound.
+    fn integrate_ee_offset(&mut self, target_m: &Vector3<f64>, dt: f64) {
+        let Some(rate) = self.config.ee_offset_rate_per_s else {
+            return;
+        };
+        let Some(terminal) = self.rti.states().last().copied() else {
+            return;
+        };
+        let predicted = self.rti.ee_kinematics(&terminal).position;
+        let error = target_m - predicted;
+        let limit = self.config.ee_offset_limit_m;
+        if !(error.iter().all(|v| v.is_finite()) && error.norm() <= limit) {
+            return;
+        }
+        let offset = self.ee_offset + error * (rate * dt).min(1.0);
+        let norm = offset.norm();
+        self.ee_offset = if norm > limit {
+            offset * (limit / norm)
+        } else {
+            offset
+        };
     }
 
     /// The last applied input before any: no force or torque, the arm where it is.

@@ -603,3 +603,93 @@ fn soft_state_rows_leave_a_feasible_qp_unchanged() {
         );
     }
 }
+
+/// Flies the controller on its own prediction model (RK4 over each tick, the filtered input
+/// applied) from hover toward `target`, the base behind a wall face at x = 1.15 m (0.85 m
+/// margin), for `ticks`; returns the final EE error vector (target − EE, world, m) and the
+/// controller.
+fn controller_on_the_model(
+    config: MpcConfig,
+    target_offset_m: Vector3<f64>,
+    ticks: usize,
+) -> (Vector3<f64>, WholeBodyMpc) {
+    let vehicle = fa_hexa();
+    let mut mpc = WholeBodyMpc::new(&vehicle, config).unwrap_or_else(|e| panic!("{e}"));
+    let (state, q) = hover_measurement(&vehicle);
+    mpc.reset(&state, &q);
+    let target = state.pose() * vehicle.base_from_ee(&q);
+    let target = nalgebra::Isometry3::from_parts(
+        (target.translation.vector + target_offset_m).into(),
+        target.rotation,
+    );
+    let limits = BaseLimits::in_front_of_face_x(1.15, 0.85);
+    let arm_dofs = vehicle.arm_dofs();
+    let mut x = mpc.state_vector(&state, &q);
+    let mut configuration = q.clone();
+    for tick in 0..ticks {
+        let orientation =
+            UnitQuaternion::from_euler_angles(x[IX_ETA], x[IX_ETA + 1], x[IX_ETA + 2]);
+        let mut measured = platform::RigidBodyState::at_rest(nalgebra::Isometry3::from_parts(
+            Vector3::new(x[IX_P], x[IX_P + 1], x[IX_P + 2]).into(),
+            orientation,
+        ));
+        measured.velocity_in_world_mps = Vector3::new(x[3], x[4], x[5]);
+        measured.angular_velocity_in_body_radps = Vector3::new(x[9], x[10], x[11]);
+        for (j, &d) in arm_dofs.iter().enumerate() {
+            configuration[d] = x[IX_Q + j];
+        }
+        let c = mpc.update(&measured, &configuration, &target, &limits, DT, None);
+        assert_eq!(c.status.mode, MpcMode::Mpc, "tick {tick}");
+        let u = mpc
+            .last_input()
+            .unwrap_or_else(|| panic!("tick {tick}: no input"));
+        x = mpc.rti().model().rk4(&x, &u, DT).0;
+    }
+    let ee = mpc.rti_mut().ee_kinematics(&x).position;
+    (target.translation.vector - ee, mpc)
+}
+
+#[test]
+fn the_ee_offset_removes_the_steady_state_error_of_the_arm_regularisation() {
+    // A 0.55 m reach forward and 0.1 m down: the base stops at its wall bound (x = 0.3 m)
+    // and the arm extends, where the reference's cost (EE 6000/m², arm 10 + 1 per rad²
+    // toward the folded posture) settles short of the target.
+    let step = Vector3::new(0.55, 0.0, -0.1);
+    let without = MpcConfig {
+        ee_offset_rate_per_s: None,
+        ..MpcConfig::default()
+    };
+    let (error_without, mpc_without) = controller_on_the_model(without, step, 720);
+    assert_eq!(mpc_without.ee_offset(), Vector3::zeros());
+    let (error_with, mpc_with) = controller_on_the_model(MpcConfig::default(), step, 720);
+    // Without the offset: a steady-state error of several millimetres, along the reach.
+    assert!(
+        error_without.norm() > 5e-3 && error_without.x > 0.0,
+        "error without the offset {error_without}"
+    );
+    // With it: the model's steady state is on the target, and the offset equals the error
+    // it removed (the fixed point of ḃ = rate·(p_target − p_ee(x_N))).
+    assert!(
+        error_with.norm() < 0.1 * error_without.norm(),
+        "error with the offset {error_with} (without {error_without})"
+    );
+    let offset = mpc_with.ee_offset();
+    assert!(
+        (offset - error_without).norm() < 0.25 * error_without.norm(),
+        "offset {offset} against the error it removes {error_without}"
+    );
+    assert!(offset.norm() <= MpcConfig::default().ee_offset_limit_m + 1e-12);
+}
+
+#[test]
+fn the_ee_offset_does_not_integrate_an_unreachable_target() {
+    // 1.5 m forward: beyond the arm's reach from the wall bound, the predicted terminal
+    // error stays above `ee_offset_limit_m`, so nothing is integrated.
+    let (error, mpc) =
+        controller_on_the_model(MpcConfig::default(), Vector3::new(1.5, 0.0, 0.0), 240);
+    assert!(
+        error.norm() > MpcConfig::default().ee_offset_limit_m,
+        "{error}"
+    );
+    assert_eq!(mpc.ee_offset(), Vector3::zeros());
+}
