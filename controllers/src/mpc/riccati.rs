@@ -225,6 +225,8 @@ pub struct RiccatiIpm {
     soft_count: usize,
     /// Their indices.
     soft_index: Vec<usize>,
+    /// Whether every cross term S_k is zero (the MPC's: its cost has no x–u products).
+    cross_zero: bool,
     /// G dz per row (the recovery's).
     g_dz: Vec<f64>,
     /// Per row (used on soft rows only): slack t, its multiplier ν, the dual residual
@@ -289,6 +291,7 @@ impl RiccatiIpm {
             rho: 0.0,
             soft_count: 0,
             soft_index: Vec::new(),
+            cross_zero: false,
             g_dz: Vec::new(),
             t: Vec::new(),
             nu: Vec::new(),
@@ -402,6 +405,7 @@ impl RiccatiIpm {
             }
         }
         self.start.push(self.rows.len());
+        self.cross_zero = qp.s.iter().all(|s| s.iter().all(|v| *v == 0.0));
         self.soft_index.clear();
         self.soft_index
             .extend((0..self.rows.len()).filter(|&i| self.rows[i].soft));
@@ -487,7 +491,7 @@ impl RiccatiIpm {
 
     /// The unsigned value of the row of z that both rows of a pair bound (the lower row is
     /// its negation: [`Self::row_value`] of row 2p is `−v`, of row 2p + 1 is `v`).
-    #[inline]
+    #[inline(always)]
     fn kind_value(
         qp: &StructuredQp,
         k: usize,
@@ -512,7 +516,7 @@ impl RiccatiIpm {
     /// Adds `sign·coef·(row)` of both rows of a pair into the stage gradients: the lower row
     /// with `coef_lo`, then the upper row with `coef_hi`, entry by entry (the same sums, in the
     /// same order, as row by row).
-    #[inline]
+    #[inline(always)]
     fn scatter_pair(
         qp: &StructuredQp,
         k: usize,
@@ -613,7 +617,11 @@ impl RiccatiIpm {
             // Vᵀ = S̄ᵀL⁻ᵀ (V = L⁻¹S̄), column by column; P = Q̄ − VᵀV. The gain K = −L⁻ᵀV
             // is applied through Vᵀ and L.
             let vt = &mut self.gain[k];
-            *vt = qp.s[k].transpose() + atpb;
+            if self.cross_zero {
+                *vt = atpb;
+            } else {
+                *vt = qp.s[k].transpose() + atpb;
+            }
             {
                 let v = vt.as_mut_slice();
                 for i in 0..NU {
@@ -1070,6 +1078,8 @@ impl RiccatiIpm {
                     };
                 } else {
                     self.lambda[idx] = lambda;
+                    self.t[idx] = 0.0;
+                    self.nu[idx] = 0.0;
                 }
             }
         }
@@ -1157,6 +1167,9 @@ impl QpSolver for RiccatiIpm {
                     } else {
                         self.s[idx] * small / self.nu[idx]
                     };
+                } else {
+                    self.t[idx] = 0.0;
+                    self.nu[idx] = 0.0;
                 }
             }
         }
@@ -1205,15 +1218,9 @@ impl QpSolver for RiccatiIpm {
                 }
             }
             let mu = if self.soft_count > 0 {
+                // t = ν = 0 on the hard rows (set by the start), so no branch is needed.
                 let pairs: f64 = (0..m)
-                    .map(|i| {
-                        self.s[i] * self.lambda[i]
-                            + if self.rows[i].soft {
-                                self.t[i] * self.nu[i]
-                            } else {
-                                0.0
-                            }
-                    })
+                    .map(|i| self.s[i] * self.lambda[i] + self.t[i] * self.nu[i])
                     .sum();
                 pairs / (m + self.soft_count) as f64
             } else if m > 0 {
@@ -1276,11 +1283,12 @@ impl QpSolver for RiccatiIpm {
             } else {
                 0.0
             };
-            self.ds_aff.copy_from_slice(&self.ds);
-            self.dlambda_aff.copy_from_slice(&self.dlambda);
+            // Kept by swapping (the corrector's recovery writes every entry it reads back).
+            std::mem::swap(&mut self.ds_aff, &mut self.ds);
+            std::mem::swap(&mut self.dlambda_aff, &mut self.dlambda);
             if self.soft_count > 0 {
-                self.dt_aff.copy_from_slice(&self.dt);
-                self.dnu_aff.copy_from_slice(&self.dnu);
+                std::mem::swap(&mut self.dt_aff, &mut self.dt);
+                std::mem::swap(&mut self.dnu_aff, &mut self.dnu);
             }
             // Corrector: r_c = s∘λ + ds_aff∘dλ_aff − σμ.
             let sigma_mu = sigma * mu;
