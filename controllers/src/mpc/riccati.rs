@@ -1055,8 +1055,16 @@ impl RiccatiIpm {
             let j0 = (k + whole).min(n);
             let j1 = (k + whole + 1).min(n);
             let own = layout(&self.start, k);
-            let src0 = (layout(&self.start, j0) == own).then_some(j0).unwrap_or(k);
-            let src1 = (layout(&self.start, j1) == own).then_some(j1).unwrap_or(k);
+            let src0 = if layout(&self.start, j0) == own {
+                j0
+            } else {
+                k
+            };
+            let src1 = if layout(&self.start, j1) == own {
+                j1
+            } else {
+                k
+            };
             for idx in self.start[k]..self.start[k + 1] {
                 let p = idx - self.start[k];
                 let (i0, i1) = (self.start[src0] + p, self.start[src1] + p);
