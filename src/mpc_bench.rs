@@ -47,7 +47,8 @@ Scenarios:
                them in order (open loop), so the QPs are those of the vehicle in contact.
 32 intervals over 0.8 s, 120 Hz. Both QP paths run: riccati (the structure-exploiting
 interior point of this crate) and clarabel (the sparse multiple-shooting QP); --paths picks.
---state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
+--warm-start off starts every QP of the riccati path cold (the replay of a rollout then
+solves the same problems as the warm-started rollout did). --state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
 contact) from the rollout and the replay; --replay-state-rows replays the same recorded
 problems with the other setting.
 Times: the wall time of each RTI step, and the thread's CPU time over it (not inflated by
@@ -56,6 +57,7 @@ other processes on a loaded machine). Build with --release for meaningful times.
 Examples:
   amstack mpc-bench
   amstack mpc-bench --scenario push-slider --paths riccati --json slider.json
+  amstack mpc-bench --scenario wipe-window --paths riccati --warm-start off
   amstack mpc-bench --scenario wipe-window --state-rows hard
   amstack mpc-bench --scenario push-slider --state-rows hard --replay-state-rows soft")]
 pub struct Args {
@@ -83,6 +85,12 @@ pub struct Args {
     /// config's (`state_row_penalty`).
     #[arg(long, value_name = "RHO")]
     penalty: Option<f64>,
+    /// `on` (default, as the controller flies): the Riccati path's interior point starts
+    /// from the previous tick's multipliers; `off`: every QP starts cold. Applies to the
+    /// standard scenario and to the replay (a recorded rollout is flown as the controller
+    /// flies, so `off` replays the same problems cold).
+    #[arg(long, default_value = "on", value_name = "on|off")]
+    warm_start: String,
     /// Write the figures as JSON (`paths.<name>.solve_ms_median`, ...).
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -144,6 +152,8 @@ struct RolloutFigures {
 struct Report {
     scenario: String,
     state_rows: String,
+    /// `on` or `off` (`--warm-start`).
+    warm_start: String,
     /// The replay's state rows, when not the rollout's.
     #[serde(skip_serializing_if = "Option::is_none")]
     replay_state_rows: Option<String>,
@@ -281,8 +291,10 @@ fn fly(
     config: MpcConfig,
     path: QpPath,
     iterations: usize,
+    warm_start: bool,
 ) -> Result<PathFigures> {
     let mut run = WallStepScenario::new(vehicle, config)?;
+    run.rti_mut().set_qp_warm_start(warm_start);
     let mut samples = Samples::default();
     for _ in 0..iterations {
         let t0 = Stamp::now();
@@ -399,8 +411,10 @@ fn replay(
     path: QpPath,
     ticks: &[RecordedTick],
     as_recorded: bool,
+    warm_start: bool,
 ) -> Result<PathFigures> {
     let mut rti = SqpRti::new(vehicle, config)?;
+    rti.set_qp_warm_start(warm_start);
     let mut samples = Samples::default();
     let mut matches = 0;
     for tick in ticks {
@@ -420,7 +434,7 @@ fn replay(
         );
     }
     let mut figures = samples.figures();
-    if as_recorded && path == config.qp_path {
+    if as_recorded && warm_start && path == config.qp_path {
         figures.replay_matches_rollout_ticks = Some(matches);
     }
     Ok(figures)
@@ -500,6 +514,13 @@ pub fn run(args: &Args) -> Result<()> {
         ));
     }
     let paths_wanted = parse_paths(&args.paths)?;
+    let warm_start = match args.warm_start.as_str() {
+        "on" => true,
+        "off" => false,
+        other => {
+            return Err(bad_input(format!("--warm-start {other}: not on or off")));
+        }
+    };
     if let Some(p) = &args.json {
         check_writable("--json", p)?;
     }
@@ -509,11 +530,14 @@ pub fn run(args: &Args) -> Result<()> {
     match task {
         None => {
             eprintln!(
-                "mpc-bench: {} RTI steps per path (FA-Hexa, 0.3 m EE step toward a wall, {} state rows)",
-                args.iterations, args.state_rows
+                "mpc-bench: {} RTI steps per path (FA-Hexa, 0.3 m EE step toward a wall, {} state rows, warm start {})",
+                args.iterations, args.state_rows, args.warm_start
             );
             for &path in &paths_wanted {
-                paths.insert(path.name(), fly(&vehicle, config, path, args.iterations)?);
+                paths.insert(
+                    path.name(),
+                    fly(&vehicle, config, path, args.iterations, warm_start)?,
+                );
             }
         }
         Some(task) => {
@@ -537,6 +561,7 @@ pub fn run(args: &Args) -> Result<()> {
                         path,
                         &ticks,
                         replay_config == config,
+                        warm_start,
                     )?,
                 );
             }
@@ -614,6 +639,7 @@ pub fn run(args: &Args) -> Result<()> {
         let report = Report {
             scenario: args.scenario.clone(),
             state_rows: args.state_rows.clone(),
+            warm_start: args.warm_start.clone(),
             replay_state_rows: args.replay_state_rows.clone(),
             standard: task.is_none().then_some(Scenario {
                 vehicle: "fa-hexa",

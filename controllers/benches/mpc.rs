@@ -1,7 +1,7 @@
 //! Whole-body MPC: one RTI step (preparation + QP + step) per QP path, on the standard scenario
 //! (`controllers::mpc::scenario`, FA-Hexa EE step toward a wall), the loop closed on the model.
 //! `amstack mpc-bench` reports the per-step distribution; this measures the mean under
-//! criterion.
+//! criterion (`riccati_cold_start`: the Riccati path without its warm start).
 
 use controllers::mpc::scenario::WallStepScenario;
 use controllers::mpc::{MpcConfig, QpPath};
@@ -17,14 +17,22 @@ fn rti_step(c: &mut Criterion) {
         Err(e) => panic!("fa-hexa: {e}"),
     };
     let mut group = c.benchmark_group("mpc_rti_step");
-    for path in QpPath::ALL {
+    // Each path as the controller flies it, and the Riccati path with every QP started cold.
+    let variants = QpPath::ALL
+        .into_iter()
+        .map(|p| (p, true, p.name().to_owned()))
+        .chain([(QpPath::Riccati, false, "riccati_cold_start".to_owned())]);
+    for (path, warm_start, name) in variants {
         let new = || match WallStepScenario::new(&vehicle, MpcConfig::fa_hexa()) {
-            Ok(s) => s,
+            Ok(mut s) => {
+                s.rti_mut().set_qp_warm_start(warm_start);
+                s
+            }
             Err(e) => panic!("mpc: {e}"),
         };
         let mut run = new();
         let mut ticks = 0;
-        group.bench_function(path.name(), |b| {
+        group.bench_function(name, |b| {
             b.iter(|| {
                 if ticks == TICKS {
                     run = new();

@@ -41,6 +41,9 @@
 //! at every knot and the QP in the deltas is assembled (`H = h·JᵀWJ`, `g = h·JᵀW(y − y_ref)`;
 //! A, B are the integrator's exact sensitivities). Feedback: the QP is solved by the chosen
 //! path and the full step is taken. A solve that fails leaves the shifted solution in place.
+//! The Riccati path's interior point starts from the last solved QP's multipliers, shifted
+//! the same way ([`RiccatiIpm::warm_start_next`]); after a failed or infeasible solve, or
+//! [`SqpRti::reset`], it starts cold ([`SqpRti::set_qp_warm_start`] turns this off).
 
 use nalgebra::{Rotation3, SMatrix, UnitQuaternion, Vector3};
 use platform::Vehicle;
@@ -155,6 +158,8 @@ pub struct SqpRti {
     riccati: RiccatiIpm,
     clarabel: ClarabelQp,
     warm: bool,
+    /// Whether the Riccati path starts from the last solve's multipliers.
+    qp_warm_start: bool,
 }
 
 impl SqpRti {
@@ -242,6 +247,7 @@ impl SqpRti {
             riccati: RiccatiIpm::new(config.qp),
             clarabel: ClarabelQp::new(config.qp),
             warm: false,
+            qp_warm_start: true,
             config,
         })
     }
@@ -273,9 +279,20 @@ impl SqpRti {
         (self.joint_lower, self.joint_upper)
     }
 
+    /// Whether the Riccati path's interior point starts from the previous solve's
+    /// multipliers, shifted ([`RiccatiIpm::warm_start_next`]; default true), instead of its
+    /// cold start.
+    pub fn set_qp_warm_start(&mut self, on: bool) {
+        self.qp_warm_start = on;
+        if !on {
+            self.riccati.forget();
+        }
+    }
+
     /// Forgets the previous solution: the next step starts cold.
     pub fn reset(&mut self) {
         self.warm = false;
+        self.riccati.forget();
     }
 
     /// Whether the next step starts from the previous solution.
@@ -315,6 +332,9 @@ impl SqpRti {
         let n = self.config.intervals;
         if self.warm {
             let shift = (elapsed_s / self.h).max(0.0);
+            if self.qp_warm_start {
+                self.riccati.warm_start_next(shift);
+            }
             let old = self.us.clone();
             for k in 0..n {
                 let t = k as f64 + shift;
@@ -577,6 +597,10 @@ impl SqpRti {
             && self.solution.slack.iter().any(|t| *t > limit)
         {
             status = QpStatus::Infeasible;
+        }
+        if status != QpStatus::Solved {
+            // Its multipliers (on an infeasible QP's soft rows: ρ) are no start for the next.
+            self.riccati.forget();
         }
         if status == QpStatus::Solved {
             for (x, dx) in self.xs.iter_mut().zip(&self.solution.x) {
