@@ -474,19 +474,7 @@ impl RiccatiIpm {
         x: &StateVector,
         u: Option<&InputVector>,
     ) -> f64 {
-        let v = match row.kind {
-            RowKind::State(i) => x[i],
-            RowKind::Input(i) => u.map_or(0.0, |u| u[i]),
-            RowKind::General(j, lo, hi) => {
-                let g = &qp.constraints[k].general[j];
-                (lo..hi).map(|i| g[i] * x[i]).sum()
-            }
-            RowKind::InputGeneral(j, lo, hi) => u.map_or(0.0, |u| {
-                let e = &qp.constraints[k].input_general[j];
-                (lo..hi).map(|i| e[i] * u[i]).sum()
-            }),
-        };
-        row.sign * v
+        row.sign * Self::kind_value(qp, k, row.kind, x, u)
     }
 
     /// The unsigned value of the row of z that both rows of a pair bound (the lower row is
