@@ -2,19 +2,11 @@
 //! q = −0.5 m to 0.45 m.
 //!
 //! [U] choices (the reference keeps the slider only as a USD asset): the rail is a fixed bar
-//! 1.1 m long, 0.02 m deep and 0.04 m high on the wall face; the knob ("Slider" body, mass
-//! 0.2 kg, its origin 0.10 m off the wall face) is a box 0.03 m along the rail and 0.08 m
-//! high that reaches from the rail to 0.31 m off the wall face; the joint is limited to
-//! [−0.5, 0.5] m. The root is the wall frame turned 180° about z, so the joint's positive
-//! direction is −w_y (the scripted push direction).
-//!
-//! Why the knob reaches 0.31 m: the script sends every vehicle's EE link to 0.23 m in front
-//! of the knob's origin (0.33 m off the face), and the tool tips sit 0.18 m (FA-Hexa, UA-Hexa),
-//! 0.075 m (UA-Quad) and 0.0445 m (Omni-Hexa) ahead of it, so they stop 0.15, 0.255 and
-//! 0.29 m off the face. The paper's embodiment table reports Push Slider on all four vehicles,
-//! so its knob reached all four tool tips; a knob ending at 0.18 m left the UA-Quad and the
-//! Omni-Hexa at 0 %. The FA-Hexa's gripper body then presses on the knob's end (its rotor
-//! saturation on this task, 44 %, is then near the paper's 39.5 %).
+//! 1.1 m long, 0.02 m deep and 0.04 m high on the wall face; the knob ("Slider" body) is a box
+//! 0.03 m along the rail, 0.16 m out from the rail and 0.08 m high, mass 0.2 kg, its origin at
+//! its centre (0.10 m off the wall face); the joint is limited to [−0.5, 0.5] m. The root is
+//! the wall frame turned 180° about z, so the joint's positive direction is −w_y (the
+//! scripted push direction).
 
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
@@ -32,13 +24,7 @@ pub(crate) const INITIAL_M: f64 = -0.5;
 pub(crate) const ENGAGED_M: f64 = 0.05 * (PUSHED_M - INITIAL_M);
 
 const RAIL_DEPTH_M: f64 = 0.02;
-/// Half extents of the knob's box if it were centred on the body's origin: its origin sits
-/// `RAIL_DEPTH_M + KNOB_HALF.x` = 0.10 m off the wall face (what the script aims at).
 const KNOB_HALF: Vector3<f64> = Vector3::new(0.08, 0.015, 0.04);
-/// How far the knob reaches out from the wall face, m (see the module's note).
-pub(crate) const KNOB_REACH_M: f64 = 0.31;
-/// Half length of the knob's box out of the wall: from the rail's face to `KNOB_REACH_M`.
-const KNOB_LONG_HALF_X: f64 = (KNOB_REACH_M - RAIL_DEPTH_M) / 2.0;
 
 const SPEC: JointSpec = JointSpec {
     dof: Dof::Prismatic,
@@ -98,9 +84,8 @@ impl Scene for PushSlider {
             root_from_joint,
             joint_from_link0,
             vec![(
-                ColliderBuilder::cuboid(KNOB_LONG_HALF_X, KNOB_HALF.y, KNOB_HALF.z),
-                // Toward the robot from the body's origin, which stays where it was.
-                Isometry3::translation(KNOB_LONG_HALF_X - KNOB_HALF.x, 0.0, 0.0),
+                ColliderBuilder::cuboid(KNOB_HALF.x, KNOB_HALF.y, KNOB_HALF.z),
+                Isometry3::identity(),
             )],
             0.2,
             &SPEC,
@@ -150,24 +135,6 @@ impl Scene for PushSlider {
 }
 
 impl PushSlider {
-    /// Whether the point `p` (world) lies inside the knob's collider (tests).
-    #[cfg(test)]
-    pub(crate) fn knob_contains(&self, world: &PhysicsWorld, p: &Vector3<f64>) -> bool {
-        let Some(s) = &self.slider else { return false };
-        world.bodies.get(s.link).is_some_and(|rb| {
-            rb.colliders().iter().any(|h| {
-                world.colliders.get(*h).is_some_and(|c| {
-                    // From the body's pose (a collider's own pose is synced on a step).
-                    let pose = c
-                        .position_wrt_parent()
-                        .map_or(*rb.position(), |local| *rb.position() * *local);
-                    c.shape()
-                        .contains_point(&pose, crate::convert::vector_to_rapier(p))
-                })
-            })
-        })
-    }
-
     /// Puts the knob at `q` (tests).
     #[cfg(test)]
     pub(crate) fn set_slider(&self, world: &mut PhysicsWorld, q: f64) {

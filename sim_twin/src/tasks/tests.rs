@@ -341,36 +341,3 @@ fn a_grasped_round_bar_spins_about_its_own_axis_and_nothing_else_turns() {
         );
     }
 }
-
-/// The push-slider script sends every vehicle's EE link (identity command, turned with the
-/// wall) to 0.23 m in front of the knob's origin (AMBENCH_SPEC §4.9): the tool tip of each
-/// built-in vehicle with an arm must then be inside the knob, or the fingers close on air
-/// (UA-Quad and Omni-Hexa tips stop 0.255 and 0.29 m off the wall face).
-#[test]
-fn every_vehicles_tool_tip_at_the_scripts_start_pose_is_inside_the_knob() {
-    use super::Scene;
-    for id in ["fa-hexa", "ua-hexa", "ua-quad", "omni-hexa"] {
-        let v = platform::Vehicle::builtin(id).unwrap_or_else(|e| panic!("{id}: {e}"));
-        for seed in 0..10 {
-            let mut scene = super::push_slider::PushSlider::default();
-            let w = built(&mut scene, seed);
-            let wall = scene.wall().unwrap_or_else(|| panic!("a wall"));
-            let knob = scene
-                .observation(&w)
-                .vec3("slider_body_pos", 0)
-                .unwrap_or_else(|e| panic!("{e}"));
-            let normal = wall.rotation * Vector3::x();
-            let ee = knob - 0.23 * normal;
-            let tip = ee + wall.rotation * v.command_to_link * v.tool_tip_in_ee_m;
-            assert!(
-                scene.knob_contains(&w, &tip),
-                "{id}, seed {seed}: tool tip {tip:?} outside the knob at {knob:?}"
-            );
-            // And 1 cm closer to the robot is still inside (a margin, not a graze).
-            assert!(
-                scene.knob_contains(&w, &(tip - 0.01 * normal)),
-                "{id}, seed {seed}"
-            );
-        }
-    }
-}
