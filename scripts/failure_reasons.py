@@ -23,7 +23,8 @@ Each failing rollout gets one reason, the first that applies:
     failure_reasons.py DIR [DIR...] [--json OUT]
 
 Prints a markdown table per folder: task, failing rollouts, their reasons (count), median
-figures. Exit 0; 2 on bad usage.
+figures. Exit 0; 2 on bad usage or an unreadable results.json (a rollout whose MCAP cannot be
+read is reported as "no log", with a line on stderr).
 """
 
 import argparse
@@ -102,7 +103,8 @@ def analyse(folder):
         with open(path) as fh:
             results = json.load(fh)
     except (OSError, ValueError) as e:
-        sys.exit(f"failure_reasons: {path}: {e}")
+        print(f"failure_reasons: {path}: {e}", file=sys.stderr)
+        sys.exit(2)
     cfg = results.get("config", {})
     rows = []
     for task, t in sorted(results["tasks"].items()):
@@ -112,7 +114,13 @@ def analyse(folder):
         per = []
         for r in failing:
             mcap = r.get("mcap")
-            m = measure(mcap) if mcap and os.path.exists(mcap) else None
+            m = None
+            if mcap and os.path.exists(mcap):
+                try:
+                    m = measure(mcap)
+                except Exception as e:  # a truncated or foreign file: say so, go on
+                    print(f"failure_reasons: {mcap}: unreadable ({e}); reason 'no log'",
+                          file=sys.stderr)
             per.append({"index": r["index"], "phase": phase(r, m), "reason": reason(r, m),
                         "saturation_rate": r.get("saturation_rate"), **(m or {})})
         rows.append({"task": task, "rollouts": len(t["per_rollout"]), "failing": per})

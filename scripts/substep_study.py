@@ -272,6 +272,14 @@ for key, r in summary.items():
         f" | {'yes' if r['verdict']['tracking_within_1pct'] else 'NO'} |"
     )
 print()
+
+
+def verdict_row(label, keys, verdict):
+    """A table row of yes/NO, one cell per setting, from each summary's verdict."""
+    cells = ["yes" if summary[k]["verdict"].get(verdict) else "NO" for k in keys]
+    return f"| {label} | " + " | ".join(cells) + " |"
+
+
 names = list(ref["validation"])
 if names:
     print("Validation experiments (relative change from 4x4):\n")
@@ -286,15 +294,8 @@ if names:
             x = summary[k]["verdict"]["validation_rel"].get(n)
             cells.append("-" if x is None else f"{100 * x:+.1f} %")
         print(f"| {n} | {ref['validation'][n]:.4g} | " + " | ".join(cells) + " |")
-    print(
-        "| within 5 % (model-off and wrench-limit figures, actuator) | | "
-        + " | ".join(
-            "yes" if summary[k]["verdict"]["validation_within_5pct"] else "NO"
-            for k in keys
-            if k != "4x4"
-        )
-        + " |"
-    )
+    print(verdict_row("within 5 % (model-off and wrench-limit figures, actuator) |",
+                      [k for k in keys if k != "4x4"], "validation_within_5pct"))
     print()
 benched = [k for k, r in summary.items() if r["bench"]]
 if benched:
@@ -308,13 +309,7 @@ if benched:
             s = summary[k]["bench"]["tasks"].get(t)
             cells.append("-" if s is None else f"{s['successes']}/{s['rollouts']}")
         print(f"| {t} | " + " | ".join(cells) + " |")
-    print(
-        "| within 1 rollout of 4x4, every task | "
-        + " | ".join(
-            "yes" if summary[k]["verdict"].get("successes_within_1") else "NO" for k in benched
-        )
-        + " |"
-    )
+    print(verdict_row("within 1 rollout of 4x4, every task", benched, "successes_within_1"))
     print(
         "| env steps/s | "
         + " | ".join(f"{summary[k]['bench']['env_steps_per_second']:.0f}" for k in benched)

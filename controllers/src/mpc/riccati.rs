@@ -1024,6 +1024,36 @@ impl RiccatiIpm {
         }
     }
 
+    /// The cold start: each row's slack at the dynamically feasible start (at least
+    /// `INITIAL_SLACK_MIN`) and its multiplier `INITIAL_MULTIPLIER`.
+    fn cold_init(&mut self, qp: &StructuredQp, out: &QpSolution) {
+        for k in 0..=qp.intervals {
+            for idx in self.start[k]..self.start[k + 1] {
+                let row = self.rows[idx];
+                let v = Self::row_value(qp, k, &row, &out.x[k], out.u.get(k));
+                self.s[idx] = (row.h - v).max(INITIAL_SLACK_MIN);
+                self.lambda[idx] = INITIAL_MULTIPLIER;
+                if row.soft {
+                    // Dual feasible (λ + ν = ρ) with λ as for a hard row; the slack t covers
+                    // what the start violates (a row starting with a tiny t behaves as hard:
+                    // t cannot grow faster than ν may shrink, and the iterate crawls), and
+                    // elsewhere starts with the hard rows' pair product.
+                    let small = (0.5 * self.rho).min(INITIAL_MULTIPLIER);
+                    self.lambda[idx] = small;
+                    self.nu[idx] = self.rho - small;
+                    self.t[idx] = if v > row.h {
+                        v - row.h + INITIAL_SLACK_MIN
+                    } else {
+                        self.s[idx] * small / self.nu[idx]
+                    };
+                } else {
+                    self.t[idx] = 0.0;
+                    self.nu[idx] = 0.0;
+                }
+            }
+        }
+    }
+
     /// The warm start: the cold start (s = h − G z of the start point, at least
     /// `INITIAL_SLACK_MIN`), with each multiplier raised to the last solve's at stage
     /// k + shift (interpolated between stages) where that is larger than the cold
@@ -1140,34 +1170,8 @@ impl QpSolver for RiccatiIpm {
             .filter(|_| self.prev_valid && self.prev_start == self.start);
         if let Some(shift) = warm {
             self.warm_init(qp, shift, out);
-        }
-        for k in 0..=n {
-            if warm.is_some() {
-                break;
-            }
-            for idx in self.start[k]..self.start[k + 1] {
-                let row = self.rows[idx];
-                let v = Self::row_value(qp, k, &row, &out.x[k], out.u.get(k));
-                self.s[idx] = (row.h - v).max(INITIAL_SLACK_MIN);
-                self.lambda[idx] = INITIAL_MULTIPLIER;
-                if row.soft {
-                    // Dual feasible (λ + ν = ρ) with λ as for a hard row; the slack t covers
-                    // what the start violates (a row starting with a tiny t behaves as hard:
-                    // t cannot grow faster than ν may shrink, and the iterate crawls), and
-                    // elsewhere starts with the hard rows' pair product.
-                    let small = (0.5 * self.rho).min(INITIAL_MULTIPLIER);
-                    self.lambda[idx] = small;
-                    self.nu[idx] = self.rho - small;
-                    self.t[idx] = if v > row.h {
-                        v - row.h + INITIAL_SLACK_MIN
-                    } else {
-                        self.s[idx] * small / self.nu[idx]
-                    };
-                } else {
-                    self.t[idx] = 0.0;
-                    self.nu[idx] = 0.0;
-                }
-            }
+        } else {
+            self.cold_init(qp, out);
         }
         for y in &mut self.y {
             *y = StateVector::zeros();
