@@ -55,8 +55,8 @@ use rapier3d_f64::prelude::*;
 
 use super::keys;
 use super::objects::{
-    Dof, JointSpec, ReducedJoint, attach, fixed_body, position_of, symmetric, velocity_of,
-    world_groups,
+    Dof, DriveType, JointSpec, ReducedJoint, attach, fixed_body, position_of, symmetric,
+    velocity_of, world_groups,
 };
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::convert::pose_to_rapier;
@@ -97,6 +97,7 @@ const DOOR: JointSpec = JointSpec {
     effort: 50.0,
     friction: 2.0,
     initial: 0.0,
+    drive: DriveType::Force,
 };
 
 /// World boxes (min, max corners) of the carcass [U].

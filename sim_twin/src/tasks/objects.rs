@@ -241,6 +241,21 @@ pub(crate) struct JointSpec {
     pub friction: f64,
     /// Position at reset.
     pub initial: f64,
+    /// How the drive's stiffness, damping and effort are read.
+    pub drive: DriveType,
+}
+
+/// How an articulated object's joint drive acts: PhysX articulation drives, which the
+/// reference's assets author, are either of the two ([U] per asset: the reference sets only the
+/// gains, its USD files the type).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum DriveType {
+    /// Force (or torque) = stiffness · Δq + damping · Δq̇, capped at the effort (SI units).
+    Force,
+    /// Acceleration = stiffness · Δq + damping · Δq̇: the force is that times the joint's
+    /// effective inertia (PhysX `eACCELERATION`, rapier's `MotorModel::AccelerationBased`),
+    /// so a light object's drive resists little whatever its gains.
+    Acceleration,
 }
 
 /// Velocity gain of the friction motor: far above any object's inertia/dt so the cap
@@ -503,7 +518,13 @@ impl ReducedJoint {
             .local_frame1(frame1)
             .local_frame2(frame2)
             .contacts_enabled(false)
-            .motor_model(axis, MotorModel::ForceBased)
+            .motor_model(
+                axis,
+                match spec.drive {
+                    DriveType::Force => MotorModel::ForceBased,
+                    DriveType::Acceleration => MotorModel::AccelerationBased,
+                },
+            )
             .motor_max_force(axis, spec.effort);
         if let Some((lo, hi)) = spec.limits {
             main = main.limits(axis, [lo, hi]);

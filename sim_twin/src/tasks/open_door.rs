@@ -31,7 +31,7 @@ use rapier3d_f64::prelude::*;
 
 use super::keys;
 use super::objects::{
-    Dof, JointSpec, ReducedJoint, attach, euler_xyz, fixed_body, symmetric, uniform,
+    Dof, DriveType, JointSpec, ReducedJoint, attach, euler_xyz, fixed_body, symmetric, uniform,
 };
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
@@ -86,6 +86,7 @@ impl OpenDoor {
             effort: 20.0,
             friction: 0.2,
             initial: 0.0,
+            drive: DriveType::Force,
         }
     }
 

@@ -11,7 +11,9 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
 use super::keys;
-use super::objects::{Dof, JointSpec, ReducedJoint, Wall, fixed_body, symmetric, uniform};
+use super::objects::{
+    Dof, DriveType, JointSpec, ReducedJoint, Wall, fixed_body, symmetric, uniform,
+};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
 
@@ -31,6 +33,7 @@ const SPEC: JointSpec = JointSpec {
     effort: 20.0,
     friction: 0.0,
     initial: 0.0,
+    drive: DriveType::Force,
 };
 
 #[derive(Debug, Default)]

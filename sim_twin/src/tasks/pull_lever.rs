@@ -43,7 +43,9 @@ use platform::{Actuation, Vehicle};
 use rapier3d_f64::prelude::*;
 
 use super::keys;
-use super::objects::{Dof, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric, uniform};
+use super::objects::{
+    Dof, DriveType, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric, uniform,
+};
 use super::{Build, InitialOverrides, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
 
@@ -71,6 +73,7 @@ const SPEC: JointSpec = JointSpec {
     effort: 50.0,
     friction: 0.0,
     initial: 0.0,
+    drive: DriveType::Force,
 };
 
 /// The lever's orientation on the wall, (w, x, y, z) = (0.7071, 0, −0.7071, 0).

@@ -12,7 +12,9 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
 use super::keys;
-use super::objects::{Dof, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric};
+use super::objects::{
+    Dof, DriveType, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric,
+};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
 
@@ -35,6 +37,7 @@ const SPEC: JointSpec = JointSpec {
     effort: 1000.0,
     friction: 4.0,
     initial: INITIAL_M,
+    drive: DriveType::Force,
 };
 
 #[derive(Debug, Default)]

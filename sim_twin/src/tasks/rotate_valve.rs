@@ -39,7 +39,9 @@ use nalgebra::{Isometry3, Quaternion, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
 
 use super::keys;
-use super::objects::{Dof, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric};
+use super::objects::{
+    Dof, DriveType, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric,
+};
 use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
 
@@ -69,6 +71,7 @@ const SHAFT: JointSpec = JointSpec {
     effort: 20.0,
     friction: 0.2,
     initial: 0.0,
+    drive: DriveType::Acceleration,
 };
 
 const HANDLE: JointSpec = JointSpec {
@@ -80,6 +83,7 @@ const HANDLE: JointSpec = JointSpec {
     effort: 20.0,
     friction: 0.1,
     initial: 0.0,
+    drive: DriveType::Acceleration,
 };
 
 /// The valve's default orientation on the wall, (w, x, y, z) = (0.5, 0.5, 0.5, 0.5).
@@ -286,29 +290,40 @@ mod tests {
     }
 
     #[test]
-    fn pushing_the_handle_along_w_y_turns_the_shaft_positively_against_its_damping() {
+    fn a_torque_on_the_wheel_turns_it_against_friction_and_an_acceleration_damping() {
+        // Gravity off (the wheel and handle balance about the axis only at q = 0). 0.25 N·m
+        // about +n on the wheel, less the shaft's 0.2 N·m of Coulomb friction, against the
+        // acceleration-type damping 15 /s times the shaft's effective inertia — the wheel
+        // (a 0.05 kg disk of radius 0.15 m: ½·m·r² = 5.625e-4 kg·m²) plus the handle carried
+        // 0.12 m off the axis (0.05 kg: m·r² = 7.2e-4; its own spin is a free joint, so its
+        // inertia about its axis drops out of the shaft's): 0.0192 N·m·s/rad — plus the
+        // 0.1 N·m·s/rad rapier gives every free angular multibody DOF by default
+        // (`MultibodyJoint::default_damping`). Steady speed 0.05 / 0.1192 = 0.419 rad/s; as a
+        // force-type drive the same damping would allow 0.05 / 15.1 = 0.0033 rad/s.
         let (mut w, scene, _) = built(2);
+        w.gravity = Vector::ZERO;
         let s = shaft(&scene);
-        let handle = scene.handle.clone().unwrap_or_else(|| panic!("no handle"));
         let wall = scene.wall.unwrap_or_else(|| panic!("no wall"));
-        let w_y = wall.pose.rotation * Vector3::y();
-        // 10 N along w_y at the handle (0.12 m below the axis): 1.2 N·m, less 0.2 N·m of
-        // friction, against 15 N·m·s/rad: 0.0667 rad/s (the handle's own joint stays put: the
-        // force's line crosses its axis). Gravity on the wheel and handle balances about the
-        // axis only at q = 0; over 1 s it moves 4°, a small torque.
-        for _ in 0..480 {
-            if let Some(rb) = w.bodies.get_mut(handle.link) {
-                rb.reset_forces(false);
-                rb.add_force(vector_to_rapier(&(w_y * 10.0)), true);
+        let torque = wall.pose.rotation * Vector3::x() * 0.25;
+        let mut run = |w: &mut PhysicsWorld, steps: usize| {
+            for _ in 0..steps {
+                if let Some(rb) = w.bodies.get_mut(s.link) {
+                    rb.reset_forces(false);
+                    rb.reset_torques(false);
+                    rb.add_torque(vector_to_rapier(&torque), true);
+                }
+                w.step();
             }
-            w.step();
-        }
-        let q = s.position(&w);
-        assert!((q - 0.0667).abs() < 0.006, "q = {q}");
+        };
+        // 0.5 s: over seven time constants (1/15 s).
+        run(&mut w, 240);
+        let q1 = s.position(&w);
+        run(&mut w, 120);
+        let speed = (s.position(&w) - q1) / 0.25;
+        let expected = 0.05 / (0.1 + 15.0 * (0.5 * 0.05 * 0.15 * 0.15 + 0.05 * 0.12 * 0.12));
         assert!(
-            handle.position(&w).abs() < 0.01,
-            "handle q = {}",
-            handle.position(&w)
+            (speed - expected).abs() < 0.02 * expected,
+            "{speed} rad/s, expected {expected}"
         );
     }
 }

@@ -3,7 +3,7 @@
 use nalgebra::{Isometry3, Vector3};
 use rapier3d_f64::prelude::*;
 
-use super::objects::{Dof, JointSpec, ReducedJoint, fixed_body};
+use super::objects::{Dof, DriveType, JointSpec, ReducedJoint, fixed_body};
 use crate::convert::vector_to_rapier;
 
 /// A world as the twin's (gravity, 120 Hz in 4 substeps) without a vehicle; with `ground`,
@@ -91,6 +91,17 @@ fn push(world: &mut PhysicsWorld, body: RigidBodyHandle, force: Vector3<f64>, st
 }
 
 fn slider(stiffness: f64, damping: f64, friction: f64) -> (PhysicsWorld, ReducedJoint) {
+    slider_of(stiffness, damping, friction, 0.2, DriveType::Force)
+}
+
+/// A free prismatic link of `mass_kg` on a fixed root, driven as `drive` says.
+fn slider_of(
+    stiffness: f64,
+    damping: f64,
+    friction: f64,
+    mass_kg: f64,
+    drive: DriveType,
+) -> (PhysicsWorld, ReducedJoint) {
     let mut w = world();
     let root = fixed_body(&mut w, &Isometry3::translation(1.0, 0.0, 1.0));
     let spec = JointSpec {
@@ -102,6 +113,7 @@ fn slider(stiffness: f64, damping: f64, friction: f64) -> (PhysicsWorld, Reduced
         effort: 1000.0,
         friction,
         initial: 0.0,
+        drive,
     };
     let Some((a, _)) = ReducedJoint::insert(
         &mut w,
@@ -112,7 +124,7 @@ fn slider(stiffness: f64, damping: f64, friction: f64) -> (PhysicsWorld, Reduced
             ColliderBuilder::cuboid(0.02, 0.02, 0.02),
             Isometry3::identity(),
         )],
-        0.2,
+        mass_kg,
         &spec,
     ) else {
         panic!("the joint joins its root")
@@ -142,6 +154,33 @@ fn coulomb_friction_holds_below_and_slides_above_its_force() {
     push(&mut w, a.link, Vector3::new(6.0, 0.0, 0.0), 480);
     let q = a.position(&w);
     assert!(q > 0.25 && q < 0.45, "q = {q}");
+}
+
+#[test]
+fn an_acceleration_drive_resists_in_proportion_to_the_mass_it_moves() {
+    // 0.2 N against damping 5 (no spring, no friction), after 1 s (five time constants of the
+    // slowest case), speed over the next 0.5 s. A force drive: F = d·v, v = 0.04 m/s whatever
+    // the mass. An acceleration drive (PhysX eACCELERATION): F = m·d·v, v = F/(m·d) = 0.2 m/s
+    // for 0.2 kg and 0.1 m/s for 0.4 kg.
+    let speed = |mass: f64, drive: DriveType| {
+        let (mut w, a) = slider_of(0.0, 5.0, 0.0, mass, drive);
+        push(&mut w, a.link, Vector3::new(0.2, 0.0, 0.0), 480);
+        let q1 = a.position(&w);
+        push(&mut w, a.link, Vector3::new(0.2, 0.0, 0.0), 240);
+        (a.position(&w) - q1) / 0.5
+    };
+    for (mass, drive, expected) in [
+        (0.2, DriveType::Force, 0.04),
+        (0.4, DriveType::Force, 0.04),
+        (0.2, DriveType::Acceleration, 0.2),
+        (0.4, DriveType::Acceleration, 0.1),
+    ] {
+        let v = speed(mass, drive);
+        assert!(
+            (v - expected).abs() < 0.01 * expected,
+            "{mass} kg, {drive:?}: {v} m/s, expected {expected}"
+        );
+    }
 }
 
 /// A scene built alone in a world (no vehicle, no ground), from `seed`.
