@@ -97,6 +97,21 @@ def phase(r, m):
     return "success" if not crit else "all criteria, not at once"
 
 
+def locate(mcap, folder):
+    """The rollout's log: the path results.json records (relative to where `bench` ran), else
+    the same path under the folder's `rollouts/` (the folder moved, or `bench` ran elsewhere)."""
+    if not mcap:
+        return None
+    if os.path.exists(mcap):
+        return mcap
+    parts = mcap.replace("\\", "/").split("/")
+    if "rollouts" in parts:
+        moved = os.path.join(folder, *parts[parts.index("rollouts"):])
+        if os.path.exists(moved):
+            return moved
+    return None
+
+
 def analyse(folder):
     path = os.path.join(folder, "results.json")
     try:
@@ -113,9 +128,9 @@ def analyse(folder):
             continue
         per = []
         for r in failing:
-            mcap = r.get("mcap")
+            mcap = locate(r.get("mcap"), folder)
             m = None
-            if mcap and os.path.exists(mcap):
+            if mcap:
                 try:
                     m = measure(mcap)
                 except Exception as e:  # a truncated or foreign file: say so, go on
