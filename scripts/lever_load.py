@@ -10,6 +10,8 @@ rollout, over the hold (the ticks the grasp holds the lever, `/task/state` `hold
   inertia is negligible), mean and max over the hold, N·m;
 - pitch_end: the base's pitch at the end of the hold (deg): with the bar welded in the fingers
   and the arm at the IK's joint targets, the lever turns only as far as the vehicle pitches;
+- pitch_gap: the largest |lever angle - base pitch| over the hold (deg): near 0 when the lever
+  turns only as the whole vehicle pitches;
 - pushed_back: how far the base went back (world -x) during the hold, m.
 
     lever_load.py DIR [DIR...] [--json OUT]
@@ -64,12 +66,14 @@ def measure(path):
         for k in range(a + 1, b)
     ]
     end = min(b, len(pitch) - 1)
+    gap = max(abs(math.degrees(lever[k]) - pitch[k]) for k in range(a, end + 1))
     row.update(
         held=[a, b],
         q_end_deg=math.degrees(lever[b]),
         torque_mean_nm=sum(torque) / len(torque),
         torque_max_nm=max(torque),
         pitch_end_deg=pitch[end],
+        pitch_gap_deg=gap,
         pushed_back_m=base_x[min(a, end)] - min(base_x[min(a, end) : end + 1]),
     )
     return row
@@ -95,22 +99,23 @@ def main():
                 return 2
         out[d] = rows
         print(f"## {d}")
-        print("| rollout | q_max (deg) | hold | q_end (deg) | torque mean / max (N·m) | base pitch (deg) | base pushed back (m) |")
-        print("|---|---|---|---|---|---|---|")
+        print("| rollout | q_max (deg) | hold | q_end (deg) | torque mean / max (N·m) | base pitch (deg) | max abs(q - pitch) (deg) | base pushed back (m) |")
+        print("|---|---|---|---|---|---|---|---|")
         for r in rows:
             if r.get("held") is None:
-                print(f"| {r['rollout']} | {r['q_max_deg']:.1f} | never held | | | | |")
+                print(f"| {r['rollout']} | {r['q_max_deg']:.1f} | never held | | | | | |")
                 continue
             print(
                 f"| {r['rollout']} | {r['q_max_deg']:.1f} | {r['held'][0]}-{r['held'][1]} | {r['q_end_deg']:.1f} | "
-                f"{r['torque_mean_nm']:.1f} / {r['torque_max_nm']:.1f} | {r['pitch_end_deg']:.1f} | {r['pushed_back_m']:.3f} |"
+                f"{r['torque_mean_nm']:.1f} / {r['torque_max_nm']:.1f} | {r['pitch_end_deg']:.1f} | {r['pitch_gap_deg']:.2f} | {r['pushed_back_m']:.3f} |"
             )
         held = [r for r in rows if r.get("held")]
         qs = [r["q_max_deg"] for r in rows]
         line = f"{len(rows)} rollouts: q_max {min(qs):.1f}-{max(qs):.1f} deg"
         if held:
             mean = sum(r["torque_mean_nm"] for r in held) / len(held)
-            line += f"; mean lever torque over the hold {mean:.1f} N·m ({len(held)} held)"
+            gap = max(r["pitch_gap_deg"] for r in held)
+            line += f"; mean lever torque over the hold {mean:.1f} N·m; abs(q - base pitch) <= {gap:.2f} deg ({len(held)} held)"
         print(line + "\n")
     if args.json:
         with open(args.json, "w") as fh:
