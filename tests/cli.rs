@@ -1389,3 +1389,62 @@ fn a_user_vehicle_with_an_impossible_inertia_is_flown_with_one_warning_line() {
         "{err}"
     );
 }
+
+/// Pull Lever's load, read from the logs by scripts/lever_load.py (PyPI `mcap`): the EE-only
+/// oracle's hand turns with the welded lever (its pitch follows the lever's angle) and the
+/// lever takes, over the hold, exactly what its drive asks: the mean of 100·q̇ + 20·q is
+/// 100·Δq/T plus 20 times the mean angle, between 100·q_end/T and 100·q_end/T + 20·q_end
+/// for a lever that only rises (the damper's 28.5 N·m for 0.698 rad in 2.45 s).
+#[test]
+fn lever_load_reads_the_oracles_pull_from_the_logs() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let out = dir.path().join("lever");
+    let run = amstack(&[
+        "bench",
+        "--platform",
+        "ee-only",
+        "--task",
+        "pull-lever",
+        "--rollouts",
+        "1",
+        "--jobs",
+        "1",
+        "--out",
+        out.to_str().unwrap_or_default(),
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let json = dir.path().join("load.json");
+    let py = Command::new(venv_python())
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/lever_load.py"))
+        .arg(&out)
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(py.status.success(), "{}", stderr(&py));
+    let text = std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{e}"));
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+    let row = &v[out.to_str().unwrap_or_default()][0];
+    assert!(num(&row["q_max_deg"]) > 40.0, "{row}");
+    assert!(num(&row["pitch_gap_deg"]) < 1.0, "{row}");
+    let (a, b) = (num(&row["held"][0]), num(&row["held"][1]));
+    // The script's central differences over the hold's inner ticks sum to Δq (5 % allowed
+    // for the two end ticks); T is the hold's length.
+    let t = (b - a) / 120.0;
+    let q_end = num(&row["q_end_deg"]).to_radians();
+    let floor = 100.0 * q_end / t;
+    let mean = num(&row["torque_mean_nm"]);
+    assert!(floor > 28.0, "{row}");
+    assert!(
+        mean > 0.95 * floor && mean < floor + 20.0 * q_end,
+        "mean {mean}, floor {floor}: {row}"
+    );
+    // Bad input: a folder without pull-lever rollouts, exit 2 on one line.
+    let bad = Command::new(venv_python())
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/lever_load.py"))
+        .arg(dir.path())
+        .output()
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(bad.status.code(), Some(2));
+    assert_eq!(stderr(&bad).trim().lines().count(), 1, "{}", stderr(&bad));
+}

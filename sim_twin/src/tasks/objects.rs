@@ -371,10 +371,13 @@ impl Grasp {
 /// resists, 2·μ·N·r = 2 · 1 · 1.4 N · 0.015 m = 0.04 N·m for the valve's handle.
 ///
 /// Tried and not kept: a long square bar (the lever) tipping about the axis across the bar
-/// and the closing direction, as the soft finger drives would let it. It lifted the FA-Hexa's
-/// lever from 19–24° to 33° of the 40° (10 rollouts) but the EE-only oracle, whose PID pushes
-/// at its centre of mass 0.1 m behind the grip, then swung about the grip (pitch 89°) and
-/// pulled the lever 24° instead of 40°+ (10 of 10 → 0 of 10).
+/// and the closing direction, as the soft finger drives would let it, through a point d
+/// ahead of the EE link (docs/pull-lever.md). FA-Hexa lever 18–25° (weld) → 24° at the
+/// pads' centre (d = 0.13 m), 34° at the palm (0.08), 39.9° at 0.04, 40° only at d = 0 (a
+/// pivot no finger makes): the script's pull target lies on the EE link's circle, off the
+/// circle of any point ahead of it on a hand that keeps its orientation. The EE-only oracle,
+/// whose PID pushes at its centre of mass on the EE link, swings about any pivot ahead of it
+/// (d = 0.13: pitch 84°, lever 15°; 30 of 30 → 0).
 fn free_axis_frame(world: &PhysicsWorld, object: RigidBodyHandle) -> Option<Isometry3<f64>> {
     let [collider] = world.bodies.get(object)?.colliders() else {
         return None;
