@@ -3,7 +3,7 @@
 //! the same flags, or the handshake refuses them.
 
 use anyhow::Result;
-use sim_twin::{Disturbances, MotorConfig, TaskId, TwinConfig};
+use sim_twin::{Disturbances, MotorConfig, SaturatedAllocation, TaskId, TwinConfig};
 
 use crate::cli_error::bad_input;
 
@@ -26,6 +26,12 @@ pub struct TwinFlags {
     /// Seed of every random draw (noise).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// How the flight stack allocates a wrench the rotors cannot produce (with
+    /// `saturation`): `prioritized` (default: the bounded least-squares thrusts, roll and
+    /// pitch kept first, yaw giving way first) or `clip` (the reference's: the pseudo-inverse
+    /// clamped rotor by rotor, which loses attitude when a rotor saturates).
+    #[arg(long, value_name = "HOW", default_value = "prioritized")]
+    pub saturated_allocation: String,
     #[command(flatten)]
     pub physics: PhysicsFlags,
 }
@@ -96,6 +102,8 @@ impl TwinFlags {
                 rate_limit_per_s: self.motor_rate_limit,
             },
             seed: self.seed,
+            saturated_allocation: SaturatedAllocation::parse(&self.saturated_allocation)
+                .map_err(|e| bad_input(format!("--saturated-allocation: {e}")))?,
             ..TwinConfig::default()
         };
         if let Some(k) = self.ground_effect_k {

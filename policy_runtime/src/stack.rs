@@ -13,7 +13,7 @@ use platform::{
     Wrench,
 };
 use serde::Serialize;
-use sim_twin::{TiltThrust, TwinConfig};
+use sim_twin::{SaturatedAllocation, TiltThrust, TwinConfig};
 
 use crate::link::{Setpoint, SetpointLevel};
 
@@ -416,10 +416,11 @@ impl FlightStack {
         self.ee_to_base_joint(ee).0
     }
 
-    /// The stack that flies the twin of `twin` (in this process or over a link): the
-    /// pseudo-inverse allocator, the rotor limits the twin enforces (ideal unbounded rotors
-    /// unless `saturation` is on), the twin's control period, and the tilt projection where its
-    /// tilting rotors push along the measured hinge angle.
+    /// The stack that flies the twin of `twin` (in this process or over a link): the rotor
+    /// limits the twin enforces (ideal unbounded rotors unless `saturation` is on), allocated
+    /// as `twin.saturated_allocation` says under them (the pseudo-inverse with ideal rotors),
+    /// the twin's control period, and the tilt projection where its tilting rotors push along
+    /// the measured hinge angle.
     pub fn for_twin(
         vehicle: Vehicle,
         config: &ControllerConfig,
@@ -430,10 +431,16 @@ impl FlightStack {
         } else {
             ThrustLimits::Ideal
         };
+        let method = match (limits, twin.saturated_allocation) {
+            (ThrustLimits::Enforced, SaturatedAllocation::Prioritized) => {
+                AllocationMethod::Constrained(allocation::ConstrainedSettings::default())
+            }
+            _ => AllocationMethod::PseudoInverse,
+        };
         let mut stack = Self::new(
             vehicle,
             config,
-            AllocationMethod::PseudoInverse,
+            method,
             limits,
             twin.control_dt_s(),
         )?

@@ -111,6 +111,36 @@ impl Disturbances {
     }
 }
 
+/// How the flight stack flying this twin allocates a wrench its bounded rotors cannot all
+/// produce (with `saturation` on; ideal rotors produce any wrench and both give A⁺w). Not the
+/// twin's physics but the stack's, kept here beside [`TiltThrust`] so that every flight built
+/// from the same flags (and both sides of a split flight) allocate alike, and so that a run's
+/// config.json records it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SaturatedAllocation {
+    /// The bounded weighted least-squares allocation (`allocation`'s constrained QP): the
+    /// thrusts within the rotor limits closest to the request, roll and pitch torque kept
+    /// first, then force, yaw giving way first (PX4's desaturation priorities). What a flight
+    /// stack on the real vehicle does; a request the rotors can produce gets A⁺w exactly.
+    #[default]
+    Prioritized,
+    /// A⁺w with each rotor clamped into its limits: the reference's allocation (AMBENCH_SPEC
+    /// §1.6), which distorts the attitude torques whenever a rotor saturates.
+    Clip,
+}
+
+impl SaturatedAllocation {
+    /// Parses `prioritized` or `clip`.
+    pub fn parse(name: &str) -> Result<Self, String> {
+        match name {
+            "prioritized" => Ok(Self::Prioritized),
+            "clip" => Ok(Self::Clip),
+            other => Err(format!("{other:?}: expected prioritized or clip")),
+        }
+    }
+}
+
 /// Along which direction a tilting rotor (Omni-Hexa) pushes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -183,6 +213,8 @@ pub struct TwinConfig {
     pub motor: MotorConfig,
     /// How tilting rotors push (Omni-Hexa only). Default: as commanded, like the reference.
     pub tilt_thrust: TiltThrust,
+    /// How the flight stack allocates under rotor limits. Default: prioritized.
+    pub saturated_allocation: SaturatedAllocation,
     /// Noise levels.
     pub noise: NoiseConfig,
     /// Seed of every random draw of the twin.
@@ -211,6 +243,7 @@ impl Default for TwinConfig {
             aero: AeroConfig::default(),
             motor: MotorConfig::default(),
             tilt_thrust: TiltThrust::default(),
+            saturated_allocation: SaturatedAllocation::default(),
             noise: NoiseConfig::default(),
             seed: 0,
             task: None,

@@ -40,7 +40,9 @@ pub mod visuals;
 #[cfg(test)]
 mod tests;
 
-pub use config::{Disturbances, MotorConfig, NoiseConfig, TiltThrust, TwinConfig};
+pub use config::{
+    Disturbances, MotorConfig, NoiseConfig, SaturatedAllocation, TiltThrust, TwinConfig,
+};
 pub use error::TwinError;
 pub use observer::TwinObserver;
 pub use tasks::{GraspMode, TaskId, TaskObservation, TaskSnapshot, TaskStatus};

@@ -91,7 +91,7 @@ fn push(world: &mut PhysicsWorld, body: RigidBodyHandle, force: Vector3<f64>, st
 }
 
 fn slider(stiffness: f64, damping: f64, friction: f64) -> (PhysicsWorld, ReducedJoint) {
-    slider_of(stiffness, damping, friction, 0.2, DriveType::Force)
+    slider_of(stiffness, damping, friction, 0.2, DriveType::Force, 1000.0)
 }
 
 /// A free prismatic link of `mass_kg` on a fixed root, driven as `drive` says.
@@ -101,6 +101,7 @@ fn slider_of(
     friction: f64,
     mass_kg: f64,
     drive: DriveType,
+    effort: f64,
 ) -> (PhysicsWorld, ReducedJoint) {
     let mut w = world();
     let root = fixed_body(&mut w, &Isometry3::translation(1.0, 0.0, 1.0));
@@ -110,7 +111,7 @@ fn slider_of(
         stiffness,
         damping,
         target: 0.0,
-        effort: 1000.0,
+        effort,
         friction,
         initial: 0.0,
         drive,
@@ -163,7 +164,7 @@ fn an_acceleration_drive_resists_in_proportion_to_the_mass_it_moves() {
     // the mass. An acceleration drive (PhysX eACCELERATION): F = m·d·v, v = F/(m·d) = 0.2 m/s
     // for 0.2 kg and 0.1 m/s for 0.4 kg.
     let speed = |mass: f64, drive: DriveType| {
-        let (mut w, a) = slider_of(0.0, 5.0, 0.0, mass, drive);
+        let (mut w, a) = slider_of(0.0, 5.0, 0.0, mass, drive, 1000.0);
         push(&mut w, a.link, Vector3::new(0.2, 0.0, 0.0), 480);
         let q1 = a.position(&w);
         push(&mut w, a.link, Vector3::new(0.2, 0.0, 0.0), 240);
@@ -181,6 +182,24 @@ fn an_acceleration_drive_resists_in_proportion_to_the_mass_it_moves() {
             "{mass} kg, {drive:?}: {v} m/s, expected {expected}"
         );
     }
+}
+
+#[test]
+fn a_force_drive_gives_at_most_its_effort() {
+    // Damping 100 N·s/m capped at 5 N (a PhysX drive's maxForce), 0.2 kg. 4 N, under the cap:
+    // the damper sets v = 0.04 m/s (time constant m/c = 2 ms), q(0.5 s) = 0.02 m. 8 N, over
+    // it: the damper holds 5 N from v = 0.05 m/s and the other 3 N accelerate the slider at
+    // 15 m/s²: q(0.1 s) ≈ 0.05·0.1 + ½·15·0.1² = 0.080 m; an uncapped damper would allow
+    // 0.08 m/s, 0.008 m.
+    let travel = |force: f64, steps: usize| {
+        let (mut w, a) = slider_of(0.0, 100.0, 0.0, 0.2, DriveType::Force, 5.0);
+        push(&mut w, a.link, Vector3::new(force, 0.0, 0.0), steps);
+        a.position(&w)
+    };
+    let q = travel(4.0, 240);
+    assert!((q - 0.02).abs() < 0.001, "4 N: q = {q}");
+    let q = travel(8.0, 48);
+    assert!((q - 0.080).abs() < 0.008, "8 N: q = {q}");
 }
 
 /// A scene built alone in a world (no vehicle, no ground), from `seed`.
