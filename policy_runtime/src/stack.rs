@@ -313,10 +313,8 @@ impl FlightStack {
         let ee = if vehicle.ee_link == vehicle.base_link {
             None
         } else {
-            let mut ik = WholeBodyIk::new(&vehicle, ik_config)
+            let ik = WholeBodyIk::new(&vehicle, ik_config)
                 .map_err(|e| StackError(format!("whole-body IK: {e}")))?;
-            // Departure from the reference (README): joint targets the drives can follow.
-            ik.limit_joint_rates(&vehicle, dt_s);
             Some(EeInterface {
                 ik,
                 limits: BaseLimits::above_ground(),
@@ -462,7 +460,6 @@ impl FlightStack {
         if let Some(ee) = &mut self.ee {
             ee.ik = WholeBodyIk::new(&self.vehicle, config)
                 .map_err(|e| StackError(format!("whole-body IK: {e}")))?;
-            ee.ik.limit_joint_rates(&self.vehicle, self.dt_s);
         }
         Ok(())
     }
