@@ -138,8 +138,8 @@ impl Workspace {
     }
 
     /// Fills the variable bounds: base position variables from the call's limits, arm joints
-    /// from their limits, rotation variables unbounded.
-    pub(crate) fn set_bounds(&mut self, p: &Problem, target: &Target) {
+    /// from their limits and rate steps around `anchor`, rotation variables unbounded.
+    pub(crate) fn set_bounds(&mut self, p: &Problem, target: &Target, anchor: &State) {
         let l = &p.layout;
         for (i, &axis) in l.position_axes.iter().enumerate() {
             (self.lower[i], self.upper[i]) = target.base_bounds[axis];
@@ -149,8 +149,7 @@ impl Workspace {
             self.upper[i] = f64::INFINITY;
         }
         for k in 0..p.arm_dofs.len() {
-            self.lower[l.arm_offset + k] = p.arm_lower[k];
-            self.upper[l.arm_offset + k] = p.arm_upper[k];
+            (self.lower[l.arm_offset + k], self.upper[l.arm_offset + k]) = p.arm_bounds(k, anchor);
         }
     }
 

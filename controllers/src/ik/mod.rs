@@ -104,6 +104,18 @@
 //! `Vehicle::command_to_link` first, and build [`BaseLimits`] from obstacles with the profile's
 //! `safety_margin_m`.
 //!
+//! # Joint rates (opt-in; not the reference)
+//!
+//! Neither the reference nor the default IK knows how fast the arm moves: a target that
+//! moves faster than the drives (5 rad/s on every AM-Bench arm, AMBENCH_SPEC §1.2) gets joint
+//! targets the arm reaches several periods later, while the base already flies toward the
+//! base pose computed with them. [`WholeBodyIk::limit_joint_rates`] bounds each arm joint to
+//! `previous ± velocity_limit·period` in every solve (a hinge at the task level, weighted as
+//! the joint limits, and a hard bound of the regularisation step), so the base takes what the
+//! arm cannot. The flight stack does not turn it on: measured on the FA-Hexa (README, Toss
+//! Ball) it makes the toss's throw coherent but moves Rotate Valve from 10 of 10 to 0 of 10,
+//! whose turn relies on the arm following a 40 rad/s jump of its IK targets.
+//!
 //! Cost: the iteration's buffers are allocated when the IK is built. A solve also allocates
 //! the small matrices of nalgebra's dynamic SVD and Cholesky factorisations (n ≤ a dozen, so
 //! a few hundred bytes each, a handful per iteration) and the two vectors of its

@@ -92,6 +92,10 @@ pub(crate) struct Problem {
     /// Arm joint limits (command order), ±∞ where unbounded.
     pub(crate) arm_lower: Vec<f64>,
     pub(crate) arm_upper: Vec<f64>,
+    /// Most change of each arm joint from the previous solution in one solve (command order):
+    /// its drive's velocity limit times the solve period, ∞ unless set
+    /// (`WholeBodyIk::limit_joint_rates`).
+    pub(crate) arm_step: Vec<f64>,
     /// Task-cost band within which the task level counts as met when a regularisation step
     /// is judged: the smaller of the costs of a position error at its tolerance and of an
     /// orientation error at its tolerance (inside the band both errors are within tolerance).
@@ -228,6 +232,18 @@ pub(crate) fn pose_residual(
     (r, position_error.norm(), orientation_error.norm())
 }
 
+impl Problem {
+    /// Where arm joint `k` may go in a solve anchored at `anchor`: its limits, narrowed to
+    /// the step its drive can make in one period from the previous solution.
+    pub(crate) fn arm_bounds(&self, k: usize, anchor: &State) -> (f64, f64) {
+        let step = self.arm_step[k];
+        (
+            self.arm_lower[k].max(anchor.arm[k] - step),
+            self.arm_upper[k].min(anchor.arm[k] + step),
+        )
+    }
+}
+
 /// Costs, errors and Gauss–Newton terms of both levels at `x`, into `out`.
 pub(crate) fn linearize(
     p: &Problem,
@@ -278,7 +294,7 @@ pub(crate) fn linearize(
     for k in 0..p.arm_dofs.len() {
         hinge(
             x.arm[k],
-            (p.arm_lower[k], p.arm_upper[k]),
+            p.arm_bounds(k, anchor),
             w.joint_limit,
             Some(l.arm_offset + k),
         );

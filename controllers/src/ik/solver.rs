@@ -164,6 +164,7 @@ impl WholeBodyIk {
             arm_dofs,
             held,
             rest,
+            arm_step: vec![f64::INFINITY; arm_lower.len()],
             arm_lower,
             arm_upper,
             task_tie,
@@ -174,6 +175,34 @@ impl WholeBodyIk {
             previous,
             ws,
         })
+    }
+
+    /// Bounds each arm joint's change between successive solves to what its drive can move in
+    /// `period_s` (the drive's `velocity_limit` × `period_s`), so that the joint targets handed
+    /// out are ones the arm can follow and the base takes the rest of a fast motion. Without
+    /// it (the reference's IK) a target moving faster than the arm asks for joint steps the
+    /// drives take several periods to make, while the base already flies the solution that
+    /// assumed them. A joint without a drive, or a non-positive or non-finite `period_s`
+    /// (which removes the bound), stays unbounded. See the module docs.
+    pub fn limit_joint_rates(&mut self, vehicle: &Vehicle, period_s: f64) {
+        let p = &mut self.problem;
+        for (k, &dof) in p.arm_dofs.iter().enumerate() {
+            let limit = vehicle
+                .drives
+                .iter()
+                .find(|d| vehicle.model.joints[d.joint].dof == Some(dof))
+                .map(|d| d.velocity_limit * period_s);
+            p.arm_step[k] = match limit {
+                Some(step) if period_s.is_finite() && period_s > 0.0 && step > 0.0 => step,
+                _ => f64::INFINITY,
+            };
+        }
+    }
+
+    /// The most change of each arm joint per solve (command order), rad or m; ∞ where
+    /// unbounded.
+    pub fn joint_steps(&self) -> &[f64] {
+        &self.problem.arm_step
     }
 
     /// The settings.
@@ -287,7 +316,7 @@ impl WholeBodyIk {
         let s = &p.config.solver;
         let n = p.layout.n;
         ws.state.copy_from(anchor);
-        ws.set_bounds(p, target);
+        ws.set_bounds(p, target, anchor);
         linearize(p, &ws.state, target, anchor, &mut ws.poses, &mut ws.current);
         if !ws.current.is_finite() {
             return None;

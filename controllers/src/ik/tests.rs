@@ -946,3 +946,75 @@ fn ee_only_vehicle_solves_with_the_base_alone() {
     let (dp, dr) = solution_errors(&v, &s, &target);
     assert!(dp < RECOVERED_POSITION_M && dr < RECOVERED_ORIENTATION_RAD);
 }
+
+#[test]
+fn rate_limited_arm_joints_step_at_their_drives_speed_and_the_base_takes_the_rest() {
+    // The FA-Hexa's arm drives move at most 5 rad/s (AMBENCH_SPEC §1.2 velocity_limit_sim):
+    // at 120 Hz an arm joint moves at most 5/120 = 0.041667 rad per solve. Its three pitch
+    // joints (axes +y, −y, +y) set the EE pitch q1 − q2 + q3 while the base rotation is locked,
+    // so a 0.45 rad wrist flick (the toss's q_load → q_release is 60°) needs
+    // ⌈0.45 / (3 · 0.041667)⌉ = ⌈3.6⌉ = 4 solves: after solve n < 4 the pitch error is
+    // 0.45 − 0.125 n, every pitch joint at its step, while the base (free in position) keeps
+    // the EE position met; the 4th solve meets the pose. Without the bound one solve does.
+    const STEP_RAD: f64 = 5.0 / 120.0;
+    // The step is a hinge at the task level (weight 100 against the orientation's 1): it
+    // yields by about e · (1/100)² = 3e-5 rad at a 0.3 rad pitch error.
+    const HINGE_SLACK_RAD: f64 = 1e-4;
+    let v = vehicle("fa-hexa");
+    let arm = v.arm_dofs();
+    let mut start = v.initial_configuration();
+    let mut end = start.clone();
+    for (k, (q0, dq)) in [(0.6, -0.15), (0.3, 0.15), (0.2, -0.15), (0.0, 0.0)]
+        .into_iter()
+        .enumerate()
+    {
+        start[arm[k]] = q0;
+        end[arm[k]] = q0 + dq;
+    }
+    let target = platform_world_from_ee(&v, &spawn(), &end);
+
+    let mut free = ik_for(&v);
+    free.reset(&spawn(), &start)
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(free.joint_steps().iter().all(|s| s.is_infinite()));
+    let s = free.solve(&target, &BaseLimits::above_ground());
+    assert!(s.status.converged, "{:?}", s.status);
+    let jump = (0..3)
+        .map(|k| (s.arm_joints[k] - start[arm[k]]).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        jump > 3.0 * STEP_RAD,
+        "unbounded: largest joint step {jump}"
+    );
+
+    let mut ik = ik_for(&v);
+    ik.limit_joint_rates(&v, 1.0 / RATE_HZ);
+    for step in ik.joint_steps() {
+        assert!((step - STEP_RAD).abs() < KINEMATICS_AGREEMENT, "{step}");
+    }
+    ik.reset(&spawn(), &start).unwrap_or_else(|e| panic!("{e}"));
+    let mut previous: Vec<f64> = arm.iter().map(|&d| start[d]).collect();
+    for n in 1..=4 {
+        let s = ik.solve(&target, &BaseLimits::above_ground());
+        for (k, (q, q_prev)) in s.arm_joints.iter().zip(&previous).enumerate() {
+            assert!(
+                (q - q_prev).abs() <= STEP_RAD + HINGE_SLACK_RAD,
+                "solve {n} joint {k}: {q_prev} -> {q}"
+            );
+        }
+        let (dp, dr) = solution_errors(&v, &s, &target);
+        assert!(dp < RECOVERED_POSITION_M, "solve {n}: position error {dp}");
+        if n < 4 {
+            let expected = 0.45 - 3.0 * STEP_RAD * f64::from(n);
+            assert!(!s.status.converged, "solve {n}: {:?}", s.status);
+            assert!(
+                (dr - expected).abs() < 3.0 * HINGE_SLACK_RAD,
+                "solve {n}: pitch error {dr}, expected {expected}"
+            );
+        } else {
+            assert!(s.status.converged, "solve {n}: {:?}", s.status);
+            assert!(dr < RECOVERED_ORIENTATION_RAD, "solve {n}: {dr}");
+        }
+        previous.clone_from(&s.arm_joints);
+    }
+}
