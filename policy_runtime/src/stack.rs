@@ -437,14 +437,8 @@ impl FlightStack {
             }
             _ => AllocationMethod::PseudoInverse,
         };
-        let mut stack = Self::new(
-            vehicle,
-            config,
-            method,
-            limits,
-            twin.control_dt_s(),
-        )?
-        .with_tilt_projection(twin.tilt_thrust == TiltThrust::Measured);
+        let mut stack = Self::new(vehicle, config, method, limits, twin.control_dt_s())?
+            .with_tilt_projection(twin.tilt_thrust == TiltThrust::Measured);
         // The reference's task-specific IK profiles belong to its PID profiles.
         if let (Some(task), ControllerConfig::Pid6(_) | ControllerConfig::Pid4(_)) =
             (twin.task, config)

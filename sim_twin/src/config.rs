@@ -213,7 +213,10 @@ pub struct TwinConfig {
     pub motor: MotorConfig,
     /// How tilting rotors push (Omni-Hexa only). Default: as commanded, like the reference.
     pub tilt_thrust: TiltThrust,
-    /// How the flight stack allocates under rotor limits. Default: prioritized.
+    /// How the flight stack allocates under rotor limits. Default: prioritized; a config
+    /// (a log's, a run's config.json) written before this field existed was flown with the
+    /// clamp, and reads as `clip`.
+    #[serde(default = "allocation_before_the_field")]
     pub saturated_allocation: SaturatedAllocation,
     /// Noise levels.
     pub noise: NoiseConfig,
@@ -227,6 +230,10 @@ pub struct TwinConfig {
     /// Base pose at reset (AMBENCH_SPEC §1.1: 1 m up, level).
     #[serde(skip, default = "default_initial_pose")]
     pub initial_base_pose: Isometry3<f64>,
+}
+
+fn allocation_before_the_field() -> SaturatedAllocation {
+    SaturatedAllocation::Clip
 }
 
 fn default_initial_pose() -> Isometry3<f64> {

@@ -111,6 +111,8 @@ fn flags(a: &Args, model: &Model, band: &str, mcap: &std::path::Path) -> Vec<Str
         band,
         "--disturbances",
         "saturation",
+        "--saturated-allocation",
+        "clip",
     ]);
     f.extend(["--seed".to_owned(), a.seed.to_string()]);
     f.extend(a.physics.flag_line());

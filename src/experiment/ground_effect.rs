@@ -96,6 +96,8 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "ee",
         "--disturbances",
         "reference",
+        "--saturated-allocation",
+        "clip",
     ]);
     flags.extend([
         "--ground-effect-k".to_owned(),

@@ -166,6 +166,8 @@ pub(super) fn run(a: &Args) -> Result<()> {
                 "0",
                 "--disturbances",
                 "saturation",
+                "--saturated-allocation",
+                "clip",
             ]);
             f.extend([
                 "--duration".to_owned(),

@@ -6,4 +6,5 @@ mod mavlink_flight;
 mod mpc_flight;
 mod mpc_stack;
 mod rotor_log;
+mod saturated_allocation;
 mod task_ik;
