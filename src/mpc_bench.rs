@@ -173,8 +173,10 @@ impl ExitCheck {
         let largest = slack.iter().copied().fold(0.0, f64::max);
         match converged.status {
             QpStatus::Infeasible => {
-                self.infeasible_min_slack =
-                    Some(self.infeasible_min_slack.map_or(largest, |v| v.min(largest)));
+                self.infeasible_min_slack = Some(
+                    self.infeasible_min_slack
+                        .map_or(largest, |v| v.min(largest)),
+                );
             }
             QpStatus::Solved => {
                 self.solved_max_slack =
@@ -230,7 +232,6 @@ impl ExitMode {
         rti.set_qp_infeasibility_exit(exit);
     }
 }
-
 
 /// The recorded rollout a replay comes from.
 #[derive(Debug, Clone, Serialize)]

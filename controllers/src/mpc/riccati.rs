@@ -1433,20 +1433,19 @@ impl QpSolver for RiccatiIpm {
             near_solution = stationarity <= POLISH_RESCUE_TOLERANCE * gradient_scale
                 && r_ineq_max <= POLISH_RESCUE_TOLERANCE
                 && mu <= POLISH_RESCUE_TOLERANCE;
-            if let Some(exit) = &exit {
-                if iterations >= exit.min_iterations
-                    && exit_attempts < exit.max_attempts
-                    && r_ineq_max <= exit.residual
-                    && self.exit_row_passes(exit)
-                {
-                    exit_attempts += 1;
-                    if self.certify_infeasible(qp, &out.x, &out.u, exit.limit) {
-                        status = QpStatus::Infeasible;
-                        break;
-                    }
-                    // The iteration reads the gradients at the iterate.
-                    self.cost_gradient(qp, &out.x, &out.u);
+            if let Some(exit) = &exit
+                && iterations >= exit.min_iterations
+                && exit_attempts < exit.max_attempts
+                && r_ineq_max <= exit.residual
+                && self.exit_row_passes(exit)
+            {
+                exit_attempts += 1;
+                if self.certify_infeasible(qp, &out.x, &out.u, exit.limit) {
+                    status = QpStatus::Infeasible;
+                    break;
                 }
+                // The iteration reads the gradients at the iterate.
+                self.cost_gradient(qp, &out.x, &out.u);
             }
             if iterations >= self.settings.max_iterations {
                 break;
@@ -1764,7 +1763,10 @@ mod tests {
             let mut b = QpSolution::zeros(qp.intervals);
             let status_a = classify(converged.solve(&qp, &mut a), &a, limit);
             let status_b = with_exit.solve(&qp, &mut b);
-            assert_eq!(status_b, status_a, "{step}: the exit must classify as convergence");
+            assert_eq!(
+                status_b, status_a,
+                "{step}: the exit must classify as convergence"
+            );
             if status_a == QpStatus::Solved {
                 feasible += 1;
                 // A QP the exit does not stop is solved exactly as without it.
@@ -1781,12 +1783,69 @@ mod tests {
                 }
             }
         }
-        assert!(feasible >= 3 && infeasible >= 3, "{feasible} feasible, {infeasible} infeasible");
-        assert!(stopped * 2 >= infeasible, "{stopped} of {infeasible} stopped early");
+        assert!(
+            feasible >= 3 && infeasible >= 3,
+            "{feasible} feasible, {infeasible} infeasible"
+        );
+        assert!(
+            stopped * 2 >= infeasible,
+            "{stopped} of {infeasible} stopped early"
+        );
         assert!(
             iterations_exit < iterations_converged,
             "{iterations_exit} iterations with the exit, {iterations_converged} without"
         );
+    }
+
+    #[test]
+    fn the_infeasibility_certificate_never_fires_below_the_solutions_slack() {
+        // The screen always passes: the certificate is tried at every iteration.
+        let always = |limit: f64| InfeasibilityExit {
+            limit,
+            factor: 0.0,
+            nu_fraction: 1.0,
+            min_iterations: 0,
+            residual: f64::INFINITY,
+            max_attempts: u32::MAX,
+        };
+        let mut checked = 0;
+        for speed in [1.5, 2.0, 2.5, 3.0] {
+            let qp = approaching_wall_qp(speed);
+            let mut converged = RiccatiIpm::new(QpSettings::default());
+            let mut a = QpSolution::zeros(qp.intervals);
+            assert_eq!(converged.solve(&qp, &mut a), QpStatus::Solved);
+            let largest = a.slack.iter().copied().fold(0.0, f64::max);
+            assert!(
+                largest > 1e-2,
+                "{speed} m/s: the hard rows must be infeasible"
+            );
+            // A limit just above the solution's largest slack: the converged solve takes the
+            // solution, so the exit must never claim infeasibility, and leaves the solve as
+            // it was, bit for bit.
+            let mut with_exit = RiccatiIpm::new(QpSettings::default());
+            with_exit.set_infeasibility_exit(Some(always(1.01 * largest)));
+            let mut b = QpSolution::zeros(qp.intervals);
+            assert_eq!(
+                with_exit.solve(&qp, &mut b),
+                QpStatus::Solved,
+                "{speed} m/s"
+            );
+            assert_eq!(a, b, "{speed} m/s");
+            // Half the largest slack: proven infeasible before convergence.
+            with_exit.set_infeasibility_exit(Some(always(0.5 * largest)));
+            assert_eq!(
+                with_exit.solve(&qp, &mut b),
+                QpStatus::Infeasible,
+                "{speed} m/s"
+            );
+            assert!(
+                b.iterations < a.iterations,
+                "{speed} m/s: {} iterations",
+                b.iterations
+            );
+            checked += 1;
+        }
+        assert_eq!(checked, 4);
     }
 
     #[test]
