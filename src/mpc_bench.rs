@@ -48,7 +48,9 @@ Scenarios:
 32 intervals over 0.8 s, 120 Hz. Both QP paths run: riccati (the structure-exploiting
 interior point of this crate) and clarabel (the sparse multiple-shooting QP); --paths picks.
 --warm-start off starts every QP of the riccati path cold (the replay of a rollout then
-solves the same problems as the warm-started rollout did). --state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
+solves the same problems as the warm-started rollout did). --infeasibility-exit off runs every
+QP to convergence (no early exit on a proven slack above the limit); check solves every QP
+again without the exit and counts the ticks classified differently (exit_check in the JSON). --state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
 contact) from the rollout and the replay; --replay-state-rows replays the same recorded
 problems with the other setting.
 Times: the wall time of each RTI step, and the thread's CPU time over it (not inflated by
@@ -59,7 +61,8 @@ Examples:
   amstack mpc-bench --scenario push-slider --paths riccati --json slider.json
   amstack mpc-bench --scenario wipe-window --paths riccati --warm-start off
   amstack mpc-bench --scenario wipe-window --state-rows hard
-  amstack mpc-bench --scenario push-slider --state-rows hard --replay-state-rows soft")]
+  amstack mpc-bench --scenario push-slider --state-rows hard --replay-state-rows soft
+  amstack mpc-bench --scenario push-slider --paths riccati --infeasibility-exit check")]
 pub struct Args {
     /// `standard`, `push-slider` or `wipe-window`.
     #[arg(long, default_value = "standard")]
