@@ -50,7 +50,8 @@ interior point of this crate) and clarabel (the sparse multiple-shooting QP); --
 --warm-start off starts every QP of the riccati path cold (the replay of a rollout then
 solves the same problems as the warm-started rollout did). --infeasibility-exit off runs every
 QP to convergence (no early exit on a proven slack above the limit); check solves every QP
-again without the exit and counts the ticks classified differently (exit_check in the JSON). --state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
+again without the exit and counts the ticks classified differently (exit_check in the JSON).
+--state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
 contact) from the rollout and the replay; --replay-state-rows replays the same recorded
 problems with the other setting.
 Times: the wall time of each RTI step, and the thread's CPU time over it (not inflated by

@@ -37,6 +37,13 @@
 //! (r_ν = t∘ν − σμ (+ Mehrotra term), μ averaged over both pairs). A hard row is the limit
 //! t → 0: the recursion is the same, so a soft QP costs the same per iteration.
 //!
+//! # Early infeasibility exit
+//!
+//! With a slack limit ([`InfeasibilityExit`]), a solve stops with status `Infeasible` once a
+//! weak-duality certificate proves that every solution has a soft slack above the limit (the
+//! hard QP relaxed by the limit cannot reach the penalised objective the iterate attains):
+//! what the converged solve and the limit would classify, in about half the iterations.
+//!
 //! Cost per iteration: one recursion of N stages with ~6k flops each (dense P: `VᵀV` and the
 //! triangular solves dominate), two vector sweeps. No allocation after the first solve.
 
