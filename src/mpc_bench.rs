@@ -48,7 +48,10 @@ Scenarios:
 32 intervals over 0.8 s, 120 Hz. Both QP paths run: riccati (the structure-exploiting
 interior point of this crate) and clarabel (the sparse multiple-shooting QP); --paths picks.
 --warm-start off starts every QP of the riccati path cold (the replay of a rollout then
-solves the same problems as the warm-started rollout did). --state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
+solves the same problems as the warm-started rollout did). --infeasibility-exit off runs every
+QP to convergence (no early exit on a proven slack above the limit); check solves every QP
+again without the exit and counts the ticks classified differently (exit_check in the JSON).
+--state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
 contact) from the rollout and the replay; --replay-state-rows replays the same recorded
 problems with the other setting.
 Times: the wall time of each RTI step, and the thread's CPU time over it (not inflated by
@@ -59,7 +62,8 @@ Examples:
   amstack mpc-bench --scenario push-slider --paths riccati --json slider.json
   amstack mpc-bench --scenario wipe-window --paths riccati --warm-start off
   amstack mpc-bench --scenario wipe-window --state-rows hard
-  amstack mpc-bench --scenario push-slider --state-rows hard --replay-state-rows soft")]
+  amstack mpc-bench --scenario push-slider --state-rows hard --replay-state-rows soft
+  amstack mpc-bench --scenario push-slider --paths riccati --infeasibility-exit check")]
 pub struct Args {
     /// `standard`, `push-slider` or `wipe-window`.
     #[arg(long, default_value = "standard")]
@@ -91,6 +95,12 @@ pub struct Args {
     /// flies, so `off` replays the same problems cold).
     #[arg(long, default_value = "on", value_name = "on|off")]
     warm_start: String,
+    /// The Riccati path's early infeasibility exit (`controllers::mpc::InfeasibilityExit`):
+    /// `on` (default, as the controller flies), `off` (every QP runs to convergence), or
+    /// `check`: as `on`, and every replayed or flown QP is solved a second time (untimed)
+    /// without the exit; the report counts the ticks whose status differs (`exit_check`).
+    #[arg(long, default_value = "on", value_name = "on|off|check")]
+    infeasibility_exit: String,
     /// Write the figures as JSON (`paths.<name>.solve_ms_median`, ...).
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -132,6 +142,99 @@ struct PathFigures {
     /// count equal the rollout's (the replay poses the same QPs).
     #[serde(skip_serializing_if = "Option::is_none")]
     replay_matches_rollout_ticks: Option<usize>,
+    /// `--infeasibility-exit check`: the exit against the converged solves.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    exit_check: Option<ExitCheck>,
+}
+
+/// The early infeasibility exit against the same QPs solved to convergence.
+#[derive(Debug, Clone, Default, Serialize)]
+struct ExitCheck {
+    /// Ticks compared.
+    ticks: usize,
+    /// Ticks whose status with the exit differs from the converged solve's (must be 0).
+    disagreements: usize,
+    /// Ticks the exit stopped early (status `infeasible` before convergence).
+    exited: usize,
+    /// Ticks the converged solve classifies `infeasible`.
+    infeasible: usize,
+    /// QP iterations with the exit and without it, summed over the `infeasible` ticks.
+    iterations_with_exit: u64,
+    iterations_converged: u64,
+    /// Feasible (`solved`) ticks whose cost or iterations differ between the two solves
+    /// (must be 0).
+    solved_cost_differences: usize,
+    /// How far the QPs are from the slack limit: over the converged `infeasible` ticks the
+    /// smallest largest slack, over the `solved` ones the largest (m or rad).
+    infeasible_min_slack: Option<f64>,
+    solved_max_slack: Option<f64>,
+}
+
+impl ExitCheck {
+    /// One tick: the reports with and without the exit, and the converged solve's slacks.
+    fn push(&mut self, with_exit: &RtiReport, converged: &RtiReport, slack: &[f64]) {
+        self.ticks += 1;
+        let largest = slack.iter().copied().fold(0.0, f64::max);
+        match converged.status {
+            QpStatus::Infeasible => {
+                self.infeasible_min_slack = Some(
+                    self.infeasible_min_slack
+                        .map_or(largest, |v| v.min(largest)),
+                );
+            }
+            QpStatus::Solved => {
+                self.solved_max_slack =
+                    Some(self.solved_max_slack.map_or(largest, |v| v.max(largest)));
+            }
+            _ => {}
+        }
+        self.disagreements += usize::from(with_exit.status != converged.status);
+        if converged.status == QpStatus::Infeasible {
+            self.infeasible += 1;
+            self.iterations_with_exit += u64::from(with_exit.qp_iterations);
+            self.iterations_converged += u64::from(converged.qp_iterations);
+            self.exited += usize::from(
+                with_exit.status == QpStatus::Infeasible
+                    && with_exit.qp_iterations < converged.qp_iterations,
+            );
+        }
+        if converged.status == QpStatus::Solved
+            && (with_exit.cost.to_bits() != converged.cost.to_bits()
+                || with_exit.qp_iterations != converged.qp_iterations)
+        {
+            self.solved_cost_differences += 1;
+        }
+    }
+}
+
+/// `--infeasibility-exit`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ExitMode {
+    On,
+    Off,
+    Check,
+}
+
+impl ExitMode {
+    fn parse(text: &str) -> Result<Self> {
+        match text {
+            "on" => Ok(Self::On),
+            "off" => Ok(Self::Off),
+            "check" => Ok(Self::Check),
+            other => Err(bad_input(format!(
+                "--infeasibility-exit {other}: not on, off or check"
+            ))),
+        }
+    }
+
+    /// Applies the mode to `rti` (the timed solver).
+    fn apply(self, rti: &mut SqpRti) {
+        let exit = match self {
+            Self::Off => None,
+            Self::On | Self::Check => rti.default_qp_infeasibility_exit(),
+        };
+        rti.set_qp_infeasibility_exit(exit);
+    }
 }
 
 /// The recorded rollout a replay comes from.
@@ -154,6 +257,8 @@ struct Report {
     state_rows: String,
     /// `on` or `off` (`--warm-start`).
     warm_start: String,
+    /// `on`, `off` or `check` (`--infeasibility-exit`).
+    infeasibility_exit: String,
     /// The replay's state rows, when not the rollout's.
     #[serde(skip_serializing_if = "Option::is_none")]
     replay_state_rows: Option<String>,
@@ -282,6 +387,7 @@ impl Samples {
             final_ee_error_m: None,
             final_base_x_m: None,
             replay_matches_rollout_ticks: None,
+            exit_check: None,
         }
     }
 }
@@ -292,9 +398,22 @@ fn fly(
     path: QpPath,
     iterations: usize,
     warm_start: bool,
+    exit: ExitMode,
 ) -> Result<PathFigures> {
     let mut run = WallStepScenario::new(vehicle, config)?;
     run.rti_mut().set_qp_warm_start(warm_start);
+    exit.apply(run.rti_mut());
+    // `check`: the same scenario flown beside it without the exit (it flies the same ticks
+    // as long as both classify alike).
+    let mut twin = if exit == ExitMode::Check {
+        let mut twin = WallStepScenario::new(vehicle, config)?;
+        twin.rti_mut().set_qp_warm_start(warm_start);
+        ExitMode::Off.apply(twin.rti_mut());
+        Some(twin)
+    } else {
+        None
+    };
+    let mut check = ExitCheck::default();
     let mut samples = Samples::default();
     for _ in 0..iterations {
         let t0 = Stamp::now();
@@ -304,8 +423,17 @@ fn fly(
         let t2 = Stamp::now();
         samples.push(t0, t1, t2, &report);
         run.advance();
+        if let Some(twin) = &mut twin {
+            twin.prepare();
+            let converged = twin.feedback(path);
+            check.push(&report, &converged, &twin.rti().last_qp_solution().slack);
+            twin.advance();
+        }
     }
     let mut figures = samples.figures();
+    if twin.is_some() {
+        figures.exit_check = Some(check);
+    }
     figures.final_ee_error_m = Some(run.ee_error_m());
     figures.final_base_x_m = Some(run.state()[0]);
     Ok(figures)
@@ -412,9 +540,20 @@ fn replay(
     ticks: &[RecordedTick],
     as_recorded: bool,
     warm_start: bool,
+    exit: ExitMode,
 ) -> Result<PathFigures> {
     let mut rti = SqpRti::new(vehicle, config)?;
     rti.set_qp_warm_start(warm_start);
+    exit.apply(&mut rti);
+    let mut twin = if exit == ExitMode::Check {
+        let mut twin = SqpRti::new(vehicle, config)?;
+        twin.set_qp_warm_start(warm_start);
+        ExitMode::Off.apply(&mut twin);
+        Some(twin)
+    } else {
+        None
+    };
+    let mut check = ExitCheck::default();
     let mut samples = Samples::default();
     let mut matches = 0;
     for tick in ticks {
@@ -428,13 +567,24 @@ fn replay(
         let report = rti.feedback(path);
         let t2 = Stamp::now();
         samples.push(t0, t1, t2, &report);
+        if let Some(twin) = &mut twin {
+            if !p.warm {
+                twin.reset();
+            }
+            twin.prepare(&p.x_hat, &p.reference, &p.limits, p.elapsed_s);
+            let converged = twin.feedback(path);
+            check.push(&report, &converged, &twin.last_qp_solution().slack);
+        }
         matches += usize::from(
             report.status == tick.report.status
                 && report.qp_iterations == tick.report.qp_iterations,
         );
     }
     let mut figures = samples.figures();
-    if as_recorded && warm_start && path == config.qp_path {
+    if twin.is_some() {
+        figures.exit_check = Some(check);
+    }
+    if as_recorded && warm_start && exit != ExitMode::Off && path == config.qp_path {
         figures.replay_matches_rollout_ticks = Some(matches);
     }
     Ok(figures)
@@ -521,6 +671,7 @@ pub fn run(args: &Args) -> Result<()> {
             return Err(bad_input(format!("--warm-start {other}: not on or off")));
         }
     };
+    let exit = ExitMode::parse(&args.infeasibility_exit)?;
     if let Some(p) = &args.json {
         check_writable("--json", p)?;
     }
@@ -536,7 +687,7 @@ pub fn run(args: &Args) -> Result<()> {
             for &path in &paths_wanted {
                 paths.insert(
                     path.name(),
-                    fly(&vehicle, config, path, args.iterations, warm_start)?,
+                    fly(&vehicle, config, path, args.iterations, warm_start, exit)?,
                 );
             }
         }
@@ -562,6 +713,7 @@ pub fn run(args: &Args) -> Result<()> {
                         &ticks,
                         replay_config == config,
                         warm_start,
+                        exit,
                     )?,
                 );
             }
@@ -628,6 +780,20 @@ pub fn run(args: &Args) -> Result<()> {
         if let (Some(e), Some(x)) = (f.final_ee_error_m, f.final_base_x_m) {
             println!("{name}: final EE error {:.2} mm, base x {x:.4} m", e * 1e3);
         }
+        if let Some(c) = &f.exit_check {
+            println!(
+                "{name}: infeasibility exit against the converged solves: {} disagreements in {} ticks; {} of {} infeasible QPs stopped early ({} iterations against {}); {} solved QPs changed; converged largest slack: infeasible QPs >= {:.3e}, solved QPs <= {:.3e}",
+                c.disagreements,
+                c.ticks,
+                c.exited,
+                c.infeasible,
+                c.iterations_with_exit,
+                c.iterations_converged,
+                c.solved_cost_differences,
+                c.infeasible_min_slack.unwrap_or(f64::NAN),
+                c.solved_max_slack.unwrap_or(f64::NAN)
+            );
+        }
         if let Some(m) = f.replay_matches_rollout_ticks {
             println!(
                 "{name}: the replay reproduced the rollout's QP status and iterations on {m} of {} ticks",
@@ -640,6 +806,7 @@ pub fn run(args: &Args) -> Result<()> {
             scenario: args.scenario.clone(),
             state_rows: args.state_rows.clone(),
             warm_start: args.warm_start.clone(),
+            infeasibility_exit: args.infeasibility_exit.clone(),
             replay_state_rows: args.replay_state_rows.clone(),
             standard: task.is_none().then_some(Scenario {
                 vehicle: "fa-hexa",

@@ -400,6 +400,10 @@ fn mpc_bench_reports_both_qp_paths_and_refuses_bad_input() {
         &["--replay-state-rows"],
     );
     assert_bad_input(&amstack(&["mpc-bench", "--penalty", "0"]), &["--penalty"]);
+    assert_bad_input(
+        &amstack(&["mpc-bench", "--infeasibility-exit", "sometimes"]),
+        &["--infeasibility-exit sometimes"],
+    );
 }
 
 #[test]
@@ -416,6 +420,8 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
         "push-slider",
         "--paths",
         "riccati",
+        "--infeasibility-exit",
+        "check",
         "--json",
         &json_arg,
     ]);
@@ -452,6 +458,21 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
         p["qp_iterations_max"].as_u64().is_some_and(|i| i < 40),
         "{p}"
     );
+    // The early infeasibility exit against the same QPs solved to convergence: the same
+    // status on every tick, every feasible QP's cost and iterations unchanged, and the
+    // infeasible QPs stopped in fewer iterations.
+    let check = &p["exit_check"];
+    assert_eq!(check["ticks"].as_u64(), Some(ticks), "{check}");
+    assert_eq!(check["disagreements"], 0, "{check}");
+    assert_eq!(check["solved_cost_differences"], 0, "{check}");
+    assert_eq!(check["infeasible"].as_u64(), Some(infeasible), "{check}");
+    let exited = check["exited"].as_u64().unwrap_or(0);
+    assert!(infeasible > 0 && exited * 2 > infeasible, "{check}");
+    let (with_exit, converged) = (
+        check["iterations_with_exit"].as_u64().unwrap_or(u64::MAX),
+        check["iterations_converged"].as_u64().unwrap_or(0),
+    );
+    assert!(with_exit < converged, "{check}");
 }
 
 #[test]

@@ -2,9 +2,16 @@
 //! (`controllers::mpc::scenario`, FA-Hexa EE step toward a wall), the loop closed on the model.
 //! `amstack mpc-bench` reports the per-step distribution; this measures the mean under
 //! criterion (`riccati_cold_start`: the Riccati path without its warm start).
+//!
+//! `mpc_infeasible_qp`: one Riccati solve of a QP whose hard rows are infeasible (the standard
+//! scenario's first QP with the base at 2.5 m/s toward the wall 0.3 m ahead, what contact
+//! poses), with the early infeasibility exit (`exit`) and run to convergence (`converged`).
 
+use controllers::mpc::model::IX_V;
 use controllers::mpc::scenario::WallStepScenario;
-use controllers::mpc::{MpcConfig, QpPath};
+use controllers::mpc::{
+    InfeasibilityExit, MpcConfig, QpPath, QpSolution, QpSolver, QpStatus, RiccatiIpm,
+};
 use criterion::{Criterion, criterion_group, criterion_main};
 use platform::Vehicle;
 
@@ -49,5 +56,37 @@ fn rti_step(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, rti_step);
+fn infeasible_qp(c: &mut Criterion) {
+    let vehicle = match Vehicle::builtin("fa-hexa") {
+        Ok(v) => v,
+        Err(e) => panic!("fa-hexa: {e}"),
+    };
+    let config = MpcConfig::fa_hexa();
+    let mut run = match WallStepScenario::new(&vehicle, config) {
+        Ok(s) => s,
+        Err(e) => panic!("mpc: {e}"),
+    };
+    run.prepare();
+    let mut qp = run.rti().qp().clone();
+    qp.x0[IX_V] = 2.5;
+    let limit = config.state_row_slack_limit.unwrap_or(1e-3);
+    let mut group = c.benchmark_group("mpc_infeasible_qp");
+    for (name, exit) in [
+        ("exit", Some(InfeasibilityExit::new(limit))),
+        ("converged", None),
+    ] {
+        let mut solver = RiccatiIpm::new(config.qp);
+        solver.set_infeasibility_exit(exit);
+        let mut out = QpSolution::zeros(qp.intervals);
+        // Both classify it alike: `infeasible` (exit) or a slack above the limit.
+        let status = solver.solve(&qp, &mut out);
+        let infeasible = status == QpStatus::Infeasible
+            || (status == QpStatus::Solved && out.slack.iter().any(|t| *t > limit));
+        assert!(infeasible, "{name}: {status:?}");
+        group.bench_function(name, |b| b.iter(|| solver.solve(&qp, &mut out)));
+    }
+    group.finish();
+}
+
+criterion_group!(benches, rti_step, infeasible_qp);
 criterion_main!(benches);

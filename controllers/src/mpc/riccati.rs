@@ -37,6 +37,13 @@
 //! (r_ν = t∘ν − σμ (+ Mehrotra term), μ averaged over both pairs). A hard row is the limit
 //! t → 0: the recursion is the same, so a soft QP costs the same per iteration.
 //!
+//! # Early infeasibility exit
+//!
+//! With a slack limit ([`InfeasibilityExit`]), a solve stops with status `Infeasible` once a
+//! weak-duality certificate proves that every solution has a soft slack above the limit (the
+//! hard QP relaxed by the limit cannot reach the penalised objective the iterate attains):
+//! what the converged solve and the limit would classify, in about half the iterations.
+//!
 //! Cost per iteration: one recursion of N stages with ~6k flops each (dense P: `VᵀV` and the
 //! triangular solves dominate), two vector sweeps. No allocation after the first solve.
 
@@ -248,6 +255,57 @@ pub struct RiccatiIpm {
     prev_valid: bool,
     /// The next solve starts warm, its duals shifted by this many intervals (None: cold).
     warm_shift: Option<f64>,
+    /// The early infeasibility exit (None: every solve runs to convergence).
+    exit: Option<InfeasibilityExit>,
+    /// The exit's certificate: the two directions and a trial point.
+    cert_dx: Vec<StateVector>,
+    cert_du: Vec<InputVector>,
+    cert_x: Vec<StateVector>,
+    cert_u: Vec<InputVector>,
+}
+
+/// The early infeasibility exit of a soft-row QP ([`RiccatiIpm::set_infeasibility_exit`]).
+///
+/// A soft QP whose solution has a slack above `limit` on some row is what the MPC classifies
+/// as `infeasible` (the hard QP has no solution; see `state_row_slack_limit`); an interior
+/// point proves it only at convergence. The exit stops such a solve early, status
+/// `Infeasible`, when a certificate proves by weak duality that **every** solution of the
+/// soft QP has a slack above `limit` (see `RiccatiIpm::certify_infeasible`): the hard QP with
+/// every state row relaxed by `limit` cannot reach the objective the iterate already
+/// attains with its slacks. The certificate costs about one iteration; a cheap screen decides
+/// when to try it: from iteration `min_iterations`, an iterate primal feasible to `residual`
+/// with some soft row whose slack t and violation `G z − h` are both at least
+/// `factor × limit` and whose multiplier ν is at most `nu_fraction × ρ` (λ has reached ρ).
+/// At most `max_attempts` certificates per solve. A solve the exit does not stop is
+/// unchanged, bit for bit (the gradients the certificate overwrites are recomputed).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InfeasibilityExit {
+    /// The slack limit (m or rad): `state_row_slack_limit`.
+    pub limit: f64,
+    /// Screen: how far above the limit t and the violation must be.
+    pub factor: f64,
+    /// Screen: ν below this fraction of ρ.
+    pub nu_fraction: f64,
+    /// Screen: first iteration count at which a certificate is tried.
+    pub min_iterations: u32,
+    /// Screen: largest primal residual |G z + s − t − h| of the iterate.
+    pub residual: f64,
+    /// Most certificates tried per solve.
+    pub max_attempts: u32,
+}
+
+impl InfeasibilityExit {
+    /// The exit for slack limit `limit` with the default screen.
+    pub fn new(limit: f64) -> Self {
+        Self {
+            limit,
+            factor: 3.0,
+            nu_fraction: 5e-2,
+            min_iterations: 2,
+            residual: 1e-2,
+            max_attempts: 8,
+        }
+    }
 }
 
 impl RiccatiIpm {
@@ -306,7 +364,35 @@ impl RiccatiIpm {
             prev_start: Vec::new(),
             prev_valid: false,
             warm_shift: None,
+            exit: None,
+            cert_dx: Vec::new(),
+            cert_du: Vec::new(),
+            cert_x: Vec::new(),
+            cert_u: Vec::new(),
         }
+    }
+
+    /// Sets the early infeasibility exit of soft-row QPs (None: off; see
+    /// [`InfeasibilityExit`]).
+    pub fn set_infeasibility_exit(&mut self, exit: Option<InfeasibilityExit>) {
+        self.exit = exit;
+    }
+
+    /// The early infeasibility exit.
+    pub fn infeasibility_exit(&self) -> Option<InfeasibilityExit> {
+        self.exit
+    }
+
+    /// Whether some soft row of the iterate passes the exit's screen (see
+    /// [`InfeasibilityExit`]): r_ineq holds the iterate's residuals.
+    fn exit_row_passes(&self, exit: &InfeasibilityExit) -> bool {
+        let bound = exit.factor * exit.limit;
+        let nu_max = exit.nu_fraction * self.rho;
+        self.soft_index.iter().any(|&i| {
+            // G z − h = r_i − s + t.
+            let violation = self.r_ineq[i] - self.s[i] + self.t[i];
+            self.t[i] >= bound && violation >= bound && self.nu[i] <= nu_max
+        })
     }
 
     /// Starts the next solve from the last solved QP's multipliers, shifted by
@@ -464,6 +550,110 @@ impl RiccatiIpm {
         resize_x(&mut self.keep_dx, n + 1);
         resize_x(&mut self.keep_y, n + 1);
         resize_u(&mut self.keep_du, n);
+        if self.exit.is_some() {
+            resize_x(&mut self.cert_dx, n + 1);
+            resize_x(&mut self.cert_x, n + 1);
+            resize_u(&mut self.cert_du, n);
+            resize_u(&mut self.cert_u, n);
+        }
+    }
+
+    /// The exit's certificate (weak duality): true when no point of the hard QP with every
+    /// state row relaxed by `limit` can have an objective as low as the soft QP's optimum,
+    /// so every solution of the soft QP has a slack above `limit`.
+    ///
+    /// With `U` the penalised objective of a point feasible for the soft QP (the iterate
+    /// (x, u), when it satisfies every hard row, with the least slacks `t = max(G z − h, 0)`),
+    /// `U ≥ J* + ρΣt* ≥ J(z*)`. For any multipliers `κλ ≥ 0` on every row, the Lagrangian's
+    /// minimum over the dynamics, `F(κ) = min J(z) + κ λᵀ(G z − h − limit·[soft])`, bounds
+    /// from below J on the relaxed hard QP's feasible set. If `max_κ F(κ) > U`, a solution
+    /// with every slack at most `limit` would lie in that set with `J(z*) ≤ U < F`: none
+    /// exists. F is a concave quadratic in κ; its minimiser is `z̄ + dz_a + κ dz_b` (one
+    /// Riccati factorisation with W = 0, two sweeps), so F is evaluated exactly (up to
+    /// round-off) at three κ and at the maximiser of the parabola through them.
+    ///
+    /// Overwrites the factorisation, the gradients and the sweep's buffers: the caller
+    /// recomputes what the next iteration reads (the gradients at the iterate).
+    fn certify_infeasible(
+        &mut self,
+        qp: &StructuredQp,
+        x: &[StateVector],
+        u: &[InputVector],
+        limit: f64,
+    ) -> bool {
+        let n = qp.intervals;
+        let tol = self.settings.tolerance;
+        // U, at the iterate (every hard row must hold exactly).
+        let mut violation_sum = 0.0;
+        for k in 0..=n {
+            for idx in self.start[k]..self.start[k + 1] {
+                let row = self.rows[idx];
+                let v = Self::row_value(qp, k, &row, &x[k], u.get(k)) - row.h;
+                if row.soft {
+                    violation_sum += v.max(0.0);
+                } else if v > 0.0 {
+                    return false;
+                }
+            }
+        }
+        let upper = qp.objective(x, u) + self.rho * violation_sum;
+        // The unconstrained factorisation (W = 0; w is rewritten before its next use).
+        self.w.fill(0.0);
+        if !self.factorize(qp) {
+            return false;
+        }
+        self.costates = false;
+        // dz_a: the step to the unconstrained minimiser of J from the iterate.
+        self.cost_gradient(qp, x, u);
+        self.rhs_x.copy_from_slice(&self.gx);
+        self.rhs_u.copy_from_slice(&self.gu);
+        self.sweep(qp);
+        self.cert_dx.copy_from_slice(&self.dx);
+        self.cert_du.copy_from_slice(&self.du);
+        // dz_b: the step for the linear term Gᵀλ.
+        for g in &mut self.gx {
+            *g = StateVector::zeros();
+        }
+        for g in &mut self.gu {
+            *g = InputVector::zeros();
+        }
+        self.coef.copy_from_slice(&self.lambda);
+        self.newton_rhs(qp);
+        self.sweep(qp);
+        // A row relaxed by a little more than the limit: the converged solve's rows hold to
+        // its tolerance.
+        let relax = limit + 10.0 * tol;
+        let f = |ipm: &mut Self, kappa: f64| -> f64 {
+            for k in 0..=n {
+                ipm.cert_x[k] = x[k] + ipm.cert_dx[k] + ipm.dx[k] * kappa;
+                if k < n {
+                    ipm.cert_u[k] = u[k] + ipm.cert_du[k] + ipm.du[k] * kappa;
+                }
+            }
+            let mut lagrangian = 0.0;
+            for k in 0..=n {
+                for idx in ipm.start[k]..ipm.start[k + 1] {
+                    let row = ipm.rows[idx];
+                    let v = Self::row_value(qp, k, &row, &ipm.cert_x[k], ipm.cert_u.get(k));
+                    let h = row.h + if row.soft { relax } else { 0.0 };
+                    lagrangian += ipm.lambda[idx] * (v - h);
+                }
+            }
+            qp.objective(&ipm.cert_x, &ipm.cert_u) + kappa * lagrangian
+        };
+        let (f0, f1, f2) = (f(self, 0.0), f(self, 1.0), f(self, 2.0));
+        let curvature = -(f2 - 2.0 * f1 + f0);
+        let slope = f1 - f0 + 0.5 * curvature;
+        let kappa = if curvature > 0.0 {
+            (slope / curvature).max(0.0)
+        } else {
+            2.0
+        };
+        let best = f(self, kappa).max(f1).max(f2);
+        // The converged solve's optimality gap and round-off.
+        let pairs = (self.rows.len() + self.soft_count) as f64;
+        let margin = 1e-9 * (upper.abs() + best.abs()) + pairs * tol;
+        best > upper + margin
     }
 
     /// The value of row `r` of stage `k` at (x, u).
@@ -1190,6 +1380,9 @@ impl QpSolver for RiccatiIpm {
         // Whether the last good iterate was near enough the solution for the polish to find
         // its active set (a factorisation that breaks down late in a very tight solve).
         let mut near_solution = false;
+        // Certificates tried.
+        let mut exit_attempts = 0;
+        let exit = self.exit.filter(|_| self.soft_count > 0);
         loop {
             // Residuals at the iterate.
             self.cost_gradient(qp, &out.x, &out.u);
@@ -1247,6 +1440,20 @@ impl QpSolver for RiccatiIpm {
             near_solution = stationarity <= POLISH_RESCUE_TOLERANCE * gradient_scale
                 && r_ineq_max <= POLISH_RESCUE_TOLERANCE
                 && mu <= POLISH_RESCUE_TOLERANCE;
+            if let Some(exit) = &exit
+                && iterations >= exit.min_iterations
+                && exit_attempts < exit.max_attempts
+                && r_ineq_max <= exit.residual
+                && self.exit_row_passes(exit)
+            {
+                exit_attempts += 1;
+                if self.certify_infeasible(qp, &out.x, &out.u, exit.limit) {
+                    status = QpStatus::Infeasible;
+                    break;
+                }
+                // The iteration reads the gradients at the iterate.
+                self.cost_gradient(qp, &out.x, &out.u);
+            }
             if iterations >= self.settings.max_iterations {
                 break;
             }
@@ -1535,6 +1742,117 @@ mod tests {
     /// Objective with the soft rows' penalty (what both solves minimise).
     fn penalised(qp: &StructuredQp, s: &QpSolution) -> f64 {
         qp.objective(&s.x, &s.u) + qp.soft_penalty.unwrap_or(0.0) * s.slack.iter().sum::<f64>()
+    }
+
+    /// The MPC's classification of a converged soft solve: `infeasible` when a slack exceeds
+    /// the limit (what `SqpRti::feedback` does with `state_row_slack_limit`).
+    fn classify(status: QpStatus, sol: &QpSolution, limit: f64) -> QpStatus {
+        if status == QpStatus::Solved && sol.slack.iter().any(|t| *t > limit) {
+            QpStatus::Infeasible
+        } else {
+            status
+        }
+    }
+
+    #[test]
+    fn the_infeasibility_exit_classifies_as_the_converged_solve() {
+        let limit = 1e-3;
+        let (mut feasible, mut infeasible, mut stopped) = (0, 0, 0);
+        let (mut iterations_exit, mut iterations_converged) = (0, 0);
+        // The base from hovering to 3 m/s toward the wall 0.3 m ahead: the hard rows are
+        // feasible at low speeds, infeasible (by up to metres) at high ones.
+        for step in 0..=30 {
+            let qp = approaching_wall_qp(0.1 * f64::from(step));
+            let mut converged = RiccatiIpm::new(QpSettings::default());
+            let mut with_exit = RiccatiIpm::new(QpSettings::default());
+            with_exit.set_infeasibility_exit(Some(InfeasibilityExit::new(limit)));
+            let mut a = QpSolution::zeros(qp.intervals);
+            let mut b = QpSolution::zeros(qp.intervals);
+            let status_a = classify(converged.solve(&qp, &mut a), &a, limit);
+            let status_b = with_exit.solve(&qp, &mut b);
+            assert_eq!(
+                status_b, status_a,
+                "{step}: the exit must classify as convergence"
+            );
+            if status_a == QpStatus::Solved {
+                feasible += 1;
+                // A QP the exit does not stop is solved exactly as without it.
+                assert_eq!(a, b, "{step}: a feasible QP's answer changed");
+            } else {
+                assert_eq!(status_a, QpStatus::Infeasible, "{step}");
+                infeasible += 1;
+                iterations_exit += b.iterations;
+                iterations_converged += a.iterations;
+                if b.iterations < a.iterations {
+                    stopped += 1;
+                    // What it reports: a slack beyond the limit, as the converged solve has.
+                    assert!(b.slack.iter().any(|t| *t > limit));
+                }
+            }
+        }
+        assert!(
+            feasible >= 3 && infeasible >= 3,
+            "{feasible} feasible, {infeasible} infeasible"
+        );
+        assert!(
+            stopped * 2 >= infeasible,
+            "{stopped} of {infeasible} stopped early"
+        );
+        assert!(
+            iterations_exit < iterations_converged,
+            "{iterations_exit} iterations with the exit, {iterations_converged} without"
+        );
+    }
+
+    #[test]
+    fn the_infeasibility_certificate_never_fires_below_the_solutions_slack() {
+        // The screen always passes: the certificate is tried at every iteration.
+        let always = |limit: f64| InfeasibilityExit {
+            limit,
+            factor: 0.0,
+            nu_fraction: 1.0,
+            min_iterations: 0,
+            residual: f64::INFINITY,
+            max_attempts: u32::MAX,
+        };
+        let mut checked = 0;
+        for speed in [1.5, 2.0, 2.5, 3.0] {
+            let qp = approaching_wall_qp(speed);
+            let mut converged = RiccatiIpm::new(QpSettings::default());
+            let mut a = QpSolution::zeros(qp.intervals);
+            assert_eq!(converged.solve(&qp, &mut a), QpStatus::Solved);
+            let largest = a.slack.iter().copied().fold(0.0, f64::max);
+            assert!(
+                largest > 1e-2,
+                "{speed} m/s: the hard rows must be infeasible"
+            );
+            // A limit just above the solution's largest slack: the converged solve takes the
+            // solution, so the exit must never claim infeasibility, and leaves the solve as
+            // it was, bit for bit.
+            let mut with_exit = RiccatiIpm::new(QpSettings::default());
+            with_exit.set_infeasibility_exit(Some(always(1.01 * largest)));
+            let mut b = QpSolution::zeros(qp.intervals);
+            assert_eq!(
+                with_exit.solve(&qp, &mut b),
+                QpStatus::Solved,
+                "{speed} m/s"
+            );
+            assert_eq!(a, b, "{speed} m/s");
+            // Half the largest slack: proven infeasible before convergence.
+            with_exit.set_infeasibility_exit(Some(always(0.5 * largest)));
+            assert_eq!(
+                with_exit.solve(&qp, &mut b),
+                QpStatus::Infeasible,
+                "{speed} m/s"
+            );
+            assert!(
+                b.iterations < a.iterations,
+                "{speed} m/s: {} iterations",
+                b.iterations
+            );
+            checked += 1;
+        }
+        assert_eq!(checked, 4);
     }
 
     #[test]

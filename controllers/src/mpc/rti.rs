@@ -57,7 +57,7 @@ use crate::mpc::qp::{
     InputMatrix, InputStateMatrix, InputVector, NU, NX, QpSolution, QpSolver, QpStatus,
     StateInputMatrix, StateMatrix, StateVector, StructuredQp,
 };
-use crate::mpc::riccati::RiccatiIpm;
+use crate::mpc::riccati::{InfeasibilityExit, RiccatiIpm};
 
 /// Bounded state entries: position, Euler angles, arm joints.
 const STATE_BOUND_INDICES: [usize; 10] = [
@@ -244,7 +244,11 @@ impl SqpRti {
             reference: None,
             qp,
             solution: QpSolution::zeros(n),
-            riccati: RiccatiIpm::new(config.qp),
+            riccati: {
+                let mut riccati = RiccatiIpm::new(config.qp);
+                riccati.set_infeasibility_exit(Self::default_exit(&config));
+                riccati
+            },
             clarabel: ClarabelQp::new(config.qp),
             warm: false,
             qp_warm_start: true,
@@ -287,6 +291,28 @@ impl SqpRti {
         if !on {
             self.riccati.forget();
         }
+    }
+
+    /// The Riccati path's early infeasibility exit for `config`: on with soft state rows and
+    /// a slack limit.
+    fn default_exit(config: &MpcConfig) -> Option<InfeasibilityExit> {
+        config
+            .state_row_penalty
+            .and(config.state_row_slack_limit)
+            .map(InfeasibilityExit::new)
+    }
+
+    /// Sets the Riccati path's early infeasibility exit (default: on with soft state rows and
+    /// a slack limit, [`InfeasibilityExit::new`]; None: every QP runs to convergence). It
+    /// stops a solve whose soft rows have proven the hard QP infeasible, status `infeasible`,
+    /// as the converged solve and the slack limit would classify it.
+    pub fn set_qp_infeasibility_exit(&mut self, exit: Option<InfeasibilityExit>) {
+        self.riccati.set_infeasibility_exit(exit);
+    }
+
+    /// The default exit of this OCP's config (None without soft rows and a slack limit).
+    pub fn default_qp_infeasibility_exit(&self) -> Option<InfeasibilityExit> {
+        Self::default_exit(&self.config)
     }
 
     /// Forgets the previous solution: the next step starts cold.
