@@ -3,8 +3,10 @@
 //!
 //! The lever root is fixed at wall-local (−0.08, y, z), y, z ~ U(±0.3) (its 0.06 m thick base
 //! on the wall face), turned as the wall ⊗ (0.7071, 0, −0.7071, 0). The arm turns on the
-//! revolute `lever_joint` (stiffness 20 N·m/rad toward 0, damping 100 N·m·s/rad, effort
-//! 50 N·m, start 0) about the wall's y; q > 0 lifts the arm's free end (the scripted pull).
+//! revolute `lever_joint` (stiffness 20 toward 0, damping 100, effort 50 N·m, start 0) about
+//! the wall's y; q > 0 lifts the arm's free end (the scripted pull). Its drive is an
+//! acceleration drive ([`DriveType::Acceleration`], [U]: the reference sets the gains, its USD
+//! the type): 20 /s² and 100 /s per unit of the arm's 2.8167e-3 kg·m² about the pivot.
 //! It is a multibody (reduced-coordinate) joint, as the reference's PhysX articulation
 //! ([`ReducedJoint`]). The spawn's rigid-body properties (gravity off) apply, as in Isaac
 //! Lab, to every body of the asset: the arm floats too. Observation: `lever_pos` (the root),
@@ -33,17 +35,16 @@
 //!   its wrist orientation (FA-Hexa) fights the lever instead: the lever turns only as far as
 //!   the whole vehicle pitches.
 //!
-//! What the script needs (measured with `scripts/lever_load.py`, docs/pull-lever.md): the
-//! grasp holds 2.45 s (steps ~776–1070); turning 0.698 rad through the damper in that time
-//! asks 28.5 N·m on average, the spring ~7 more. The EE-only oracle gives 35.4 N·m (72 at
-//! most: the drive's torque is capped at its 50 N·m effort, as a PhysX drive's `maxForce`,
-//! test `the_lever_drive_gives_at_most_its_50_n_m_effort`); the FA-Hexa IK-PID 11.8, the
-//! lever at the end of the hold 13.1° with the base pitched 12.2°. The pull target lies on
-//! the circle the grasped EE link turns on (0.29 m, at 59°; test
+//! Why an acceleration drive (measured with `scripts/lever_load.py`, docs/pull-lever.md): read
+//! as a force drive in SI units, the lever asked ~35 N·m for the 2.45 s the grasp holds
+//! (steps ~776–1070): 0.698 rad through 100 N·m·s/rad plus the spring. The EE-only oracle gave
+//! 35.4 N·m; the FA-Hexa IK-PID 11.8, its lever at 13.1° at the end of the hold with the base
+//! pitched 12.2° (0 of 30), where the paper's FA-Hexa pulls it. As an acceleration drive the
+//! lever resists ~0.4 N·m·s/rad (with rapier's default 0.1 on a free angular multibody
+//! joint) and the FA-Hexa pulls it, pitching with it. The pull target lies on the circle the
+//! grasped EE link turns on (0.29 m, at 59°; test
 //! `the_pull_target_lies_on_the_ee_links_circle_not_on_a_level_hands`): a hand that keeps
-//! the script's orientation cannot reach it. A grip pivoting about the lever's axis at the
-//! pads (tried, see `objects::free_axis_frame`) gave the FA-Hexa 24° and made the oracle
-//! swing; with a tenth of the damping either grasp succeeds. The twin keeps the spec's drive.
+//! the script's orientation cannot reach it; the vehicle pitches instead.
 
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use platform::{Actuation, Vehicle};

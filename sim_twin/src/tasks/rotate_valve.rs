@@ -3,9 +3,11 @@
 //!
 //! The valve root is fixed at wall-local (−0.06, y, z), y, z ~ U(±0.2), turned as the wall ⊗
 //! (0.5, 0.5, 0.5, 0.5) (its local z along the wall normal n). Two revolute joints about n:
-//! `base_to_shaft` (root → wheel; damping 15 N·m·s/rad, Coulomb friction 0.2 N·m, effort
-//! 20 N·m) and `disk_to_handle` (wheel → handle; damping 10, friction 0.1, effort 20), both
-//! starting at 0. `base_to_shaft` is positive about +n, the sense of the scripted circle
+//! `base_to_shaft` (root → wheel; damping 15, Coulomb friction 0.2 N·m, effort 20) and
+//! `disk_to_handle` (wheel → handle; damping 10, friction 0.1, effort 20), both starting at 0.
+//! Their drives are acceleration drives ([`DriveType::Acceleration`], [U]: the reference sets
+//! the gains, its USD the type): the damping acts per unit of the joint's effective inertia.
+//! `base_to_shaft` is positive about +n, the sense of the scripted circle
 //! (from −w_z toward +w_y). Both are multibody (reduced-coordinate) joints, as the
 //! reference's PhysX articulation ([`ReducedJoint`]); the shaft angle is the joint
 //! coordinate, continuous across ±π.
@@ -28,12 +30,13 @@
 //!
 //! Observation: `goal_pos` (the handle), plus `valve_angle` (the shaft angle) for traces.
 //!
-//! What the script needs: the circle turns the handle at 1.8π/5 s = 1.13 rad/s, against
-//! 15 N·m·s/rad (capped at 20 N·m): ~140 N at the 0.12 m handle to follow it, ≥ 75 N to
-//! reach 170° before the circle ends. The PID6 force is m·(200·e + 80·∫e + …): the 0.22 kg
-//! EE-only oracle of `ee-only.urdf` gives ~9 N at 0.2 m of error and turns the valve ~6°; the
-//! same scene with the oracle's ee_link at 4 or 5 kg (a vehicle file outside the repository)
-//! succeeds in every rollout.
+//! What the script needs: the circle turns the handle at 1.8π/5 s = 1.13 rad/s. Read as a
+//! force drive in SI units, 15 N·m·s/rad (capped at 20 N·m) asked ~140 N at the 0.12 m handle:
+//! the FA-Hexa's base rolled 27° following it and could not turn it under the reference's
+//! rotor limits, and the UA-Hexa could not turn it at all, where the paper's FA-Hexa turns it
+//! level and its UA-Hexa by tilting. As an acceleration drive the shaft resists
+//! 15 · 1.28e-3 + 0.1 (rapier's default on a free angular multibody joint) = 0.12 N·m·s/rad
+//! plus its 0.2 N·m of friction: ~3 N at the handle.
 
 use nalgebra::{Isometry3, Quaternion, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
