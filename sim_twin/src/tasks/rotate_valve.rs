@@ -308,7 +308,7 @@ mod tests {
         let s = shaft(&scene);
         let wall = scene.wall.unwrap_or_else(|| panic!("no wall"));
         let torque = wall.pose.rotation * Vector3::x() * 0.25;
-        let mut run = |w: &mut PhysicsWorld, steps: usize| {
+        let run = |w: &mut PhysicsWorld, steps: usize| {
             for _ in 0..steps {
                 if let Some(rb) = w.bodies.get_mut(s.link) {
                     rb.reset_forces(false);
