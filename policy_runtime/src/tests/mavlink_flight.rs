@@ -114,6 +114,11 @@ impl Autopilot {
                     if self.streaming {
                         self.offboard = true;
                         self.ack(c.command, MavResult::MAV_RESULT_ACCEPTED);
+                        // The new mode goes out at once (the idle heartbeats stop once armed
+                        // in offboard: a client arming within one 100 ms idle period would
+                        // otherwise never hear it; seen on a loaded machine).
+                        let hb = self.heartbeat();
+                        self.send(&hb);
                     } else {
                         self.ack(c.command, MavResult::MAV_RESULT_TEMPORARILY_REJECTED);
                     }
@@ -121,6 +126,8 @@ impl Autopilot {
                 MavCmd::MAV_CMD_COMPONENT_ARM_DISARM => {
                     self.armed = c.param1 == 1.0;
                     self.ack(c.command, MavResult::MAV_RESULT_ACCEPTED);
+                    let hb = self.heartbeat();
+                    self.send(&hb);
                 }
                 // AUTOPILOT_VERSION, as the twin's autopilot answers it (with or without the
                 // actuator extension).
