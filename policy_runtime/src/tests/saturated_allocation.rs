@@ -50,9 +50,8 @@ fn under_rotor_limits_the_prioritized_allocation_keeps_roll_and_pitch() {
     let roll_pitch =
         |r: &TickRecord| Vector3::new(r.unallocated.torque.x, r.unallocated.torque.y, 0.0).norm();
     // Prioritized (measured: 0.0028 N·m; the clamp 0.72): the force gives way; roll and
-    // pitch keep all but what the weights trade
-    // (1 N·m of roll or pitch weighs as 100 N of force): ~110 N of force left out costs
-    // under 0.01 N·m.
+    // pitch keep all but what the weights trade (1 N·m of roll or pitch weighs as 100 N of
+    // force): ~110 N of force left out costs under 0.01 N·m.
     assert!(
         roll_pitch(&prioritized) < 0.01,
         "{:?}",
