@@ -2,11 +2,20 @@
 //! q = −0.5 m to 0.45 m.
 //!
 //! [U] choices (the reference keeps the slider only as a USD asset): the rail is a fixed bar
-//! 1.1 m long, 0.02 m deep and 0.04 m high on the wall face; the knob ("Slider" body) is a box
-//! 0.03 m along the rail, 0.16 m out from the rail and 0.08 m high, mass 0.2 kg, its origin at
-//! its centre (0.10 m off the wall face); the joint is limited to [−0.5, 0.5] m. The root is
-//! the wall frame turned 180° about z, so the joint's positive direction is −w_y (the
-//! scripted push direction).
+//! 1.1 m long, 0.02 m deep and 0.04 m high on the wall face; the knob ("Slider" body) is a
+//! round bar 0.03 m across standing 0.16 m out from the rail along the wall's normal, mass
+//! 0.2 kg, its origin at its centre (0.10 m off the wall face); the joint is limited to
+//! [−0.5, 0.5] m. The root is the wall frame turned 180° about z, so the joint's positive
+//! direction is −w_y (the scripted push direction).
+//!
+//! The knob is round (a departure from this module's earlier box, 0.03 × 0.16 × 0.08 m; the
+//! reference's shape is not known): the twin's grasp lets a round bar turn in the fingers
+//! about its axis (`objects::Grasp`), so a hand holding the knob may roll about the wall's
+//! normal — which an under-actuated vehicle must do to push along the rail (its thrust tilts
+//! toward the push). Welded to a box knob, the UA-Hexa's roll fought the grasp and, under the
+//! reference's rotor limits, it pushed the knob 0.16 m of the 0.95 m in 0 of 10 rollouts;
+//! with the round knob 10 of 10 (tilt 9.9°, the paper's embodiment table 0.143 rad). The
+//! knob keeps the box's 0.03 m along the rail, so the fingers close on the same width.
 
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rapier3d_f64::prelude::*;
@@ -26,7 +35,10 @@ pub(crate) const INITIAL_M: f64 = -0.5;
 pub(crate) const ENGAGED_M: f64 = 0.05 * (PUSHED_M - INITIAL_M);
 
 const RAIL_DEPTH_M: f64 = 0.02;
-const KNOB_HALF: Vector3<f64> = Vector3::new(0.08, 0.015, 0.04);
+/// Half the knob's length out from the rail, m.
+const KNOB_HALF_LENGTH_M: f64 = 0.08;
+/// The knob's radius, m (0.03 m across, along the rail as across it).
+pub(crate) const KNOB_RADIUS_M: f64 = 0.015;
 
 const SPEC: JointSpec = JointSpec {
     dof: Dof::Prismatic,
@@ -76,7 +88,7 @@ impl Scene for PushSlider {
         let root_from_joint = Isometry3::rotation(Vector3::z() * std::f64::consts::FRAC_PI_2);
         // Knob centre in the joint frame at q = 0: out of the wall along the root's x, which
         // is the joint frame's −y.
-        let out = RAIL_DEPTH_M + KNOB_HALF.x;
+        let out = RAIL_DEPTH_M + KNOB_HALF_LENGTH_M;
         let joint_from_link0 = Isometry3::from_parts(
             nalgebra::Translation3::new(0.0, -out, 0.0),
             root_from_joint.rotation.inverse(),
@@ -86,9 +98,11 @@ impl Scene for PushSlider {
             root,
             root_from_joint,
             joint_from_link0,
+            // rapier's cylinders stand along their local y; the knob's axis is the link's x
+            // (out of the wall).
             vec![(
-                ColliderBuilder::cuboid(KNOB_HALF.x, KNOB_HALF.y, KNOB_HALF.z),
-                Isometry3::identity(),
+                ColliderBuilder::cylinder(KNOB_HALF_LENGTH_M, KNOB_RADIUS_M),
+                Isometry3::rotation(Vector3::z() * -std::f64::consts::FRAC_PI_2),
             )],
             0.2,
             &SPEC,
@@ -144,6 +158,12 @@ impl PushSlider {
         if let Some(s) = &self.slider {
             s.set_position(world, q);
         }
+    }
+
+    /// The knob's body (tests).
+    #[cfg(test)]
+    pub(crate) fn knob(&self) -> Option<RigidBodyHandle> {
+        self.slider.as_ref().map(|s| s.link)
     }
 
     fn position(&self, world: &PhysicsWorld) -> f64 {

@@ -399,3 +399,53 @@ fn a_grasped_round_bar_spins_about_its_own_axis_and_nothing_else_turns() {
         );
     }
 }
+
+/// Push Slider's knob held by a hand (a free ball of 0.03 m radius on the knob's axis, 0.05 m
+/// beyond its end), no gravity, a torque on the hand for 0.5 s: the angle it turned, rad.
+fn roll_the_hand_on_the_knob(torque_in_knob_frame: Vector3<f64>) -> f64 {
+    let mut scene = super::push_slider::PushSlider::default();
+    let mut w = built(&mut scene, 4);
+    w.gravity = Vector::ZERO;
+    let knob = scene.knob().expect("the scene has a knob");
+    let knob_pose = super::objects::pose_of(&w, knob);
+    // The knob's axis is its link's x, out of the wall toward the vehicle.
+    let hand_at = knob_pose * nalgebra::Point3::new(0.08 + 0.05, 0.0, 0.0);
+    let hand = w.insert_body(
+        RigidBodyBuilder::dynamic()
+            .pose(crate::convert::pose_to_rapier(&Isometry3::translation(
+                hand_at.x, hand_at.y, hand_at.z,
+            )))
+            .build(),
+    );
+    w.insert_collider(ColliderBuilder::ball(0.03).density(1000.0), Some(hand));
+    let mut grasp = super::objects::Grasp::default();
+    grasp.attach(&mut w, hand, knob, 2.0 * super::push_slider::KNOB_RADIUS_M);
+    let torque = knob_pose.rotation * torque_in_knob_frame;
+    for _ in 0..240 {
+        if let Some(rb) = w.bodies.get_mut(hand) {
+            rb.reset_torques(false);
+            rb.add_torque(vector_to_rapier(&torque), true);
+        }
+        w.step();
+    }
+    super::objects::pose_of(&w, hand).rotation.angle()
+}
+
+#[test]
+fn a_hand_holding_the_slider_knob_rolls_about_the_wall_normal_and_nothing_else_turns() {
+    // About the knob's axis the hand turns freely: ½·(τ/I)·t² with I = 0.4·m·r² of the ball
+    // (m = 1000 kg/m³ · 4/3·π·0.03³ = 0.1131 kg, I = 4.07e-5 kg·m²): 1e-4 N·m for 0.5 s is
+    // 0.307 rad. This is the roll an under-actuated vehicle pushing along the rail needs.
+    let m = 1000.0 * 4.0 / 3.0 * std::f64::consts::PI * 0.03f64.powi(3);
+    let free = 0.5 * 1e-4 / (0.4 * m * 0.03 * 0.03) * 0.25;
+    let rolled = roll_the_hand_on_the_knob(Vector3::new(1e-4, 0.0, 0.0));
+    assert!(
+        (rolled - free).abs() < 0.02 * free,
+        "the hand rolled {rolled} rad about the knob, free {free}"
+    );
+    // 1 N·m across the knob (about the rail and about the vertical): the grasp holds it.
+    for torque in [Vector3::new(0.0, 1.0, 0.0), Vector3::new(0.0, 0.0, 1.0)] {
+        let turned = roll_the_hand_on_the_knob(torque);
+        assert!(turned < 1e-3, "the hand turned {turned} rad under {torque:?}");
+    }
+}
