@@ -406,7 +406,9 @@ fn roll_the_hand_on_the_knob(torque_in_knob_frame: Vector3<f64>) -> f64 {
     let mut scene = super::push_slider::PushSlider::default();
     let mut w = built(&mut scene, 4);
     w.gravity = Vector::ZERO;
-    let knob = scene.knob().expect("the scene has a knob");
+    let Some(knob) = scene.knob() else {
+        panic!("the Push Slider scene has no knob");
+    };
     let knob_pose = super::objects::pose_of(&w, knob);
     // The knob's axis is its link's x, out of the wall toward the vehicle.
     let hand_at = knob_pose * nalgebra::Point3::new(0.08 + 0.05, 0.0, 0.0);
@@ -446,6 +448,9 @@ fn a_hand_holding_the_slider_knob_rolls_about_the_wall_normal_and_nothing_else_t
     // 1 N·m across the knob (about the rail and about the vertical): the grasp holds it.
     for torque in [Vector3::new(0.0, 1.0, 0.0), Vector3::new(0.0, 0.0, 1.0)] {
         let turned = roll_the_hand_on_the_knob(torque);
-        assert!(turned < 1e-3, "the hand turned {turned} rad under {torque:?}");
+        assert!(
+            turned < 1e-3,
+            "the hand turned {turned} rad under {torque:?}"
+        );
     }
 }
