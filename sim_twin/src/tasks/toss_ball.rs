@@ -27,14 +27,13 @@
 //!
 //! What the scripted throw reaches (the aimed script of `policy_runtime`, seed 0; the ball's
 //! state where the gripper lets it go, from the logs' `/task/state`; README "Toss Ball"): the
-//! swing's target runs 0.64–0.84 m ahead in 17–22 steps, far faster than any configuration
-//! follows, so each one's limits set the throw. The EE-only oracle (PID, desired velocity
-//! clamped to ±1 m/s per axis, AMBENCH_SPEC §2.2) releases at 1.9–2.2 m/s forward and
-//! 0.8–1.5 m/s up from 0.84–0.94 m and lands within ±0.14 m of the container's centre
-//! (30 of 30); the FA-Hexa with IK-PID releases at 2.5–2.9 and 1.6–3.6 m/s from 1.16–1.26 m,
-//! its base's speed plus its shoulder and elbow catching up with the IK's joint targets at
-//! their 5 rad/s drive limit, and lands 0.76–1.63 m past the centre (0 of 30); under the
-//! reference's rotor limits 0.04–0.44 m short (7 of 30).
+//! reference's swing ran 0.64–0.84 m in 17–22 steps, far faster than any configuration
+//! follows, so each one's lag set the throw (landings spread over 2.1 m; FA-Hexa IK-PID 0 of
+//! 30). The script's swing is now one smootherstep of 1.3–1.6 m peaking at 2.5 m/s, the ball
+//! let go at 0.8 of it: the EE-only oracle (PID, desired velocity clamped to ±1 m/s per axis,
+//! AMBENCH_SPEC §2.2) releases at 1.13–1.31 m/s forward and 0.72–0.95 m/s up, the FA-Hexa
+//! with IK-PID at 1.16–1.35 and 0.75–0.93 (1.46–1.60 and 0.84–1.01 under the reference's rotor
+//! limits), and all land within −0.13…+0.15 m of the container's centre (30 of 30 each).
 
 use nalgebra::{Isometry3, Vector3};
 use rapier3d_f64::prelude::*;
