@@ -50,7 +50,7 @@ saturation rate; N/A where a figure is undefined (no subtasks, no arm reach, no 
 Links: by default every rollout runs in a twin of its own in this process (--jobs threads).
 With --link ipc:<service> each rollout is a lockstep session of a twin in another process,
 one rollout at a time, with the same results bit for bit:
-  amstack twin serve --ipc bench --platform ee-only --flight-chooses-episode &
+  amstack twin serve --ipc bench --platform fa-hexa --flight-chooses-episode &
   amstack bench --link ipc:bench --task press-button --rollouts 5
 
 Shards: --shard I/N runs only shard I (0-based) of N of the run's rollouts -- rollout number
@@ -62,8 +62,10 @@ are of one run, complete and non-overlapping and writes what the unsharded run w
   amstack bench merge part0 part1 part2 --out run
 
 Examples:
-  amstack bench --task press-button --rollouts 5
-  amstack bench --platform fa-hexa --controller ik-pid --rollouts 30 --out runs/fa-ikpid
+  amstack bench --task press-button --rollouts 5       (FA-Hexa, IK-PID: the default)
+  amstack bench --rollouts 30 --out runs/fa-ikpid --disturbances reference
+  amstack bench --platform ee-only --rollouts 30       (the floating end-effector oracle)
+  amstack bench --controller mpc --task push-slider
   amstack bench --platform fa-hexa --interface joint --task push-slider --json slider.json")]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct Args {
@@ -72,8 +74,10 @@ pub struct Args {
     /// Task name, or `all`.
     #[arg(long, default_value = "all")]
     pub(crate) task: String,
-    /// Vehicle id (ee-only, fa-hexa, ua-hexa, ua-quad, omni-hexa, or one added with --vehicle).
-    #[arg(long, default_value = "ee-only")]
+    /// Vehicle id (fa-hexa, ee-only, ua-hexa, ua-quad, omni-hexa, or one added with
+    /// --vehicle). The default is the paper's main configuration: the FA-Hexa, EE interface,
+    /// IK-PID.
+    #[arg(long, default_value = "fa-hexa")]
     pub(crate) platform: String,
     /// Controller [default: pid on ee-only, ik-pid otherwise].
     #[arg(long)]

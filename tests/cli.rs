@@ -607,6 +607,8 @@ fn bench_writes_the_documented_results_and_one_log_per_rollout() {
     let json = dir.path().join("results.json");
     let out = amstack(&[
         "bench",
+        "--platform",
+        "ee-only",
         "--task",
         "press-button,push-slider",
         "--rollouts",

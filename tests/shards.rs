@@ -8,7 +8,9 @@ use std::process::{Command, Output};
 
 /// A small, fast run: two tasks of the EE-only oracle, two rollouts each (4 rollouts, so
 /// three shards hold 2, 1 and 1 of them).
-const RUN: [&str; 6] = [
+const RUN: [&str; 8] = [
+    "--platform",
+    "ee-only",
     "--task",
     "press-button,push-slider",
     "--rollouts",
@@ -280,6 +282,8 @@ fn a_sweep_runs_each_cell_as_bench_would_and_resumes() {
     ok(&amstack(
         &[
             "bench",
+            "--platform",
+            "ee-only",
             "--controller",
             "l1",
             "--task",

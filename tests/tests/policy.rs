@@ -64,7 +64,16 @@ impl Drop for Server {
 fn bench(dir: &Path, name: &str, args: &[&str]) -> Value {
     let json = dir.join(format!("{name}.json"));
     let out = Command::new(amstack())
-        .args(["bench", "--task", "press-button", "--jobs", "1", "--json"])
+        .args([
+            "bench",
+            "--platform",
+            "ee-only",
+            "--task",
+            "press-button",
+            "--jobs",
+            "1",
+            "--json",
+        ])
         .arg(&json)
         .args(args)
         .output()
