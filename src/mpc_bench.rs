@@ -109,14 +109,15 @@ pub struct Args {
     #[arg(long, default_value = "on", value_name = "on|off|check")]
     infeasibility_exit: String,
     /// The Riccati path's row screening (`controllers::mpc::RowScreening`): `on` (default,
-    /// as the controller flies: margin 0.5 m or rad), `off` (every state row walked at every
-    /// iteration), a margin (m or rad): the pairs of state rows whose slacks at a QP's start
-    /// are both at least the margin are left out of the iteration, and the solve is redone
-    /// with every row if one of them is violated — or `check`: as `on`, and every QP is also
+    /// as the controller flies: margin 0.5 m or rad, pause 60), `off` (every state row walked
+    /// at every iteration), `MARGIN[:PAUSE]`: the pairs of state rows whose slacks at a QP's
+    /// start are both at least the margin are left out of the iteration, the solve is redone
+    /// with every row if one of them is violated, and the next PAUSE solves walk every row
+    /// (default 60) — or `check`: as `on`, and every QP is also
     /// solved (untimed, cold) by two fresh solvers, screened and unscreened, and compared
     /// (`screening_check`). Applies to the standard scenario and to the replay (a recorded
     /// rollout is flown as the controller flies).
-    #[arg(long, default_value = "on", value_name = "on|off|check|MARGIN")]
+    #[arg(long, default_value = "on", value_name = "on|off|check|MARGIN[:PAUSE]")]
     row_screening: String,
     /// Write the figures as JSON (`paths.<name>.solve_ms_median`, ...).
     #[arg(long, value_name = "FILE")]
@@ -222,7 +223,11 @@ impl ScreeningTwins {
         });
         tight.set_infeasibility_exit(None);
         Self {
-            screened: make(Some(RowScreening::default())),
+            // Every QP screened (no pause), so every one is compared.
+            screened: make(Some(RowScreening {
+                pause_after_resolve: 0,
+                ..RowScreening::default()
+            })),
             full: make(None),
             tight,
             limit: config.state_row_slack_limit,
@@ -412,12 +417,27 @@ fn parse_screening(text: &str) -> Result<Option<RowScreening>> {
     match text {
         "on" | "check" => Ok(Some(RowScreening::default())),
         "off" => Ok(None),
-        other => match other.parse::<f64>() {
-            Ok(margin) if margin.is_finite() && margin > 0.0 => Ok(Some(RowScreening { margin })),
-            _ => Err(bad_input(format!(
-                "--row-screening {other}: not on, off, check or a positive margin (m or rad)"
-            ))),
-        },
+        other => {
+            let (margin, pause) = other.split_once(':').unwrap_or((other, ""));
+            let margin = margin
+                .parse::<f64>()
+                .ok()
+                .filter(|m| m.is_finite() && *m > 0.0);
+            let pause = if pause.is_empty() {
+                Some(RowScreening::DEFAULT_PAUSE)
+            } else {
+                pause.parse::<u32>().ok()
+            };
+            match (margin, pause) {
+                (Some(margin), Some(pause_after_resolve)) => Ok(Some(RowScreening {
+                    margin,
+                    pause_after_resolve,
+                })),
+                _ => Err(bad_input(format!(
+                    "--row-screening {other}: not on, off, check or MARGIN[:PAUSE] (a positive margin in m or rad, a count of solves)"
+                ))),
+            }
+        }
     }
 }
 

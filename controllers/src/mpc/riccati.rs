@@ -209,6 +209,8 @@ pub struct RiccatiIpm {
     screening_report: ScreeningReport,
     /// Whether the current solve was stopped on an iterate violating a screened row.
     screen_broken: bool,
+    /// Solves left without screening (see [`RowScreening::pause_after_resolve`]).
+    screen_paused: u32,
     s: Vec<f64>,
     lambda: Vec<f64>,
     w: Vec<f64>,
@@ -347,17 +349,24 @@ pub struct RowScreening {
     /// Smallest slack (m or rad, the row's unit) of both rows of a pair at the start point
     /// for the pair to be left out.
     pub margin: f64,
+    /// After a solve that had to be redone with every row, this many following solves walk
+    /// every row (no screening): in contact the QPs whose steps cross the margin come in
+    /// runs, and each crossing costs a second solve.
+    pub pause_after_resolve: u32,
 }
 
 impl RowScreening {
     /// The MPC's default margin (m or rad).
     pub const DEFAULT_MARGIN: f64 = 0.5;
+    /// The MPC's default pause (solves).
+    pub const DEFAULT_PAUSE: u32 = 60;
 }
 
 impl Default for RowScreening {
     fn default() -> Self {
         Self {
             margin: Self::DEFAULT_MARGIN,
+            pause_after_resolve: Self::DEFAULT_PAUSE,
         }
     }
 }
@@ -390,6 +399,7 @@ impl RiccatiIpm {
             screened: Vec::new(),
             screening_report: ScreeningReport::default(),
             screen_broken: false,
+            screen_paused: 0,
             s: Vec::new(),
             lambda: Vec::new(),
             w: Vec::new(),
@@ -1730,7 +1740,12 @@ impl QpSolver for RiccatiIpm {
             .warm_shift
             .take()
             .filter(|_| self.prev_valid && self.prev_start == self.all_start);
-        let margin = self.screening.map(|s| s.margin);
+        let margin = if self.screen_paused > 0 {
+            self.screen_paused -= 1;
+            None
+        } else {
+            self.screening.map(|s| s.margin)
+        };
         let mut status = self.solve_rows(qp, out, warm, margin);
         let screened = 2 * self.screened.len();
         let mut resolved = false;
@@ -1748,6 +1763,7 @@ impl QpSolver for RiccatiIpm {
                 status = self.solve_rows(qp, out, warm, None);
                 out.iterations += first;
                 resolved = true;
+                self.screen_paused = self.screening.map_or(0, |s| s.pause_after_resolve);
             }
         }
         self.screening_report = ScreeningReport {
@@ -1835,12 +1851,11 @@ fn cholesky(m: &InputMatrix) -> Option<InputMatrix> {
         for k in 0..j {
             let f = a[k * N + j];
             for r in j..N {
-                a[j * N + r] = -f * a[k * N + r] + a[j * N + r];
+                a[j * N + r] += -f * a[k * N + r];
             }
         }
         let d = a[j * N + j];
-        // (Not `d <= 0.0`: a NaN pivot fails too.)
-        if !(d > 0.0) {
+        if d.is_nan() || d <= 0.0 {
             return None;
         }
         let root = d.sqrt();
@@ -1867,7 +1882,7 @@ fn forward_substitute(l: &InputMatrix, v: &mut InputVector) {
         let c = v[i] / a[i * N + i];
         v[i] = c;
         for r in i + 1..N {
-            v[r] = -c * a[i * N + r] + v[r];
+            v[r] += -c * a[i * N + r];
         }
     }
 }
@@ -2292,6 +2307,7 @@ mod tests {
         let mut screened = RiccatiIpm::new(settings);
         screened.set_row_screening(Some(RowScreening {
             margin: 0.25 * moved.abs(),
+            pause_after_resolve: 0,
         }));
         let mut c = QpSolution::zeros(qp.intervals);
         assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
@@ -2304,8 +2320,21 @@ mod tests {
         assert_eq!(c.u, b.u);
         assert_eq!(c.slack, b.slack);
         assert!(c.iterations > b.iterations);
+        // With a pause after the second solve, the next solve walks every row.
+        screened.set_row_screening(Some(RowScreening {
+            margin: 0.25 * moved.abs(),
+            pause_after_resolve: 1,
+        }));
+        assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
+        assert!(screened.screening_report().resolved);
+        assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
+        assert_eq!(screened.screening_report().screened, 0, "paused");
+        assert_eq!((&c.x, &c.u), (&b.x, &b.u));
+        assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
+        assert!(screened.screening_report().resolved, "screening again");
         // Without the tightening, the default screening needs no second solve and equals
         // the unscreened solution to the tolerance.
+        let mut screened = RiccatiIpm::new(settings);
         screened.set_row_screening(Some(RowScreening::default()));
         let mut d = QpSolution::zeros(qp.intervals);
         assert_eq!(screened.solve(&qp, &mut d), QpStatus::Solved);
