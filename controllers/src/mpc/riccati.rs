@@ -349,9 +349,11 @@ pub struct RowScreening {
     /// Smallest slack (m or rad, the row's unit) of both rows of a pair at the start point
     /// for the pair to be left out.
     pub margin: f64,
-    /// After a solve that had to be redone with every row, this many following solves walk
-    /// every row (no screening): in contact the QPs whose steps cross the margin come in
-    /// runs, and each crossing costs a second solve.
+    /// Solves that walk every row (no screening) after [`RiccatiIpm::pause_screening`]:
+    /// in contact the QPs whose steps cross the margin come in runs, and each crossing costs
+    /// a second solve. `SqpRti` pauses after a QP solved twice that it takes (solved within
+    /// the slack limit), so the pause depends only on the QPs' classification, which the
+    /// early infeasibility exit does not change.
     pub pause_after_resolve: u32,
 }
 
@@ -479,6 +481,11 @@ impl RiccatiIpm {
     /// What the row screening did in the last solve.
     pub fn screening_report(&self) -> ScreeningReport {
         self.screening_report
+    }
+
+    /// The next [`RowScreening::pause_after_resolve`] solves walk every row.
+    pub fn pause_screening(&mut self) {
+        self.screen_paused = self.screening.map_or(0, |s| s.pause_after_resolve);
     }
 
     /// Whether some soft row of the iterate passes the exit's screen (see
@@ -1763,7 +1770,6 @@ impl QpSolver for RiccatiIpm {
                 status = self.solve_rows(qp, out, warm, None);
                 out.iterations += first;
                 resolved = true;
-                self.screen_paused = self.screening.map_or(0, |s| s.pause_after_resolve);
             }
         }
         self.screening_report = ScreeningReport {
@@ -2327,6 +2333,7 @@ mod tests {
         }));
         assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
         assert!(screened.screening_report().resolved);
+        screened.pause_screening();
         assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
         assert_eq!(screened.screening_report().screened, 0, "paused");
         assert_eq!((&c.x, &c.u), (&b.x, &b.u));

@@ -318,7 +318,8 @@ impl SqpRti {
 
     /// Sets the Riccati path's row screening (default: on, [`RowScreening::default`]; None:
     /// every row is walked at every iteration). Exact: a solve whose reduced solution
-    /// violates a screened row is redone with every row.
+    /// violates a screened row is redone with every row; after such a QP, when its solution
+    /// is taken, the screening pauses ([`RowScreening::pause_after_resolve`]).
     pub fn set_qp_row_screening(&mut self, screening: Option<RowScreening>) {
         self.riccati.set_row_screening(screening);
     }
@@ -640,6 +641,9 @@ impl SqpRti {
         if status != QpStatus::Solved {
             // Its multipliers (on an infeasible QP's soft rows: ρ) are no start for the next.
             self.riccati.forget();
+        } else if path == QpPath::Riccati && self.riccati.screening_report().resolved {
+            // A taken solution the screening had to redo: the next QPs likely cross too.
+            self.riccati.pause_screening();
         }
         if status == QpStatus::Solved {
             for (x, dx) in self.xs.iter_mut().zip(&self.solution.x) {
