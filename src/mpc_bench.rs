@@ -25,7 +25,10 @@ use clap::Parser;
 use comfy_table::{Table, presets};
 use controllers::ControllerConfig;
 use controllers::mpc::scenario::{self, WallStepScenario};
-use controllers::mpc::{MpcConfig, MpcMode, MpcProblem, QpPath, QpStatus, RtiReport, SqpRti};
+use controllers::mpc::{
+    MpcConfig, MpcMode, MpcProblem, QpPath, QpSettings, QpSolution, QpSolver, QpStatus, RiccatiIpm,
+    RowScreening, RtiReport, ScreeningReport, SqpRti, StructuredQp,
+};
 use platform::Vehicle;
 use policy_runtime::bench::{RolloutHooks, run_rollout_with};
 use policy_runtime::flight::{Decided, FlightError, Observer};
@@ -51,6 +54,9 @@ interior point of this crate) and clarabel (the sparse multiple-shooting QP); --
 solves the same problems as the warm-started rollout did). --infeasibility-exit off runs every
 QP to convergence (no early exit on a proven slack above the limit); check solves every QP
 again without the exit and counts the ticks classified differently (exit_check in the JSON).
+--row-screening off walks every state row at every iteration (on: the rows far from their
+bounds are left out, exactly: see controllers::mpc::RowScreening); check also solves every QP
+with and without the screening and compares them (screening_check in the JSON).
 --state-rows hard removes the state rows' exact-penalty slacks (the QP may be infeasible in
 contact) from the rollout and the replay; --replay-state-rows replays the same recorded
 problems with the other setting.
@@ -63,7 +69,8 @@ Examples:
   amstack mpc-bench --scenario wipe-window --paths riccati --warm-start off
   amstack mpc-bench --scenario wipe-window --state-rows hard
   amstack mpc-bench --scenario push-slider --state-rows hard --replay-state-rows soft
-  amstack mpc-bench --scenario push-slider --paths riccati --infeasibility-exit check")]
+  amstack mpc-bench --scenario push-slider --paths riccati --infeasibility-exit check
+  amstack mpc-bench --scenario push-slider --paths riccati --row-screening check")]
 pub struct Args {
     /// `standard`, `push-slider` or `wipe-window`.
     #[arg(long, default_value = "standard")]
@@ -101,6 +108,17 @@ pub struct Args {
     /// without the exit; the report counts the ticks whose status differs (`exit_check`).
     #[arg(long, default_value = "on", value_name = "on|off|check")]
     infeasibility_exit: String,
+    /// The Riccati path's row screening (`controllers::mpc::RowScreening`): `on` (default,
+    /// as the controller flies: margin 0.5 m or rad, pause 60), `off` (every state row walked
+    /// at every iteration), `MARGIN[:PAUSE]`: the pairs of state rows whose slacks at a QP's
+    /// start are both at least the margin are left out of the iteration, the solve is redone
+    /// with every row if one of them is violated, and the next PAUSE solves walk every row
+    /// (default 60) — or `check`: as `on`, and every QP is also
+    /// solved (untimed, cold) by two fresh solvers, screened and unscreened, and compared
+    /// (`screening_check`). Applies to the standard scenario and to the replay (a recorded
+    /// rollout is flown as the controller flies).
+    #[arg(long, default_value = "on", value_name = "on|off|check|MARGIN[:PAUSE]")]
+    row_screening: String,
     /// Write the figures as JSON (`paths.<name>.solve_ms_median`, ...).
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
@@ -145,6 +163,136 @@ struct PathFigures {
     /// `--infeasibility-exit check`: the exit against the converged solves.
     #[serde(skip_serializing_if = "Option::is_none")]
     exit_check: Option<ExitCheck>,
+    /// Riccati path: what the row screening did (`--row-screening`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    screening: Option<ScreeningFigures>,
+    /// `--row-screening check`: screened against unscreened solves of the same QPs.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    screening_check: Option<ScreeningCheck>,
+}
+
+/// The same QPs solved cold by a screened and an unscreened solver (`--row-screening check`).
+#[derive(Debug, Clone, Default, Serialize)]
+struct ScreeningCheck {
+    /// QPs compared.
+    qps: usize,
+    /// QPs whose classification (solved, infeasible by the slack limit or the exit, failed)
+    /// differs (must be 0).
+    disagreements: usize,
+    /// QPs both solve: the largest difference of the penalised objectives (absolute, and
+    /// relative to max(1, |J|)), and of any entry of the points (x, u).
+    solved: usize,
+    max_objective_abs_diff: f64,
+    max_objective_rel_diff: f64,
+    max_point_diff: f64,
+    /// The same QPs solved unscreened to a 1000× tighter tolerance (z*): the largest
+    /// distance (any entry of x, u) of the screened and of the unscreened solution from it,
+    /// and of the objectives, over the QPs all three solve. The screened solve is "equal to
+    /// tolerance" when it is no farther from z* than the unscreened one.
+    tight_solved: usize,
+    screened_point_error: f64,
+    unscreened_point_error: f64,
+    screened_objective_error: f64,
+    unscreened_objective_error: f64,
+    /// QPs the screened solver solved again with every row.
+    resolved: usize,
+}
+
+/// The solvers of `--row-screening check`.
+struct ScreeningTwins {
+    screened: RiccatiIpm,
+    full: RiccatiIpm,
+    tight: RiccatiIpm,
+    limit: Option<f64>,
+    check: ScreeningCheck,
+}
+
+impl ScreeningTwins {
+    fn new(rti: &SqpRti) -> Self {
+        let config = rti.config();
+        let make = |screening| {
+            let mut ipm = RiccatiIpm::new(config.qp);
+            ipm.set_infeasibility_exit(rti.default_qp_infeasibility_exit());
+            ipm.set_row_screening(screening);
+            ipm
+        };
+        let mut tight = RiccatiIpm::new(QpSettings {
+            tolerance: config.qp.tolerance * 1e-3,
+            max_iterations: 100,
+            ..config.qp
+        });
+        tight.set_infeasibility_exit(None);
+        Self {
+            // Every QP screened (no pause), so every one is compared.
+            screened: make(Some(RowScreening {
+                pause_after_resolve: 0,
+                ..RowScreening::default()
+            })),
+            full: make(None),
+            tight,
+            limit: config.state_row_slack_limit,
+            check: ScreeningCheck::default(),
+        }
+    }
+
+    fn push(&mut self, qp: &StructuredQp) {
+        let classify = |status: QpStatus, sol: &QpSolution, limit: Option<f64>| {
+            if status == QpStatus::Solved
+                && let Some(limit) = limit
+                && sol.slack.iter().any(|t| *t > limit)
+            {
+                QpStatus::Infeasible
+            } else {
+                status
+            }
+        };
+        let mut a = QpSolution::zeros(qp.intervals);
+        let mut b = QpSolution::zeros(qp.intervals);
+        let sa = classify(self.screened.solve(qp, &mut a), &a, self.limit);
+        let sb = classify(self.full.solve(qp, &mut b), &b, self.limit);
+        let c = &mut self.check;
+        c.qps += 1;
+        c.resolved += usize::from(self.screened.screening_report().resolved);
+        c.disagreements += usize::from(sa != sb);
+        if sa == QpStatus::Solved && sb == QpStatus::Solved {
+            c.solved += 1;
+            let rho = qp.soft_penalty.unwrap_or(0.0);
+            let penalised =
+                |s: &QpSolution| qp.objective(&s.x, &s.u) + rho * s.slack.iter().sum::<f64>();
+            let (ja, jb) = (penalised(&a), penalised(&b));
+            c.max_objective_abs_diff = c.max_objective_abs_diff.max((ja - jb).abs());
+            c.max_objective_rel_diff = c
+                .max_objective_rel_diff
+                .max((ja - jb).abs() / jb.abs().max(1.0));
+            let distance = |p: &QpSolution, q: &QpSolution| {
+                let dx = p.x.iter().zip(&q.x).map(|(v, w)| (v - w).amax());
+                let du = p.u.iter().zip(&q.u).map(|(v, w)| (v - w).amax());
+                dx.chain(du).fold(0.0, f64::max)
+            };
+            c.max_point_diff = c.max_point_diff.max(distance(&a, &b));
+            let mut z = QpSolution::zeros(qp.intervals);
+            if self.tight.solve(qp, &mut z) == QpStatus::Solved {
+                let jz = penalised(&z);
+                c.tight_solved += 1;
+                c.screened_point_error = c.screened_point_error.max(distance(&a, &z));
+                c.unscreened_point_error = c.unscreened_point_error.max(distance(&b, &z));
+                c.screened_objective_error = c.screened_objective_error.max((ja - jz).abs());
+                c.unscreened_objective_error = c.unscreened_objective_error.max((jb - jz).abs());
+            }
+        }
+    }
+}
+
+/// The Riccati path's row screening over a run.
+#[derive(Debug, Clone, Default, Serialize)]
+struct ScreeningFigures {
+    /// One-sided rows of a QP (the largest seen).
+    rows_per_qp: usize,
+    /// Rows left out of the first solve, mean over the QPs.
+    screened_rows_mean: f64,
+    /// QPs solved again with every row (a screened row violated at the reduced solution,
+    /// or the reduced solve ended without one).
+    resolved_qps: usize,
 }
 
 /// The early infeasibility exit against the same QPs solved to convergence.
@@ -237,6 +385,62 @@ impl ExitMode {
     }
 }
 
+/// How the Riccati path's solver is set up (`--warm-start`, `--infeasibility-exit`,
+/// `--row-screening`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Modes {
+    warm_start: bool,
+    exit: ExitMode,
+    screening: Option<RowScreening>,
+    /// `--row-screening check`.
+    screening_check: bool,
+}
+
+impl Modes {
+    fn apply(self, rti: &mut SqpRti) {
+        rti.set_qp_warm_start(self.warm_start);
+        self.exit.apply(rti);
+        rti.set_qp_row_screening(self.screening);
+    }
+
+    /// The untimed twin of `--infeasibility-exit check`: the same, without the exit.
+    fn converged(self) -> Self {
+        Self {
+            exit: ExitMode::Off,
+            ..self
+        }
+    }
+}
+
+/// `--row-screening`: `on`, `off`, `check` or a margin.
+fn parse_screening(text: &str) -> Result<Option<RowScreening>> {
+    match text {
+        "on" | "check" => Ok(Some(RowScreening::default())),
+        "off" => Ok(None),
+        other => {
+            let (margin, pause) = other.split_once(':').unwrap_or((other, ""));
+            let margin = margin
+                .parse::<f64>()
+                .ok()
+                .filter(|m| m.is_finite() && *m > 0.0);
+            let pause = if pause.is_empty() {
+                Some(RowScreening::DEFAULT_PAUSE)
+            } else {
+                pause.parse::<u32>().ok()
+            };
+            match (margin, pause) {
+                (Some(margin), Some(pause_after_resolve)) => Ok(Some(RowScreening {
+                    margin,
+                    pause_after_resolve,
+                })),
+                _ => Err(bad_input(format!(
+                    "--row-screening {other}: not on, off, check or MARGIN[:PAUSE] (a positive margin in m or rad, a count of solves)"
+                ))),
+            }
+        }
+    }
+}
+
 /// The recorded rollout a replay comes from.
 #[derive(Debug, Clone, Serialize)]
 struct RolloutFigures {
@@ -259,6 +463,8 @@ struct Report {
     warm_start: String,
     /// `on`, `off` or `check` (`--infeasibility-exit`).
     infeasibility_exit: String,
+    /// `on`, `off` or a margin (`--row-screening`).
+    row_screening: String,
     /// The replay's state rows, when not the rollout's.
     #[serde(skip_serializing_if = "Option::is_none")]
     replay_state_rows: Option<String>,
@@ -334,6 +540,8 @@ struct Samples {
     violation: f64,
     cost_first: Option<f64>,
     cost_last: f64,
+    /// Riccati path: the row screening's reports.
+    screening: Vec<ScreeningReport>,
 }
 
 impl Samples {
@@ -388,6 +596,17 @@ impl Samples {
             final_base_x_m: None,
             replay_matches_rollout_ticks: None,
             exit_check: None,
+            screening_check: None,
+            screening: (!self.screening.is_empty()).then(|| ScreeningFigures {
+                rows_per_qp: self.screening.iter().map(|r| r.rows).max().unwrap_or(0),
+                screened_rows_mean: self
+                    .screening
+                    .iter()
+                    .map(|r| r.screened as f64)
+                    .sum::<f64>()
+                    / self.screening.len() as f64,
+                resolved_qps: self.screening.iter().filter(|r| r.resolved).count(),
+            }),
         }
     }
 }
@@ -397,23 +616,22 @@ fn fly(
     config: MpcConfig,
     path: QpPath,
     iterations: usize,
-    warm_start: bool,
-    exit: ExitMode,
+    modes: Modes,
 ) -> Result<PathFigures> {
     let mut run = WallStepScenario::new(vehicle, config)?;
-    run.rti_mut().set_qp_warm_start(warm_start);
-    exit.apply(run.rti_mut());
+    modes.apply(run.rti_mut());
     // `check`: the same scenario flown beside it without the exit (it flies the same ticks
     // as long as both classify alike).
-    let mut twin = if exit == ExitMode::Check {
+    let mut twin = if modes.exit == ExitMode::Check {
         let mut twin = WallStepScenario::new(vehicle, config)?;
-        twin.rti_mut().set_qp_warm_start(warm_start);
-        ExitMode::Off.apply(twin.rti_mut());
+        modes.converged().apply(twin.rti_mut());
         Some(twin)
     } else {
         None
     };
     let mut check = ExitCheck::default();
+    let mut twins =
+        (modes.screening_check && path == QpPath::Riccati).then(|| ScreeningTwins::new(run.rti()));
     let mut samples = Samples::default();
     for _ in 0..iterations {
         let t0 = Stamp::now();
@@ -422,6 +640,12 @@ fn fly(
         let report = run.feedback(path);
         let t2 = Stamp::now();
         samples.push(t0, t1, t2, &report);
+        if path == QpPath::Riccati {
+            samples.screening.push(run.rti().qp_screening_report());
+        }
+        if let Some(twins) = &mut twins {
+            twins.push(run.rti().qp());
+        }
         run.advance();
         if let Some(twin) = &mut twin {
             twin.prepare();
@@ -434,6 +658,7 @@ fn fly(
     if twin.is_some() {
         figures.exit_check = Some(check);
     }
+    figures.screening_check = twins.map(|t| t.check);
     figures.final_ee_error_m = Some(run.ee_error_m());
     figures.final_base_x_m = Some(run.state()[0]);
     Ok(figures)
@@ -539,21 +764,20 @@ fn replay(
     path: QpPath,
     ticks: &[RecordedTick],
     as_recorded: bool,
-    warm_start: bool,
-    exit: ExitMode,
+    modes: Modes,
 ) -> Result<PathFigures> {
     let mut rti = SqpRti::new(vehicle, config)?;
-    rti.set_qp_warm_start(warm_start);
-    exit.apply(&mut rti);
-    let mut twin = if exit == ExitMode::Check {
+    modes.apply(&mut rti);
+    let mut twin = if modes.exit == ExitMode::Check {
         let mut twin = SqpRti::new(vehicle, config)?;
-        twin.set_qp_warm_start(warm_start);
-        ExitMode::Off.apply(&mut twin);
+        modes.converged().apply(&mut twin);
         Some(twin)
     } else {
         None
     };
     let mut check = ExitCheck::default();
+    let mut twins =
+        (modes.screening_check && path == QpPath::Riccati).then(|| ScreeningTwins::new(&rti));
     let mut samples = Samples::default();
     let mut matches = 0;
     for tick in ticks {
@@ -567,6 +791,12 @@ fn replay(
         let report = rti.feedback(path);
         let t2 = Stamp::now();
         samples.push(t0, t1, t2, &report);
+        if path == QpPath::Riccati {
+            samples.screening.push(rti.qp_screening_report());
+        }
+        if let Some(twins) = &mut twins {
+            twins.push(rti.qp());
+        }
         if let Some(twin) = &mut twin {
             if !p.warm {
                 twin.reset();
@@ -584,7 +814,13 @@ fn replay(
     if twin.is_some() {
         figures.exit_check = Some(check);
     }
-    if as_recorded && warm_start && exit != ExitMode::Off && path == config.qp_path {
+    figures.screening_check = twins.map(|t| t.check);
+    if as_recorded
+        && modes.warm_start
+        && modes.exit != ExitMode::Off
+        && modes.screening == Some(RowScreening::default())
+        && path == config.qp_path
+    {
         figures.replay_matches_rollout_ticks = Some(matches);
     }
     Ok(figures)
@@ -672,6 +908,12 @@ pub fn run(args: &Args) -> Result<()> {
         }
     };
     let exit = ExitMode::parse(&args.infeasibility_exit)?;
+    let modes = Modes {
+        warm_start,
+        exit,
+        screening: parse_screening(&args.row_screening)?,
+        screening_check: args.row_screening == "check",
+    };
     if let Some(p) = &args.json {
         check_writable("--json", p)?;
     }
@@ -687,7 +929,7 @@ pub fn run(args: &Args) -> Result<()> {
             for &path in &paths_wanted {
                 paths.insert(
                     path.name(),
-                    fly(&vehicle, config, path, args.iterations, warm_start, exit)?,
+                    fly(&vehicle, config, path, args.iterations, modes)?,
                 );
             }
         }
@@ -712,8 +954,7 @@ pub fn run(args: &Args) -> Result<()> {
                         path,
                         &ticks,
                         replay_config == config,
-                        warm_start,
-                        exit,
+                        modes,
                     )?,
                 );
             }
@@ -794,6 +1035,29 @@ pub fn run(args: &Args) -> Result<()> {
                 c.solved_max_slack.unwrap_or(f64::NAN)
             );
         }
+        if let Some(r) = &f.screening {
+            println!(
+                "{name}: row screening {}: {:.0} of {} rows left out per QP (mean); {} of {} QPs solved again with every row",
+                args.row_screening, r.screened_rows_mean, r.rows_per_qp, r.resolved_qps, f.ticks
+            );
+        }
+        if let Some(c) = &f.screening_check {
+            println!(
+                "{name}: row screening against unscreened solves of the same QPs (cold): {} disagreements in {} QPs; {} solved by both: objectives within {:.1e} ({:.1e} relative), points within {:.1e}; {} solved again with every row; against the tight solve (tolerance x 1e-3, {} QPs): screened point within {:.1e}, objective {:.1e}; unscreened point within {:.1e}, objective {:.1e}",
+                c.disagreements,
+                c.qps,
+                c.solved,
+                c.max_objective_abs_diff,
+                c.max_objective_rel_diff,
+                c.max_point_diff,
+                c.resolved,
+                c.tight_solved,
+                c.screened_point_error,
+                c.screened_objective_error,
+                c.unscreened_point_error,
+                c.unscreened_objective_error
+            );
+        }
         if let Some(m) = f.replay_matches_rollout_ticks {
             println!(
                 "{name}: the replay reproduced the rollout's QP status and iterations on {m} of {} ticks",
@@ -807,6 +1071,7 @@ pub fn run(args: &Args) -> Result<()> {
             state_rows: args.state_rows.clone(),
             warm_start: args.warm_start.clone(),
             infeasibility_exit: args.infeasibility_exit.clone(),
+            row_screening: args.row_screening.clone(),
             replay_state_rows: args.replay_state_rows.clone(),
             standard: task.is_none().then_some(Scenario {
                 vehicle: "fa-hexa",

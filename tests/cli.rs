@@ -404,6 +404,14 @@ fn mpc_bench_reports_both_qp_paths_and_refuses_bad_input() {
         &amstack(&["mpc-bench", "--infeasibility-exit", "sometimes"]),
         &["--infeasibility-exit sometimes"],
     );
+    assert_bad_input(
+        &amstack(&["mpc-bench", "--row-screening", "0"]),
+        &["--row-screening 0"],
+    );
+    assert_bad_input(
+        &amstack(&["mpc-bench", "--row-screening", "0.5:soon"]),
+        &["--row-screening 0.5:soon"],
+    );
 }
 
 #[test]
@@ -461,6 +469,15 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     // The early infeasibility exit against the same QPs solved to convergence: the same
     // status on every tick, every feasible QP's cost and iterations unchanged, and the
     // infeasible QPs stopped in fewer iterations.
+    // The row screening (on, as the controller flies) left the far state rows out.
+    let screening = &p["screening"];
+    assert_eq!(screening["rows_per_qp"].as_u64(), Some(1344), "{screening}");
+    assert!(
+        screening["screened_rows_mean"]
+            .as_f64()
+            .is_some_and(|m| m > 100.0),
+        "{screening}"
+    );
     let check = &p["exit_check"];
     assert_eq!(check["ticks"].as_u64(), Some(ticks), "{check}");
     assert_eq!(check["disagreements"], 0, "{check}");

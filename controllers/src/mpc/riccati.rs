@@ -44,6 +44,14 @@
 //! hard QP relaxed by the limit cannot reach the penalised objective the iterate attains):
 //! what the converged solve and the limit would classify, in about half the iterations.
 //!
+//! # Row screening
+//!
+//! With a [`RowScreening`], the pairs of state rows whose slacks at the start are at least a
+//! margin are left out of the iteration, and checked at the returned point: a reduced
+//! solution that satisfies them solves the full QP; otherwise (or when an iterate crosses
+//! one) the QP is solved again with every row. Fewer rows per iteration, the same answer to
+//! the tolerance.
+//!
 //! Cost per iteration: one recursion of N stages with ~6k flops each (dense P: `VᵀV` and the
 //! triangular solves dominate), two vector sweeps. No allocation after the first solve.
 
@@ -191,9 +199,26 @@ pub struct RiccatiIpm {
     settings: QpSettings,
     a: SparseColumns,
     b: SparseColumns,
+    /// Every row of the QP (the full layout); rows of stage k are
+    /// `all_rows[all_start[k]..all_start[k + 1]]`.
+    all_rows: Vec<Row>,
+    all_start: Vec<usize>,
+    /// The rows the iteration walks (all of them, or those the screening kept), in the full
+    /// layout's order; rows of stage k are `rows[start[k]..start[k + 1]]`.
     rows: Vec<Row>,
-    /// Rows of stage k are `rows[start[k]..start[k + 1]]`.
     start: Vec<usize>,
+    /// Index in `all_rows` of each row of `rows`.
+    full_of: Vec<usize>,
+    /// The row screening (None: every row is walked).
+    screening: Option<RowScreening>,
+    /// Pairs left out of the current solve: (stage, index in `all_rows` of the lower row).
+    screened: Vec<(usize, usize)>,
+    /// What the screening did in the last solve.
+    screening_report: ScreeningReport,
+    /// Whether the current solve was stopped on an iterate violating a screened row.
+    screen_broken: bool,
+    /// Solves left without screening (see [`RowScreening::pause_after_resolve`]).
+    screen_paused: u32,
     s: Vec<f64>,
     lambda: Vec<f64>,
     w: Vec<f64>,
@@ -246,8 +271,8 @@ pub struct RiccatiIpm {
     dnu: Vec<f64>,
     dt_aff: Vec<f64>,
     dnu_aff: Vec<f64>,
-    /// The last solved QP's multipliers λ and soft slacks t per row, and its row layout:
-    /// where a warm start takes its duals from.
+    /// The last solved QP's multipliers λ and soft slacks t per row of the full layout (0 on
+    /// a screened row), and that layout: where a warm start takes its duals from.
     prev_lambda: Vec<f64>,
     prev_t: Vec<f64>,
     prev_start: Vec<usize>,
@@ -308,6 +333,66 @@ impl InfeasibilityExit {
     }
 }
 
+/// The row screening of a solve ([`RiccatiIpm::set_row_screening`]).
+///
+/// A QP of the MPC has 42 one-sided rows per stage, many of them far from their bounds
+/// (yaw and joints within ±π, the EE-height band, the far walls); the iteration walks every
+/// row about a dozen times. The screening leaves out of the iteration each pair of state rows
+/// (lower and upper bound of a state entry, or of the EE-height row) whose slacks at the
+/// QP's start point are both at least `margin`. Input rows are never screened: the rotor
+/// rows are active in contact, and the arm-reference bounds were measured to be crossed by
+/// the large steps of the contact QPs (a screened row crossed costs a second solve).
+///
+/// It is exact, not a heuristic: a solution of the reduced QP that satisfies every screened
+/// row is a solution of the full QP (its feasible set is a subset of the reduced one's, and
+/// the screened rows with zero multipliers complete the KKT conditions), so the solve checks
+/// every screened row at the returned point and, if one is violated, solves again with
+/// every row: the answer is then the unscreened solve's, bit for bit. The same happens when
+/// the reduced solve ends without a solution, and as soon as an iterate violates a screened
+/// row (the reduced solve is then stopped, not finished). The early infeasibility exit's
+/// certificate counts the screened rows in its upper bound, so an `infeasible` status holds
+/// for the full QP.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowScreening {
+    /// Smallest slack (m or rad, the row's unit) of both rows of a pair at the start point
+    /// for the pair to be left out.
+    pub margin: f64,
+    /// Solves that walk every row (no screening) after [`RiccatiIpm::pause_screening`]:
+    /// in contact the QPs whose steps cross the margin come in runs, and each crossing costs
+    /// a second solve. `SqpRti` pauses after a QP solved twice that it takes (solved within
+    /// the slack limit), so the pause depends only on the QPs' classification, which the
+    /// early infeasibility exit does not change.
+    pub pause_after_resolve: u32,
+}
+
+impl RowScreening {
+    /// The MPC's default margin (m or rad).
+    pub const DEFAULT_MARGIN: f64 = 0.5;
+    /// The MPC's default pause (solves).
+    pub const DEFAULT_PAUSE: u32 = 60;
+}
+
+impl Default for RowScreening {
+    fn default() -> Self {
+        Self {
+            margin: Self::DEFAULT_MARGIN,
+            pause_after_resolve: Self::DEFAULT_PAUSE,
+        }
+    }
+}
+
+/// What the row screening did in one solve ([`RiccatiIpm::screening_report`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ScreeningReport {
+    /// One-sided rows of the QP.
+    pub rows: usize,
+    /// Rows left out of the (first) solve.
+    pub screened: usize,
+    /// Whether a screened row was violated at the reduced solution (or the reduced solve
+    /// ended without one) and the QP was solved again with every row.
+    pub resolved: bool,
+}
+
 impl RiccatiIpm {
     /// A solver with `settings`.
     pub fn new(settings: QpSettings) -> Self {
@@ -315,8 +400,16 @@ impl RiccatiIpm {
             settings,
             a: SparseColumns::default(),
             b: SparseColumns::default(),
+            all_rows: Vec::new(),
+            all_start: Vec::new(),
             rows: Vec::new(),
             start: Vec::new(),
+            full_of: Vec::new(),
+            screening: None,
+            screened: Vec::new(),
+            screening_report: ScreeningReport::default(),
+            screen_broken: false,
+            screen_paused: 0,
             s: Vec::new(),
             lambda: Vec::new(),
             w: Vec::new(),
@@ -383,6 +476,26 @@ impl RiccatiIpm {
         self.exit
     }
 
+    /// Sets the row screening (None: off, every row is walked; see [`RowScreening`]).
+    pub fn set_row_screening(&mut self, screening: Option<RowScreening>) {
+        self.screening = screening;
+    }
+
+    /// The row screening.
+    pub fn row_screening(&self) -> Option<RowScreening> {
+        self.screening
+    }
+
+    /// What the row screening did in the last solve.
+    pub fn screening_report(&self) -> ScreeningReport {
+        self.screening_report
+    }
+
+    /// The next [`RowScreening::pause_after_resolve`] solves walk every row.
+    pub fn pause_screening(&mut self) {
+        self.screen_paused = self.screening.map_or(0, |s| s.pause_after_resolve);
+    }
+
     /// Whether some soft row of the iterate passes the exit's screen (see
     /// [`InfeasibilityExit`]): r_ineq holds the iterate's residuals.
     fn exit_row_passes(&self, exit: &InfeasibilityExit) -> bool {
@@ -429,15 +542,15 @@ impl RiccatiIpm {
         let n = qp.intervals;
         self.a.set(&qp.a);
         self.b.set(&qp.b);
-        self.rows.clear();
-        self.start.clear();
+        self.all_rows.clear();
+        self.all_start.clear();
         let soft = qp.soft_penalty.is_some();
         self.rho = qp.soft_penalty.unwrap_or(0.0);
         for (k, c) in qp.constraints.iter().enumerate() {
-            self.start.push(self.rows.len());
+            self.all_start.push(self.all_rows.len());
             if k > 0 {
                 for (j, &i) in c.state_indices.iter().enumerate() {
-                    self.rows.extend(bound_rows(
+                    self.all_rows.extend(bound_rows(
                         RowKind::State(i),
                         c.state_lower[j],
                         c.state_upper[j],
@@ -447,7 +560,7 @@ impl RiccatiIpm {
             }
             if k < n {
                 for (j, &i) in c.input_indices.iter().enumerate() {
-                    self.rows.extend(bound_rows(
+                    self.all_rows.extend(bound_rows(
                         RowKind::Input(i),
                         c.input_lower[j],
                         c.input_upper[j],
@@ -458,13 +571,13 @@ impl RiccatiIpm {
             if k < n {
                 for (j, e) in c.input_general.iter().enumerate() {
                     let (lo, hi) = support(e);
-                    self.rows.push(Row {
+                    self.all_rows.push(Row {
                         kind: RowKind::InputGeneral(j, lo, hi),
                         sign: -1.0,
                         h: -c.input_general_lower[j],
                         soft: false,
                     });
-                    self.rows.push(Row {
+                    self.all_rows.push(Row {
                         kind: RowKind::InputGeneral(j, lo, hi),
                         sign: 1.0,
                         h: c.input_general_upper[j],
@@ -475,13 +588,13 @@ impl RiccatiIpm {
             if k > 0 {
                 for (j, g) in c.general.iter().enumerate() {
                     let (lo, hi) = support(g);
-                    self.rows.push(Row {
+                    self.all_rows.push(Row {
                         kind: RowKind::General(j, lo, hi),
                         sign: -1.0,
                         h: -c.general_lower[j],
                         soft,
                     });
-                    self.rows.push(Row {
+                    self.all_rows.push(Row {
                         kind: RowKind::General(j, lo, hi),
                         sign: 1.0,
                         h: c.general_upper[j],
@@ -490,41 +603,12 @@ impl RiccatiIpm {
                 }
             }
         }
-        self.start.push(self.rows.len());
+        self.all_start.push(self.all_rows.len());
         self.cross_zero = qp.s.iter().all(|s| s.iter().all(|v| *v == 0.0));
-        self.soft_index.clear();
-        self.soft_index
-            .extend((0..self.rows.len()).filter(|&i| self.rows[i].soft));
-        self.soft_count = self.soft_index.len();
-        debug_assert!(self.rows.chunks(2).all(|p| p.len() == 2
+        debug_assert!(self.all_rows.chunks(2).all(|p| p.len() == 2
             && p[0].kind == p[1].kind
             && p[0].sign == -1.0
             && p[1].sign == 1.0));
-        let m = self.rows.len();
-        // Sized, not cleared: every entry is written before it is read (a solve of the same
-        // layout as the last one allocates and fills nothing here).
-        for v in [
-            &mut self.s,
-            &mut self.lambda,
-            &mut self.w,
-            &mut self.r_ineq,
-            &mut self.ds,
-            &mut self.dlambda,
-            &mut self.ds_aff,
-            &mut self.dlambda_aff,
-            &mut self.coef,
-            &mut self.t,
-            &mut self.nu,
-            &mut self.r_t,
-            &mut self.r_tilde,
-            &mut self.dt,
-            &mut self.dnu,
-            &mut self.dt_aff,
-            &mut self.dnu_aff,
-            &mut self.g_dz,
-        ] {
-            v.resize(m, 0.0);
-        }
         let resize_x = |v: &mut Vec<StateVector>, len| {
             v.resize(len, StateVector::zeros());
         };
@@ -558,6 +642,89 @@ impl RiccatiIpm {
         }
     }
 
+    /// Whether a pair of rows may be screened: state bounds and general state rows (the EE
+    /// height), m or rad; never an input row (see [`RowScreening`]).
+    fn screenable(kind: RowKind) -> bool {
+        matches!(kind, RowKind::State(_) | RowKind::General(..))
+    }
+
+    /// The rows the iteration walks: every row (`margin` None), or the rows left after
+    /// screening out each screenable pair whose slacks at the start point (x, u) are both
+    /// at least `margin`. Sizes the per-row buffers.
+    fn select_rows(
+        &mut self,
+        qp: &StructuredQp,
+        x: &[StateVector],
+        u: &[InputVector],
+        margin: Option<f64>,
+    ) {
+        self.rows.clear();
+        self.start.clear();
+        self.full_of.clear();
+        self.screened.clear();
+        for k in 0..=qp.intervals {
+            self.start.push(self.rows.len());
+            for idx in (self.all_start[k]..self.all_start[k + 1]).step_by(2) {
+                let (lo, hi) = (self.all_rows[idx], self.all_rows[idx + 1]);
+                let far = margin.is_some_and(|margin| {
+                    Self::screenable(lo.kind) && {
+                        let v = Self::kind_value(qp, k, lo.kind, &x[k], u.get(k));
+                        // Slacks h − row: lower row −v ≤ h_lo, upper row v ≤ h_hi.
+                        lo.h + v >= margin && hi.h - v >= margin
+                    }
+                });
+                if far {
+                    self.screened.push((k, idx));
+                } else {
+                    self.rows.push(lo);
+                    self.rows.push(hi);
+                    self.full_of.push(idx);
+                    self.full_of.push(idx + 1);
+                }
+            }
+        }
+        self.start.push(self.rows.len());
+        self.soft_index.clear();
+        self.soft_index
+            .extend((0..self.rows.len()).filter(|&i| self.rows[i].soft));
+        self.soft_count = self.soft_index.len();
+        let m = self.rows.len();
+        // Sized, not cleared: every entry is written before it is read (a solve of the same
+        // layout as the last one allocates and fills nothing here).
+        for v in [
+            &mut self.s,
+            &mut self.lambda,
+            &mut self.w,
+            &mut self.r_ineq,
+            &mut self.ds,
+            &mut self.dlambda,
+            &mut self.ds_aff,
+            &mut self.dlambda_aff,
+            &mut self.coef,
+            &mut self.t,
+            &mut self.nu,
+            &mut self.r_t,
+            &mut self.r_tilde,
+            &mut self.dt,
+            &mut self.dnu,
+            &mut self.dt_aff,
+            &mut self.dnu_aff,
+            &mut self.g_dz,
+        ] {
+            v.resize(m, 0.0);
+        }
+    }
+
+    /// Whether every screened row holds at (x, u) (its slack h − row ≥ 0): then the reduced
+    /// QP's solution, with zero multipliers on the screened rows, solves the full QP.
+    fn screened_rows_hold(&self, qp: &StructuredQp, x: &[StateVector], u: &[InputVector]) -> bool {
+        self.screened.iter().all(|&(k, idx)| {
+            let (lo, hi) = (self.all_rows[idx], self.all_rows[idx + 1]);
+            let v = Self::kind_value(qp, k, lo.kind, &x[k], u.get(k));
+            lo.h + v >= 0.0 && hi.h - v >= 0.0
+        })
+    }
+
     /// The exit's certificate (weak duality): true when no point of the hard QP with every
     /// state row relaxed by `limit` can have an objective as low as the soft QP's optimum,
     /// so every solution of the soft QP has a slack above `limit`.
@@ -588,6 +755,18 @@ impl RiccatiIpm {
         for k in 0..=n {
             for idx in self.start[k]..self.start[k + 1] {
                 let row = self.rows[idx];
+                let v = Self::row_value(qp, k, &row, &x[k], u.get(k)) - row.h;
+                if row.soft {
+                    violation_sum += v.max(0.0);
+                } else if v > 0.0 {
+                    return false;
+                }
+            }
+        }
+        // The screened rows too: U bounds the full QP's optimum, so the certificate holds for
+        // it (the Lagrangian below, with no multiplier on them, stays a lower bound).
+        for &(k, idx) in &self.screened {
+            for row in [self.all_rows[idx], self.all_rows[idx + 1]] {
                 let v = Self::row_value(qp, k, &row, &x[k], u.get(k)) - row.h;
                 if row.soft {
                     violation_sum += v.max(0.0);
@@ -651,7 +830,9 @@ impl RiccatiIpm {
         };
         let best = f(self, kappa).max(f1).max(f2);
         // The converged solve's optimality gap and round-off.
-        let pairs = (self.rows.len() + self.soft_count) as f64;
+        // (The full QP's pairs: the converged solve the exit stands in for may walk them all.)
+        let all_soft = self.all_rows.iter().filter(|r| r.soft).count();
+        let pairs = (self.all_rows.len() + all_soft) as f64;
         let margin = 1e-9 * (upper.abs() + best.abs()) + pairs * tol;
         best > upper + margin
     }
@@ -1262,20 +1443,21 @@ impl RiccatiIpm {
         for k in 0..=n {
             let j0 = (k + whole).min(n);
             let j1 = (k + whole + 1).min(n);
-            let own = layout(&self.start, k);
-            let src0 = if layout(&self.start, j0) == own {
+            // Stage layouts of the full QP (the last solve's duals are kept in it).
+            let own = layout(&self.all_start, k);
+            let src0 = if layout(&self.all_start, j0) == own {
                 j0
             } else {
                 k
             };
-            let src1 = if layout(&self.start, j1) == own {
+            let src1 = if layout(&self.all_start, j1) == own {
                 j1
             } else {
                 k
             };
             for idx in self.start[k]..self.start[k + 1] {
-                let p = idx - self.start[k];
-                let (i0, i1) = (self.start[src0] + p, self.start[src1] + p);
+                let p = self.full_of[idx] - self.all_start[k];
+                let (i0, i1) = (self.all_start[src0] + p, self.all_start[src1] + p);
                 let interp = |v: &[f64]| (1.0 - frac) * v[i0] + frac * v[i1];
                 let row = self.rows[idx];
                 let v = Self::row_value(qp, k, &row, &out.x[k], out.u.get(k));
@@ -1341,23 +1523,27 @@ impl RiccatiIpm {
     }
 }
 
-impl QpSolver for RiccatiIpm {
-    fn solve(&mut self, qp: &StructuredQp, out: &mut QpSolution) -> QpStatus {
+impl RiccatiIpm {
+    /// One interior-point solve of the QP whose full layout `setup` built, over the rows
+    /// `select_rows` keeps for `margin`, started warm (shifted by `warm`) or cold; sets
+    /// `out`'s point, iterations and status.
+    fn solve_rows(
+        &mut self,
+        qp: &StructuredQp,
+        out: &mut QpSolution,
+        warm: Option<f64>,
+        margin: Option<f64>,
+    ) -> QpStatus {
         let n = qp.intervals;
-        self.setup(qp);
-        out.x.resize(n + 1, StateVector::zeros());
-        out.u.resize(n, InputVector::zeros());
         // A dynamically feasible start: zero inputs, states rolled out.
         out.x[0] = qp.x0;
         for k in 0..n {
             out.u[k] = InputVector::zeros();
             out.x[k + 1] = qp.a * out.x[k] + qp.defects[k];
         }
+        self.select_rows(qp, &out.x, &out.u, margin);
+        self.screen_broken = false;
         let m = self.rows.len();
-        let warm = self
-            .warm_shift
-            .take()
-            .filter(|_| self.prev_valid && self.prev_start == self.start);
         if let Some(shift) = warm {
             self.warm_init(qp, shift, out);
         } else {
@@ -1534,6 +1720,12 @@ impl QpSolver for RiccatiIpm {
                     self.nu[i] += alpha * self.dnu[i];
                 }
             }
+            // A screened row the iterate violates: the reduced solve is unlikely to end
+            // with every screened row holding; stop it (the caller solves with every row).
+            if !self.screened.is_empty() && !self.screened_rows_hold(qp, &out.x, &out.u) {
+                self.screen_broken = true;
+                break;
+            }
         }
         if status == QpStatus::Solved && self.settings.polish {
             self.polish(qp, out);
@@ -1549,20 +1741,76 @@ impl QpSolver for RiccatiIpm {
         }
         out.iterations = iterations;
         out.status = status;
+        status
+    }
+}
+
+impl QpSolver for RiccatiIpm {
+    fn solve(&mut self, qp: &StructuredQp, out: &mut QpSolution) -> QpStatus {
+        let n = qp.intervals;
+        self.setup(qp);
+        out.x.resize(n + 1, StateVector::zeros());
+        out.u.resize(n, InputVector::zeros());
+        let warm = self
+            .warm_shift
+            .take()
+            .filter(|_| self.prev_valid && self.prev_start == self.all_start);
+        let margin = if self.screen_paused > 0 {
+            self.screen_paused -= 1;
+            None
+        } else {
+            self.screening.map(|s| s.margin)
+        };
+        let mut status = self.solve_rows(qp, out, warm, margin);
+        let screened = 2 * self.screened.len();
+        let mut resolved = false;
+        if screened > 0 {
+            // The reduced QP's answer stands for the full QP's only when proven: a solution
+            // that satisfies every screened row, or a certificate (which counted them).
+            let proven = match status {
+                _ if self.screen_broken => false,
+                QpStatus::Solved => self.screened_rows_hold(qp, &out.x, &out.u),
+                QpStatus::Infeasible => true,
+                _ => false,
+            };
+            if !proven {
+                let first = out.iterations;
+                status = self.solve_rows(qp, out, warm, None);
+                out.iterations += first;
+                resolved = true;
+            }
+        }
+        self.screening_report = ScreeningReport {
+            rows: self.all_rows.len(),
+            screened,
+            resolved,
+        };
         self.prev_valid = status == QpStatus::Solved;
         if self.prev_valid {
-            self.prev_lambda.clone_from(&self.lambda);
-            self.prev_t.clone_from(&self.t);
-            self.prev_start.clone_from(&self.start);
+            // In the full layout; a screened row's (a far row's: λ → 0, t = 0) is 0.
+            let m_all = self.all_rows.len();
+            self.prev_lambda.clear();
+            self.prev_lambda.resize(m_all, 0.0);
+            self.prev_t.clear();
+            self.prev_t.resize(m_all, 0.0);
+            for (i, &f) in self.full_of.iter().enumerate() {
+                self.prev_lambda[f] = self.lambda[i];
+                self.prev_t[f] = self.t[i];
+            }
+            self.prev_start.clone_from(&self.all_start);
         }
+        // One slack per soft row of the full layout (0 on a screened row: it holds).
         out.slack.clear();
-        out.slack.extend(
-            self.rows
-                .iter()
-                .zip(&self.t)
-                .filter(|(r, _)| r.soft)
-                .map(|(_, t)| *t),
-        );
+        let mut active = 0;
+        for (f, row) in self.all_rows.iter().enumerate() {
+            let kept = self.full_of.get(active) == Some(&f);
+            if row.soft {
+                out.slack.push(if kept { self.t[active] } else { 0.0 });
+            }
+            if kept {
+                active += 1;
+            }
+        }
         if status == QpStatus::NumericalFailure
             || out.x.iter().any(|x| !x.iter().all(|v| v.is_finite()))
             || out.u.iter().any(|u| !u.iter().all(|v| v.is_finite()))
@@ -1605,24 +1853,81 @@ fn bound_rows(kind: RowKind, lower: f64, upper: f64, soft: bool) -> [Row; 2] {
 }
 
 /// Lower Cholesky factor of a symmetric positive definite matrix (None if it is not, or if
-/// a pivot is not finite): nalgebra's fixed-size factorisation.
+/// a pivot is not finite). The arithmetic of nalgebra's `Cholesky::new`, in the same order
+/// (so bit-identical, checked by a test), written on the fixed 10 × 10 block without
+/// nalgebra's dynamic views: `L[r, j] = M[r, j] − Σ_k L[j, k] L[r, k]` column by column,
+/// then the square root of the pivot and a division of the column below it.
 fn cholesky(m: &InputMatrix) -> Option<InputMatrix> {
-    let l = nalgebra::linalg::Cholesky::new(*m)?.unpack();
-    l.diagonal()
-        .iter()
-        .all(|d| *d > 0.0 && d.is_finite())
-        .then_some(l)
+    const N: usize = NU;
+    let mut l = *m;
+    let a = l.as_mut_slice();
+    for j in 0..N {
+        for k in 0..j {
+            let f = a[k * N + j];
+            for r in j..N {
+                a[j * N + r] += -f * a[k * N + r];
+            }
+        }
+        let d = a[j * N + j];
+        if d.is_nan() || d <= 0.0 {
+            return None;
+        }
+        let root = d.sqrt();
+        if !root.is_finite() {
+            return None;
+        }
+        a[j * N + j] = root;
+        for r in j + 1..N {
+            a[j * N + r] /= root;
+        }
+    }
+    for j in 1..N {
+        a[j * N..j * N + j].fill(0.0);
+    }
+    Some(l)
 }
 
-/// v ← L⁻¹v.
+/// v ← L⁻¹v (L from `cholesky`: its diagonal is positive). nalgebra's
+/// `solve_lower_triangular_mut`, in the same order, on the fixed block.
 fn forward_substitute(l: &InputMatrix, v: &mut InputVector) {
-    // L comes from `cholesky`: its diagonal is positive, so the solve cannot fail.
-    let _ = l.solve_lower_triangular_mut(v);
+    const N: usize = NU;
+    let a = l.as_slice();
+    for i in 0..N {
+        let c = v[i] / a[i * N + i];
+        v[i] = c;
+        for r in i + 1..N {
+            v[r] += -c * a[i * N + r];
+        }
+    }
 }
 
-/// v ← L⁻ᵀv.
+/// v ← L⁻ᵀv. nalgebra's `tr_solve_lower_triangular_mut`, in the same order (its dot product
+/// sums in eight lanes from eight entries on, then the rest in turn), on the fixed block.
 fn backward_substitute(l: &InputMatrix, v: &mut InputVector) {
-    let _ = l.tr_solve_lower_triangular_mut(v);
+    const N: usize = NU;
+    let a = l.as_slice();
+    for i in (0..N).rev() {
+        let col = &a[i * N + i + 1..(i + 1) * N];
+        let rest = &v.as_slice()[i + 1..];
+        let len = col.len();
+        let mut acc = [0.0f64; 8];
+        let mut k = 0;
+        while len - k >= 8 {
+            for (q, slot) in acc.iter_mut().enumerate() {
+                *slot += col[k + q] * rest[k + q];
+            }
+            k += 8;
+        }
+        let mut dot = 0.0;
+        dot += acc[0] + acc[4];
+        dot += acc[1] + acc[5];
+        dot += acc[2] + acc[6];
+        dot += acc[3] + acc[7];
+        for q in k..len {
+            dot += col[q] * rest[q];
+        }
+        v[i] = (v[i] - dot) / a[i * N + i];
+    }
 }
 
 /// Compile-time check of the dimensions the recursion assumes.
@@ -1658,6 +1963,49 @@ mod tests {
             (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
         });
         m.transpose() * m + StateMatrix::identity()
+    }
+
+    #[test]
+    fn the_fixed_size_cholesky_and_solves_equal_nalgebras_bit_for_bit() {
+        let mut state = 7u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for trial in 0..200 {
+            // SPD matrices over ten decades of conditioning, and right-hand sides.
+            let g = InputMatrix::from_fn(|_, _| next());
+            let scale = 10f64.powi(trial % 10);
+            let m = g.transpose() * g * scale + InputMatrix::identity() * 1e-3;
+            let v = InputVector::from_fn(|_, _| next());
+            let ours = cholesky(&m).unwrap_or_else(|| panic!("{trial}: SPD"));
+            let theirs = nalgebra::linalg::Cholesky::new(m)
+                .unwrap_or_else(|| panic!("{trial}: SPD"))
+                .unpack();
+            for (a, b) in ours.iter().zip(theirs.iter()) {
+                assert_eq!(a.to_bits(), b.to_bits(), "{trial}: factor");
+            }
+            let mut fwd = v;
+            forward_substitute(&ours, &mut fwd);
+            let mut fwd_ref = v;
+            assert!(theirs.solve_lower_triangular_mut(&mut fwd_ref));
+            let mut bwd = v;
+            backward_substitute(&ours, &mut bwd);
+            let mut bwd_ref = v;
+            assert!(theirs.tr_solve_lower_triangular_mut(&mut bwd_ref));
+            for i in 0..NU {
+                assert_eq!(fwd[i].to_bits(), fwd_ref[i].to_bits(), "{trial}: L⁻¹v");
+                assert_eq!(bwd[i].to_bits(), bwd_ref[i].to_bits(), "{trial}: L⁻ᵀv");
+            }
+        }
+        // Not positive definite, or not finite: no factor.
+        let mut indefinite = InputMatrix::identity();
+        indefinite[(3, 3)] = -1.0;
+        assert!(cholesky(&indefinite).is_none());
+        assert!(cholesky(&(InputMatrix::identity() * f64::NAN)).is_none());
+        assert!(cholesky(&(InputMatrix::identity() * f64::INFINITY)).is_none());
     }
 
     #[test]
@@ -1853,6 +2201,165 @@ mod tests {
             checked += 1;
         }
         assert_eq!(checked, 4);
+    }
+
+    /// The dynamically feasible start of a solve (zero inputs, states rolled out).
+    fn start_states(qp: &StructuredQp) -> Vec<StateVector> {
+        let mut x = vec![qp.x0];
+        for k in 0..qp.intervals {
+            x.push(qp.a * x[k] + qp.defects[k]);
+        }
+        x
+    }
+
+    #[test]
+    fn row_screening_leaves_the_far_rows_out_and_the_answer_unchanged() {
+        let limit = 1e-3;
+        let settings = QpSettings::default();
+        let (mut feasible, mut infeasible) = (0, 0);
+        // The base from hovering to 3 m/s toward the wall: feasible and infeasible QPs.
+        for step in 0..=30 {
+            let qp = approaching_wall_qp(0.1 * f64::from(step));
+            let mut full = RiccatiIpm::new(settings);
+            let mut screened = RiccatiIpm::new(settings);
+            for ipm in [&mut full, &mut screened] {
+                ipm.set_infeasibility_exit(Some(InfeasibilityExit::new(limit)));
+            }
+            screened.set_row_screening(Some(RowScreening::default()));
+            let mut a = QpSolution::zeros(qp.intervals);
+            let mut b = QpSolution::zeros(qp.intervals);
+            let status_a = classify(full.solve(&qp, &mut a), &a, limit);
+            let status_b = classify(screened.solve(&qp, &mut b), &b, limit);
+            assert_eq!(status_b, status_a, "{step}: the classification changed");
+            let report = screened.screening_report();
+            assert_eq!(report.rows, full.rows.len());
+            // Yaw, most joints, y, z and the EE-height band are far from their bounds.
+            assert!(
+                report.screened * 5 >= report.rows,
+                "{step}: {} of {} rows screened",
+                report.screened,
+                report.rows
+            );
+            assert_eq!(
+                b.slack.len(),
+                a.slack.len(),
+                "{step}: one slack per soft row"
+            );
+            if status_a == QpStatus::Solved {
+                feasible += 1;
+                // Both are solutions to the tolerance: their objectives differ by at most
+                // the two duality gaps (pairs × μ ≤ pairs × tol each).
+                let pairs = (full.rows.len() + full.soft_count) as f64;
+                let (ja, jb) = (penalised(&qp, &a), penalised(&qp, &b));
+                assert!(
+                    (ja - jb).abs() <= 2.0 * pairs * settings.tolerance,
+                    "{step}: objectives {ja} and {jb}"
+                );
+                // And the screened one satisfies every row of the full QP, up to its soft
+                // rows' slacks (the screened rows have none: they must hold).
+                let slack = b.slack.iter().copied().fold(0.0, f64::max);
+                for k in 1..=qp.intervals {
+                    let v = qp.constraints[k].violation(&b.x[k], b.u.get(k));
+                    assert!(
+                        v <= slack + 10.0 * settings.tolerance,
+                        "{step}: stage {k} violates {v:e} (largest slack {slack:e})"
+                    );
+                }
+            } else {
+                infeasible += 1;
+            }
+        }
+        assert!(
+            feasible >= 3 && infeasible >= 3,
+            "{feasible} feasible, {infeasible} infeasible"
+        );
+    }
+
+    #[test]
+    fn a_screened_row_active_at_the_solution_is_put_back() {
+        let settings = QpSettings::default();
+        let qp = first_qp();
+        let start = start_states(&qp);
+        let mut full = RiccatiIpm::new(settings);
+        let mut a = QpSolution::zeros(qp.intervals);
+        assert_eq!(full.solve(&qp, &mut a), QpStatus::Solved);
+        // The state bound whose entry the solution moves farthest from the start.
+        let (mut best, mut moved) = ((0, 0), 0.0f64);
+        for k in 1..=qp.intervals {
+            let c = &qp.constraints[k];
+            for (j, &i) in c.state_indices.iter().enumerate() {
+                let d = a.x[k][i] - start[k][i];
+                let room = (start[k][i] - c.state_lower[j]).min(c.state_upper[j] - start[k][i]);
+                // Far from both bounds at the start (screenable with a margin below d/2).
+                if d.abs() > moved.abs() && room > d.abs() {
+                    (best, moved) = ((k, j), d);
+                }
+            }
+        }
+        assert!(moved.abs() > 1e-2, "the solution moves an entry by {moved}");
+        // Tighten that bound half-way: 0.5|d| from the start (the pair is screened with a
+        // margin of 0.25|d|), but the unscreened solution crosses it.
+        let (k, j) = best;
+        let i = qp.constraints[k].state_indices[j];
+        let mut tight = qp.clone();
+        let bound = start[k][i] + 0.5 * moved;
+        if moved > 0.0 {
+            tight.constraints[k].state_upper[j] = bound;
+        } else {
+            tight.constraints[k].state_lower[j] = bound;
+        }
+        let mut reference = RiccatiIpm::new(settings);
+        let mut b = QpSolution::zeros(qp.intervals);
+        assert_eq!(reference.solve(&tight, &mut b), QpStatus::Solved);
+        // Hand-derived: the tightened row is active at the solution (on its bound).
+        assert!(
+            (b.x[k][i] - bound).abs() < 1e-5,
+            "x[{k}][{i}] = {} against the bound {bound}",
+            b.x[k][i]
+        );
+        assert!(b.slack.iter().all(|t| *t < 1e-6), "no slack needed");
+        let mut screened = RiccatiIpm::new(settings);
+        screened.set_row_screening(Some(RowScreening {
+            margin: 0.25 * moved.abs(),
+            pause_after_resolve: 0,
+        }));
+        let mut c = QpSolution::zeros(qp.intervals);
+        assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
+        let report = screened.screening_report();
+        assert!(report.screened > 0);
+        assert!(report.resolved, "the violated row must be put back");
+        // Put back, the solve is the unscreened one: the same point, bit for bit (the
+        // iterations count both solves).
+        assert_eq!(c.x, b.x);
+        assert_eq!(c.u, b.u);
+        assert_eq!(c.slack, b.slack);
+        assert!(c.iterations > b.iterations);
+        // With a pause after the second solve, the next solve walks every row.
+        screened.set_row_screening(Some(RowScreening {
+            margin: 0.25 * moved.abs(),
+            pause_after_resolve: 1,
+        }));
+        assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
+        assert!(screened.screening_report().resolved);
+        screened.pause_screening();
+        assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
+        assert_eq!(screened.screening_report().screened, 0, "paused");
+        assert_eq!((&c.x, &c.u), (&b.x, &b.u));
+        assert_eq!(screened.solve(&tight, &mut c), QpStatus::Solved);
+        assert!(screened.screening_report().resolved, "screening again");
+        // Without the tightening, the default screening needs no second solve and equals
+        // the unscreened solution to the tolerance.
+        let mut screened = RiccatiIpm::new(settings);
+        screened.set_row_screening(Some(RowScreening::default()));
+        let mut d = QpSolution::zeros(qp.intervals);
+        assert_eq!(screened.solve(&qp, &mut d), QpStatus::Solved);
+        assert!(!screened.screening_report().resolved);
+        let pairs = (full.rows.len() + full.soft_count) as f64;
+        let (ja, jd) = (penalised(&qp, &a), penalised(&qp, &d));
+        assert!(
+            (ja - jd).abs() <= 2.0 * pairs * settings.tolerance,
+            "{ja} and {jd}"
+        );
     }
 
     #[test]

@@ -57,7 +57,7 @@ use crate::mpc::qp::{
     InputMatrix, InputStateMatrix, InputVector, NU, NX, QpSolution, QpSolver, QpStatus,
     StateInputMatrix, StateMatrix, StateVector, StructuredQp,
 };
-use crate::mpc::riccati::{InfeasibilityExit, RiccatiIpm};
+use crate::mpc::riccati::{InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport};
 
 /// Bounded state entries: position, Euler angles, arm joints.
 const STATE_BOUND_INDICES: [usize; 10] = [
@@ -247,6 +247,7 @@ impl SqpRti {
             riccati: {
                 let mut riccati = RiccatiIpm::new(config.qp);
                 riccati.set_infeasibility_exit(Self::default_exit(&config));
+                riccati.set_row_screening(Some(RowScreening::default()));
                 riccati
             },
             clarabel: ClarabelQp::new(config.qp),
@@ -313,6 +314,19 @@ impl SqpRti {
     /// The default exit of this OCP's config (None without soft rows and a slack limit).
     pub fn default_qp_infeasibility_exit(&self) -> Option<InfeasibilityExit> {
         Self::default_exit(&self.config)
+    }
+
+    /// Sets the Riccati path's row screening (default: on, [`RowScreening::default`]; None:
+    /// every row is walked at every iteration). Exact: a solve whose reduced solution
+    /// violates a screened row is redone with every row; after such a QP, when its solution
+    /// is taken, the screening pauses ([`RowScreening::pause_after_resolve`]).
+    pub fn set_qp_row_screening(&mut self, screening: Option<RowScreening>) {
+        self.riccati.set_row_screening(screening);
+    }
+
+    /// What the Riccati path's row screening did in the last solve.
+    pub fn qp_screening_report(&self) -> ScreeningReport {
+        self.riccati.screening_report()
     }
 
     /// Forgets the previous solution: the next step starts cold.
@@ -627,6 +641,9 @@ impl SqpRti {
         if status != QpStatus::Solved {
             // Its multipliers (on an infeasible QP's soft rows: ρ) are no start for the next.
             self.riccati.forget();
+        } else if path == QpPath::Riccati && self.riccati.screening_report().resolved {
+            // A taken solution the screening had to redo: the next QPs likely cross too.
+            self.riccati.pause_screening();
         }
         if status == QpStatus::Solved {
             for (x, dx) in self.xs.iter_mut().zip(&self.solution.x) {
