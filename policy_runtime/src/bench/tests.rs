@@ -47,7 +47,18 @@ impl<F: FnMut(&Stepped<'_>) -> bool> Observer for Watch<F> {
 /// rotors) through the one flight loop, `watch` seeing every step; the criteria stop it at
 /// success.
 fn fly_scripted(task: TaskId, vehicle: &str, seed: u64, watch: impl FnMut(&Stepped<'_>) -> bool) {
-    let cfg = config(vehicle, ControllerKind::Pid, Interface::Ee);
+    fly_scripted_with(task, vehicle, ControllerKind::Pid, seed, watch);
+}
+
+/// [`fly_scripted`] with the controller `kind` (EE interface).
+fn fly_scripted_with(
+    task: TaskId,
+    vehicle: &str,
+    kind: ControllerKind,
+    seed: u64,
+    watch: impl FnMut(&Stepped<'_>) -> bool,
+) {
+    let cfg = config(vehicle, kind, Interface::Ee);
     let twin_config = TwinConfig {
         task: Some(task),
         seed,
@@ -325,13 +336,28 @@ fn the_fa_hexa_reaches_the_standing_frame_without_pushing_it() {
     }
 }
 
+/// The frame's top bar leaves the open fingers 10 mm (its [U] width, 0.010 m): with 5 mm
+/// (a 0.015 m bar) the IK-L1 FA-Hexa, whose EE flies ~2 mm higher and 0.26° more pitched than
+/// IK-PID's on the approach, caught the bar with its fingertips and pushed the 10 g frame
+/// 5–6 cm away at seed 19 (8 of 30 bench rollouts); the frame now stays put.
+#[test]
+fn the_ik_l1_fa_hexa_reaches_the_standing_frame_without_pushing_it() {
+    let moved = moved_before_grasp_with(TaskId::FrameAssembly, ControllerKind::L1, 19, "frame_pos");
+    assert!(moved < 5e-3, "the frame moved {moved} m before the grasp");
+}
+
 /// How far the object observed as `key` moved before the FA-Hexa's gripper first held it, in
 /// the scripted rollout of `task` at `seed`, m; panics if the gripper never held it.
 fn moved_before_grasp(task: TaskId, seed: u64, key: &str) -> f64 {
+    moved_before_grasp_with(task, ControllerKind::Pid, seed, key)
+}
+
+/// [`moved_before_grasp`] with the controller `kind`.
+fn moved_before_grasp_with(task: TaskId, kind: ControllerKind, seed: u64, key: &str) -> f64 {
     let mut start = None;
     let mut moved = 0.0_f64;
     let mut held = false;
-    fly_scripted(task, "fa-hexa", seed, |step| {
+    fly_scripted_with(task, "fa-hexa", kind, seed, |step| {
         if let Some(s) = step.scene {
             let p = s.observation.vec3(key, 0).unwrap_or_else(|e| panic!("{e}"));
             let p0 = *start.get_or_insert(p);
