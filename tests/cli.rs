@@ -466,9 +466,6 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
         p["qp_iterations_max"].as_u64().is_some_and(|i| i < 40),
         "{p}"
     );
-    // The early infeasibility exit against the same QPs solved to convergence: the same
-    // status on every tick, every feasible QP's cost and iterations unchanged, and the
-    // infeasible QPs stopped in fewer iterations.
     // The row screening (on, as the controller flies) left the far state rows out.
     let screening = &p["screening"];
     assert_eq!(screening["rows_per_qp"].as_u64(), Some(1344), "{screening}");
@@ -478,6 +475,9 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
             .is_some_and(|m| m > 100.0),
         "{screening}"
     );
+    // The early infeasibility exit against the same QPs solved to convergence: the same
+    // status on every tick, every feasible QP's cost and iterations unchanged, and the
+    // infeasible QPs stopped in fewer iterations.
     let check = &p["exit_check"];
     assert_eq!(check["ticks"].as_u64(), Some(ticks), "{check}");
     assert_eq!(check["disagreements"], 0, "{check}");

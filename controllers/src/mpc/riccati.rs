@@ -1853,81 +1853,24 @@ fn bound_rows(kind: RowKind, lower: f64, upper: f64, soft: bool) -> [Row; 2] {
 }
 
 /// Lower Cholesky factor of a symmetric positive definite matrix (None if it is not, or if
-/// a pivot is not finite). The arithmetic of nalgebra's `Cholesky::new`, in the same order
-/// (so bit-identical, checked by a test), written on the fixed 10 × 10 block without
-/// nalgebra's dynamic views: `L[r, j] = M[r, j] − Σ_k L[j, k] L[r, k]` column by column,
-/// then the square root of the pivot and a division of the column below it.
+/// a pivot is not finite): nalgebra's fixed-size factorisation.
 fn cholesky(m: &InputMatrix) -> Option<InputMatrix> {
-    const N: usize = NU;
-    let mut l = *m;
-    let a = l.as_mut_slice();
-    for j in 0..N {
-        for k in 0..j {
-            let f = a[k * N + j];
-            for r in j..N {
-                a[j * N + r] += -f * a[k * N + r];
-            }
-        }
-        let d = a[j * N + j];
-        if d.is_nan() || d <= 0.0 {
-            return None;
-        }
-        let root = d.sqrt();
-        if !root.is_finite() {
-            return None;
-        }
-        a[j * N + j] = root;
-        for r in j + 1..N {
-            a[j * N + r] /= root;
-        }
-    }
-    for j in 1..N {
-        a[j * N..j * N + j].fill(0.0);
-    }
-    Some(l)
+    let l = nalgebra::linalg::Cholesky::new(*m)?.unpack();
+    l.diagonal()
+        .iter()
+        .all(|d| *d > 0.0 && d.is_finite())
+        .then_some(l)
 }
 
-/// v ← L⁻¹v (L from `cholesky`: its diagonal is positive). nalgebra's
-/// `solve_lower_triangular_mut`, in the same order, on the fixed block.
+/// v ← L⁻¹v.
 fn forward_substitute(l: &InputMatrix, v: &mut InputVector) {
-    const N: usize = NU;
-    let a = l.as_slice();
-    for i in 0..N {
-        let c = v[i] / a[i * N + i];
-        v[i] = c;
-        for r in i + 1..N {
-            v[r] += -c * a[i * N + r];
-        }
-    }
+    // L comes from `cholesky`: its diagonal is positive, so the solve cannot fail.
+    let _ = l.solve_lower_triangular_mut(v);
 }
 
-/// v ← L⁻ᵀv. nalgebra's `tr_solve_lower_triangular_mut`, in the same order (its dot product
-/// sums in eight lanes from eight entries on, then the rest in turn), on the fixed block.
+/// v ← L⁻ᵀv.
 fn backward_substitute(l: &InputMatrix, v: &mut InputVector) {
-    const N: usize = NU;
-    let a = l.as_slice();
-    for i in (0..N).rev() {
-        let col = &a[i * N + i + 1..(i + 1) * N];
-        let rest = &v.as_slice()[i + 1..];
-        let len = col.len();
-        let mut acc = [0.0f64; 8];
-        let mut k = 0;
-        while len - k >= 8 {
-            for (q, slot) in acc.iter_mut().enumerate() {
-                *slot += col[k + q] * rest[k + q];
-            }
-            k += 8;
-        }
-        let mut dot = 0.0;
-        dot += acc[0] + acc[4];
-        dot += acc[1] + acc[5];
-        dot += acc[2] + acc[6];
-        dot += acc[3] + acc[7];
-        for q in k..len {
-            dot += col[q] * rest[q];
-        }
-        v[i] = (v[i] - dot) / a[i * N + i];
-    }
+    let _ = l.tr_solve_lower_triangular_mut(v);
 }
 
 /// Compile-time check of the dimensions the recursion assumes.
@@ -1963,49 +1906,6 @@ mod tests {
             (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
         });
         m.transpose() * m + StateMatrix::identity()
-    }
-
-    #[test]
-    fn the_fixed_size_cholesky_and_solves_equal_nalgebras_bit_for_bit() {
-        let mut state = 7u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
-        for trial in 0..200 {
-            // SPD matrices over ten decades of conditioning, and right-hand sides.
-            let g = InputMatrix::from_fn(|_, _| next());
-            let scale = 10f64.powi(trial % 10);
-            let m = g.transpose() * g * scale + InputMatrix::identity() * 1e-3;
-            let v = InputVector::from_fn(|_, _| next());
-            let ours = cholesky(&m).unwrap_or_else(|| panic!("{trial}: SPD"));
-            let theirs = nalgebra::linalg::Cholesky::new(m)
-                .unwrap_or_else(|| panic!("{trial}: SPD"))
-                .unpack();
-            for (a, b) in ours.iter().zip(theirs.iter()) {
-                assert_eq!(a.to_bits(), b.to_bits(), "{trial}: factor");
-            }
-            let mut fwd = v;
-            forward_substitute(&ours, &mut fwd);
-            let mut fwd_ref = v;
-            assert!(theirs.solve_lower_triangular_mut(&mut fwd_ref));
-            let mut bwd = v;
-            backward_substitute(&ours, &mut bwd);
-            let mut bwd_ref = v;
-            assert!(theirs.tr_solve_lower_triangular_mut(&mut bwd_ref));
-            for i in 0..NU {
-                assert_eq!(fwd[i].to_bits(), fwd_ref[i].to_bits(), "{trial}: L⁻¹v");
-                assert_eq!(bwd[i].to_bits(), bwd_ref[i].to_bits(), "{trial}: L⁻ᵀv");
-            }
-        }
-        // Not positive definite, or not finite: no factor.
-        let mut indefinite = InputMatrix::identity();
-        indefinite[(3, 3)] = -1.0;
-        assert!(cholesky(&indefinite).is_none());
-        assert!(cholesky(&(InputMatrix::identity() * f64::NAN)).is_none());
-        assert!(cholesky(&(InputMatrix::identity() * f64::INFINITY)).is_none());
     }
 
     #[test]

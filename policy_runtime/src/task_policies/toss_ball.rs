@@ -272,7 +272,12 @@ mod tests {
     /// distance / duration.
     #[test]
     fn the_swing_peaks_at_a_followable_speed_and_lets_go_at_four_fifths() {
-        let width = |action: f64| 0.002 + 0.5 * (action + 1.0) * 0.088;
+        // The FA-Hexa's gripper as its vehicle description maps an action to finger targets.
+        let vehicle = platform::Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"));
+        let gripper = vehicle
+            .gripper
+            .unwrap_or_else(|| panic!("the FA-Hexa has a gripper"));
+        let width = |action: f64| gripper.targets(action).iter().sum::<f64>();
         for seed in 0..20 {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             let p = policy(&context(), &mut rng).unwrap_or_else(|e| panic!("{e}"));

@@ -328,6 +328,19 @@ fn the_assisted_grasp_engages_on_the_inner_faces_only() {
     ));
 }
 
+/// `torque` (world, N·m) on `body` for 0.5 s (240 steps): the angle the body turned through
+/// from identity, rad.
+fn turned_under(w: &mut PhysicsWorld, body: RigidBodyHandle, torque: Vector3<f64>) -> f64 {
+    for _ in 0..240 {
+        if let Some(rb) = w.bodies.get_mut(body) {
+            rb.reset_torques(false);
+            rb.add_torque(vector_to_rapier(&torque), true);
+        }
+        w.step();
+    }
+    super::objects::pose_of(w, body).rotation.angle()
+}
+
 /// An object of one `shape` (placed by `shape_pose` in its frame) held by the assisted grasp
 /// of a gripper fixed in the world, turned by `torque` (world, N·m) for 0.5 s: the angle it
 /// turned through, rad.
@@ -354,14 +367,7 @@ fn turn_in_the_fingers(
     );
     let mut grasp = super::objects::Grasp::default();
     grasp.attach(&mut w, ee, object, 0.04);
-    for _ in 0..240 {
-        if let Some(rb) = w.bodies.get_mut(object) {
-            rb.reset_torques(false);
-            rb.add_torque(vector_to_rapier(&torque), true);
-        }
-        w.step();
-    }
-    super::objects::pose_of(&w, object).rotation.angle()
+    turned_under(&mut w, object, torque)
 }
 
 #[test]
@@ -423,14 +429,7 @@ fn roll_the_hand_on_the_knob(torque_in_knob_frame: Vector3<f64>) -> f64 {
     let mut grasp = super::objects::Grasp::default();
     grasp.attach(&mut w, hand, knob, 2.0 * super::push_slider::KNOB_RADIUS_M);
     let torque = knob_pose.rotation * torque_in_knob_frame;
-    for _ in 0..240 {
-        if let Some(rb) = w.bodies.get_mut(hand) {
-            rb.reset_torques(false);
-            rb.add_torque(vector_to_rapier(&torque), true);
-        }
-        w.step();
-    }
-    super::objects::pose_of(&w, hand).rotation.angle()
+    turned_under(&mut w, hand, torque)
 }
 
 #[test]
