@@ -5,19 +5,25 @@
 //! valve's shaft, a lever's pivot) lets it move one way only; the prediction model has no
 //! contact, so without this model the MPC plans to close an EE error along a blocked
 //! direction by extending the arm, which, the EE being pinned, pushes its own base back
-//! (`docs/mpc-contact.md` §2). With a [`GraspJoint`] the OCP gets, on every state stage
-//! k = 1..N, two rows on the EE position `p(x_k)` (linearised with
-//! [`crate::mpc::EeKinematics::position_jacobian`] at the stage's iterate), each held within
-//! ±`MpcConfig::grasp_band_m` of its value at the measured state:
+//! (`docs/mpc-contact.md` §2). The scene describes the joint every tick ([`GraspJoint`],
+//! world frame), anchored at the measured EE p(x̂):
 //!
-//! - prismatic joint (axis a): the displacement `p(x_k) − p(x̂)` projected on two unit
-//!   directions normal to a;
-//! - revolute joint (axis a through c): the displacement along a, and the distance of `p(x_k)`
-//!   from the axis less that of `p(x̂)` (the EE stays on its circle).
+//! - **target on the joint's motion** (`MpcConfig::grasp_reference`, on by default): the EE
+//!   position target handed to the QP is the point of the joint's motion through p(x̂)
+//!   nearest the target (prismatic, axis a: p(x̂) + a·aᵀ(p_target − p(x̂)); revolute, axis a
+//!   through c: the point of p(x̂)'s circle about the axis in the target's direction), and
+//!   the EE offset integrates only the error along the motion;
+//! - **grasp rows** (`MpcConfig::grasp_band_m`, off by default): on every state stage
+//!   k = 1..N, two rows on the EE position p(x_k) (linearised with
+//!   [`crate::mpc::EeKinematics::position_jacobian`] at the stage's iterate), each held within
+//!   ±band of its value at the measured state — prismatic: the displacement p(x_k) − p(x̂)
+//!   on two unit directions normal to a; revolute: the displacement along a, and the
+//!   distance of p(x_k) from the axis less that of p(x̂). Soft state rows like the others.
 //!
-//! The rows are soft state rows like the others (exact L1 penalty, `state_row_penalty`). The
-//! anchor is the measured EE, so the measured state satisfies them exactly: the model's
-//! kinematics need not agree with the object's to the millimetre.
+//! The anchor is the measured EE, so the measured state is on the joint's motion by
+//! construction: the model's kinematics need not agree with the object's to the millimetre.
+//! Measured in the twin (docs/mpc-contact.md §5) the target alone does what the rows do, and
+//! the rows cost successes (their QPs need slacks the model's slow arm servo cannot avoid).
 
 use nalgebra::Vector3;
 

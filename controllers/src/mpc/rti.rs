@@ -31,6 +31,10 @@
 //!   ([`crate::mpc::model::RotorEnvelope`]), with the measured heading over the horizon (roll
 //!   and pitch, within ±0.01 rad, neglected). The reference's force is unbounded.
 //! - Joint and arm-reference bounds are the URDF limits within ±π (the reference: ±π).
+//! - A grasp model ([`crate::mpc::grasp`], not in the reference): while the hand holds an
+//!   object on a joint ([`SqpRti::set_grasp`]), the EE position target is moved onto the
+//!   joint's motion through the measured EE, and optionally two EE rows per state stage
+//!   keep the predictions on it.
 //!
 //! # SQP-RTI
 //!
