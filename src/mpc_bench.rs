@@ -785,6 +785,7 @@ fn replay(
         if !p.warm {
             rti.reset();
         }
+        rti.set_grasp(p.grasp);
         let t0 = Stamp::now();
         rti.prepare(&p.x_hat, &p.reference, &p.limits, p.elapsed_s);
         let t1 = Instant::now();
@@ -801,6 +802,7 @@ fn replay(
             if !p.warm {
                 twin.reset();
             }
+            twin.set_grasp(p.grasp);
             twin.prepare(&p.x_hat, &p.reference, &p.limits, p.elapsed_s);
             let converged = twin.feedback(path);
             check.push(&report, &converged, &twin.last_qp_solution().slack);

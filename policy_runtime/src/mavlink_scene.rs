@@ -37,6 +37,8 @@ pub(crate) fn snapshot_from_wire(model: &TaskSnapshot, wire: &TaskArray) -> Opti
         wall: wire.wall,
         obstacle_face_x: wire.obstacle_face_x_m,
         holding: wire.holding,
+        // Not on the MAVLink wire: the MPC's grasp rows need the in-process twin.
+        held_joint: None,
         steps: wire.steps,
     })
 }

@@ -374,6 +374,17 @@ impl FlightStack {
         }));
     }
 
+    /// Tells the whole-body MPC the joint of the object the hand holds (None: nothing held,
+    /// or a free object), world frame, now: its grasp rows keep the predicted end effector on
+    /// that joint's motion (`controllers::mpc::grasp`). Called every tick by the flight loop
+    /// from the task's scene, as [`Self::keep_in_front_of`]; the other controllers do not
+    /// use it.
+    pub fn hold_on_joint(&mut self, joint: Option<controllers::mpc::GraspJoint>) {
+        if let Some(mpc) = &mut self.mpc {
+            mpc.controller.set_held_joint(joint);
+        }
+    }
+
     /// Where `action` asks the end-effector link to be: the forward kinematics of a base +
     /// joint target (joints no action commands at their initial configuration), or an EE
     /// target's link pose.

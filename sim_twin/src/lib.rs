@@ -45,7 +45,7 @@ pub use config::{
 };
 pub use error::TwinError;
 pub use observer::TwinObserver;
-pub use tasks::{GraspMode, TaskId, TaskObservation, TaskSnapshot, TaskStatus};
+pub use tasks::{GraspMode, HeldJoint, TaskId, TaskObservation, TaskSnapshot, TaskStatus};
 pub use twin::Twin;
 pub use vehicle_body::{ROBOT_GROUP, WORLD_GROUP};
 pub use visuals::{SceneVisual, VisualRole, VisualShape};

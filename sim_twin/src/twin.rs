@@ -818,6 +818,12 @@ impl Twin {
         self.task.grasp.held.is_some()
     }
 
+    /// The joint the held object moves on, now (None: nothing held, or a free object).
+    pub fn held_joint(&self) -> Option<crate::tasks::HeldJoint> {
+        let (object, _) = self.task.grasp.held?;
+        self.task.scene.as_ref()?.held_joint(&self.world, object)
+    }
+
     /// Env steps since reset.
     pub fn steps(&self) -> u64 {
         self.task.steps
@@ -833,6 +839,7 @@ impl Twin {
             wall: scene.wall(),
             obstacle_face_x: scene.obstacle_face_x(&self.world),
             holding: self.holding(),
+            held_joint: self.held_joint(),
             steps: self.task.steps,
         })
     }

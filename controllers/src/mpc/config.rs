@@ -201,6 +201,22 @@ pub struct MpcConfig {
     /// Bound of the EE reference offset and of the predicted error it integrates, m.
     /// Default 0.05.
     pub ee_offset_limit_m: f64,
+    /// Grasp rows: while the hand holds an object on a joint (given per tick by
+    /// `WholeBodyMpc::set_held_joint`), the EE position of every state stage is held within
+    /// ±this of its measured value along the directions the joint forbids (`mpc::grasp`;
+    /// soft rows like the other state rows). Unit m. Default None (off): measured in the
+    /// twin, they add nothing to `grasp_reference` and cost successes (Rotate Valve 29 → 26
+    /// of 30 with a 0.01 m band; with 0.002 m most contact QPs need a slack above
+    /// `state_row_slack_limit`: the model's arm servo, 12/s, is slower than the twin's,
+    /// ~67/s, and a pinned EE turns that mismatch into base motion; `docs/mpc-contact.md`
+    /// §5).
+    pub grasp_band_m: Option<f64>,
+    /// Grasp model: while the hand holds an object on a joint, the EE position target handed
+    /// to the QP is moved onto that joint's motion through the measured EE (the rail through
+    /// it, or its circle about the axis), so the MPC does not try to close an EE error along
+    /// a direction the joint blocks; the EE offset of `ee_offset_rate_per_s` integrates only
+    /// the error along the joint's motion. Default true. False: the target as given.
+    pub grasp_reference: bool,
     /// Wall-time budget of one RTI step, s: a step that takes longer (by the caller's clock)
     /// counts as failed and starts the fallback. Default None: the iteration budget
     /// `qp.max_iterations` alone, so a flight does not depend on the machine's speed.
@@ -233,6 +249,8 @@ impl Default for MpcConfig {
             fallback_hold_ticks: 12,
             ee_offset_rate_per_s: Some(20.0),
             ee_offset_limit_m: 0.05,
+            grasp_band_m: None,
+            grasp_reference: true,
             solve_budget_s: None,
         }
     }
@@ -386,6 +404,9 @@ impl MpcConfig {
             positive("ee_offset_rate_per_s", rate)?;
         }
         positive("ee_offset_limit_m", self.ee_offset_limit_m)?;
+        if let Some(band) = self.grasp_band_m {
+            positive("grasp_band_m", band)?;
+        }
         if let Some(b) = self.solve_budget_s {
             positive("solve_budget_s", b)?;
         }

@@ -111,6 +111,8 @@ pub struct MpcProblem {
     pub elapsed_s: f64,
     /// Whether the solver started from its previous solution (false: a cold start).
     pub warm: bool,
+    /// The held object's joint ([`SqpRti::set_grasp`] before the step; None: nothing held).
+    pub grasp: Option<crate::mpc::GraspJoint>,
 }
 
 /// The controller's report of one tick.
@@ -224,6 +226,14 @@ impl WholeBodyMpc {
         &self.status
     }
 
+    /// The joint of the object the hand holds (None: nothing held, or a free object), for
+    /// the next ticks: the grasp model of [`crate::mpc::grasp`] (with `grasp_band_m`). Given
+    /// every tick by the flight stack from the scene, as the wall's face.
+    pub fn set_held_joint(&mut self, joint: Option<crate::mpc::GraspJoint>) {
+        self.rti
+            .set_grasp(joint.filter(crate::mpc::GraspJoint::is_valid));
+    }
+
     /// Replaces the mass properties used for gravity compensation.
     pub fn set_body(&mut self, body: BodyParams) {
         self.body = body;
@@ -305,6 +315,7 @@ impl WholeBodyMpc {
                 limits: *limits,
                 elapsed_s: elapsed,
                 warm: self.rti.is_warm(),
+                grasp: self.rti.grasp().copied(),
             });
             let r = self
                 .rti
@@ -433,7 +444,11 @@ impl WholeBodyMpc {
             return;
         };
         let predicted = self.rti.ee_kinematics(&terminal).position;
-        let error = target_m - predicted;
+        // Holding an object on a joint, only what the joint lets the hand move is an offset
+        // the MPC can remove.
+        let error = self
+            .rti
+            .grasp_allowed_part(&predicted, &(target_m - predicted));
         let limit = self.config.ee_offset_limit_m;
         if !(error.iter().all(|v| v.is_finite()) && error.norm() <= limit) {
             return;

@@ -14,6 +14,8 @@
 //! - [`WholeBodyMpc`]: the `mpc` controller — output filter, gravity compensation after the
 //!   solve, and the fallback (hold the shifted solution, then IK-PID; IK-PID at once for a
 //!   wrench the rotors cannot deliver) reported in [`MpcStatus`].
+//! - [`grasp`]: the grasp model — while the hand holds an object on a joint, rows keep the
+//!   predicted EE on that joint's motion.
 //! - [`scenario`]: the standard scenario of `amstack mpc-bench` and the tests (a 0.3 m EE
 //!   step toward a wall, the loop closed on the model).
 //!
@@ -25,6 +27,7 @@
 mod clarabel_qp;
 mod config;
 mod controller;
+pub mod grasp;
 pub mod model;
 mod qp;
 mod riccati;
@@ -39,6 +42,7 @@ pub use config::{MpcConfig, MpcConfigError, MpcWeights, QpPath, QpSettings};
 pub use controller::{
     FallbackEvent, MpcCommand, MpcMode, MpcProblem, MpcStatus, SolveFailure, WholeBodyMpc,
 };
+pub use grasp::GraspJoint;
 pub use model::{EeKinematics, ModelError, MpcModel};
 pub use qp::{
     InputVector, NU, NX, QpSolution, QpSolver, QpStatus, StageConstraints, StateVector,

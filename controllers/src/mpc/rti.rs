@@ -31,6 +31,10 @@
 //!   ([`crate::mpc::model::RotorEnvelope`]), with the measured heading over the horizon (roll
 //!   and pitch, within ±0.01 rad, neglected). The reference's force is unbounded.
 //! - Joint and arm-reference bounds are the URDF limits within ±π (the reference: ±π).
+//! - A grasp model ([`crate::mpc::grasp`], not in the reference): while the hand holds an
+//!   object on a joint ([`SqpRti::set_grasp`]), the EE position target is moved onto the
+//!   joint's motion through the measured EE, and optionally two EE rows per state stage
+//!   keep the predictions on it.
 //!
 //! # SQP-RTI
 //!
@@ -52,6 +56,7 @@ use serde::Serialize;
 use crate::ik::BaseLimits;
 use crate::mpc::clarabel_qp::ClarabelQp;
 use crate::mpc::config::{MpcConfig, MpcConfigError, QpPath};
+use crate::mpc::grasp::{AnchoredGrasp, GRASP_ROWS, GraspJoint};
 use crate::mpc::model::{IU_QREF, IX_ETA, IX_OMEGA, IX_P, IX_Q, IX_V, ModelError, MpcModel, NQ};
 use crate::mpc::qp::{
     InputMatrix, InputStateMatrix, InputVector, NU, NX, QpSolution, QpSolver, QpStatus,
@@ -160,6 +165,10 @@ pub struct SqpRti {
     warm: bool,
     /// Whether the Riccati path starts from the last solve's multipliers.
     qp_warm_start: bool,
+    /// The joint of the object the hand holds (None: nothing held).
+    grasp: Option<GraspJoint>,
+    /// That joint anchored at the measured EE of the last preparation (None: no grasp rows).
+    anchored_grasp: Option<AnchoredGrasp>,
 }
 
 impl SqpRti {
@@ -253,6 +262,8 @@ impl SqpRti {
             clarabel: ClarabelQp::new(config.qp),
             warm: false,
             qp_warm_start: true,
+            grasp: None,
+            anchored_grasp: None,
             config,
         })
     }
@@ -329,6 +340,27 @@ impl SqpRti {
         self.riccati.screening_report()
     }
 
+    /// The joint of the object the hand holds from the next preparation on (None: nothing
+    /// held): with `grasp_band_m` set, the grasp rows of [`crate::mpc::grasp`] keep the
+    /// predicted EE on its motion.
+    pub fn set_grasp(&mut self, joint: Option<GraspJoint>) {
+        self.grasp = joint;
+    }
+
+    /// The held joint (None: nothing held).
+    pub fn grasp(&self) -> Option<&GraspJoint> {
+        self.grasp.as_ref()
+    }
+
+    /// The part of an EE position error (at the EE position `at`) the held joint lets the
+    /// hand move (the error itself when nothing is held or without grasp rows).
+    pub fn grasp_allowed_part(&self, at: &Vector3<f64>, error: &Vector3<f64>) -> Vector3<f64> {
+        match &self.anchored_grasp {
+            Some(g) => g.allowed_part(at, error),
+            None => *error,
+        }
+    }
+
     /// Forgets the previous solution: the next step starts cold.
     pub fn reset(&mut self) {
         self.warm = false;
@@ -397,9 +429,21 @@ impl SqpRti {
         for k in 0..n {
             self.xs[k + 1] = self.a * self.xs[k] + self.b * self.us[k];
         }
-        self.reference = Some(*reference);
+        self.anchored_grasp = self
+            .grasp
+            .filter(|_| self.config.grasp_band_m.is_some() || self.config.grasp_reference)
+            .and_then(|joint| joint.anchored(self.model.ee(x_hat).position));
+        // Holding: the EE target moved onto the joint's motion through the measured EE (what
+        // the hand can reach without leaving it).
+        let mut reference = *reference;
+        if self.config.grasp_reference
+            && let Some(g) = &self.anchored_grasp
+        {
+            reference.ee_position_m = g.project(&reference.ee_position_m);
+        }
+        self.reference = Some(reference);
         self.set_bounds(x_hat, limits);
-        self.linearize(reference);
+        self.linearize(&reference);
     }
 
     fn set_bounds(&mut self, x_hat: &StateVector, limits: &BaseLimits) {
@@ -555,6 +599,22 @@ impl SqpRti {
                 c.general[0] = height_gradient;
                 c.general_lower[0] = b.height_lower - height;
                 c.general_upper[0] = b.height_upper - height;
+                let band = self
+                    .config
+                    .grasp_band_m
+                    .filter(|_| self.anchored_grasp.is_some());
+                let rows = band.map_or(0, |_| GRASP_ROWS);
+                c.general.resize(1 + rows, StateVector::zeros());
+                c.general_lower.resize(1 + rows, 0.0);
+                c.general_upper.resize(1 + rows, 0.0);
+                if let (Some(grasp), Some(band)) = (&self.anchored_grasp, band) {
+                    let ee = self.model.ee(&x);
+                    for (j, (value, gradient)) in grasp.rows(&ee).into_iter().enumerate() {
+                        c.general[1 + j] = gradient;
+                        c.general_lower[1 + j] = -band - value;
+                        c.general_upper[1 + j] = band - value;
+                    }
+                }
             }
         }
         self.qp.x0 = StateVector::zeros();
@@ -618,6 +678,13 @@ impl SqpRti {
                 violation = violation
                     .max(b.height_lower - height)
                     .max(height - b.height_upper);
+                if let (Some(grasp), Some(band)) = (&self.anchored_grasp, self.config.grasp_band_m)
+                {
+                    let ee = self.model.ee(&x);
+                    for (value, _) in grasp.rows(&ee) {
+                        violation = violation.max(value.abs() - band);
+                    }
+                }
             }
         }
         (cost, violation)

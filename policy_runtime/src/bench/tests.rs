@@ -384,3 +384,60 @@ fn the_open_fingers_pass_the_lemon_without_knocking_it_off() {
     let moved = moved_before_grasp(TaskId::LemonHarvesting, 17, "lemon_pos");
     assert!(moved < 1e-3, "the lemon moved {moved} m before the grasp");
 }
+
+/// Keeps the held joint each tick's MPC problem was posed with.
+#[derive(Default)]
+struct HeldJoints(Vec<Option<controllers::mpc::GraspJoint>>);
+
+impl Observer for HeldJoints {
+    fn decided(&mut self, tick: &crate::flight::Decided<'_>) -> Result<(), FlightError> {
+        let problem = tick.record.mpc.as_ref().and_then(|s| s.problem);
+        self.0.push(problem.and_then(|p| p.grasp));
+        Ok(())
+    }
+}
+
+#[test]
+fn the_mpc_is_told_the_held_knobs_rail_from_the_grasp_on() {
+    // Push Slider with the MPC: the scene's held joint reaches the MPC through the flight
+    // loop — nothing before the fingers close on the knob, the rail (along the wall face,
+    // the push direction) from then on, every tick.
+    let mut cfg = config("fa-hexa", ControllerKind::Mpc, Interface::Ee);
+    cfg.tasks = vec![TaskId::PushSlider];
+    let stop = AtomicBool::new(false);
+    let mut held = HeldJoints::default();
+    let result = run_rollout_with(
+        &cfg,
+        TaskId::PushSlider,
+        0,
+        &stop,
+        None,
+        RolloutHooks {
+            source: None,
+            observers: vec![&mut held],
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert!(result.success);
+    let first = held
+        .0
+        .iter()
+        .position(Option::is_some)
+        .unwrap_or_else(|| panic!("the MPC never heard of the knob's rail"));
+    // The script closes the fingers on the knob after ~7 s of approach (120 Hz).
+    assert!(
+        first > 600,
+        "a held joint at tick {first}, before any grasp"
+    );
+    assert!(
+        held.0[first..].iter().all(Option::is_some),
+        "the grasp holds to the end"
+    );
+    let Some(controllers::mpc::GraspJoint::Prismatic { axis }) = held.0[first] else {
+        panic!("the knob slides: {:?}", held.0[first]);
+    };
+    assert!(
+        (axis.norm() - 1.0).abs() < 1e-9 && axis.y < -0.9,
+        "the rail runs along the wall, the push toward −y: {axis}"
+    );
+}

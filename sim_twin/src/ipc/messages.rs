@@ -252,6 +252,8 @@ impl TaskMsg {
             obstacle_face_x: (self.flags & TASK_HAS_OBSTACLE_FACE != 0)
                 .then_some(self.obstacle_face_x_m),
             holding: self.flags & TASK_HOLDING != 0,
+            // Not on this wire: the MPC's grasp rows need the in-process twin.
+            held_joint: None,
             steps: self.steps,
         })
     }

@@ -289,8 +289,29 @@ pub struct TaskSnapshot {
     pub obstacle_face_x: Option<f64>,
     /// Whether the grasp constraint holds an object.
     pub holding: bool,
+    /// The joint the held object moves on, now (None: nothing held, or a free object).
+    pub held_joint: Option<HeldJoint>,
     /// Env steps since reset.
     pub steps: u64,
+}
+
+/// The motion the joint of a held articulated object allows the hand holding it, in the
+/// world frame at this instant: what a controller needs to know that its end effector is
+/// pinned to the object (the whole-body MPC's grasp rows, `docs/mpc-contact.md` §5).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub enum HeldJoint {
+    /// The object slides along `axis` (unit, world).
+    Prismatic {
+        /// The sliding direction.
+        axis: Vector3<f64>,
+    },
+    /// The object turns about `axis` (unit, world) through `point` (world, m).
+    Revolute {
+        /// The turning axis.
+        axis: Vector3<f64>,
+        /// A point on the axis.
+        point: Vector3<f64>,
+    },
 }
 
 /// A task's observation keys (AMBENCH_SPEC §5.1 "task keys"): name → values, world frame.
@@ -419,6 +440,14 @@ pub(crate) trait Scene: Send + std::fmt::Debug {
     /// The world x of the obstacle face the base must stay in front of (the IK's per-env
     /// `max_x` before its safety margin, AMBENCH_SPEC §2.6); None without an obstacle.
     fn obstacle_face_x(&self, _world: &PhysicsWorld) -> Option<f64> {
+        None
+    }
+
+    /// The joint a grasped `object` moves on relative to the world, now (None: a free
+    /// object, or one not of this scene). An object on a chain of joints answers with the
+    /// joint that moves the grasp point (the valve's handle: the shaft; its own spin on the
+    /// wheel turns the hand about its axis without moving it).
+    fn held_joint(&self, _world: &PhysicsWorld, _object: RigidBodyHandle) -> Option<HeldJoint> {
         None
     }
 }

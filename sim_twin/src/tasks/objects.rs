@@ -475,6 +475,8 @@ pub(crate) struct ReducedJoint {
     /// The multibody joint.
     pub joint: MultibodyJointHandle,
     dof: Dof,
+    /// The joint frame in the link's frame (x = the axis, origin on it).
+    link_from_joint: Isometry3<f64>,
 }
 
 impl ReducedJoint {
@@ -552,6 +554,7 @@ impl ReducedJoint {
             link,
             joint,
             dof: spec.dof,
+            link_from_joint: joint_from_link0.inverse(),
         };
         if spec.initial != 0.0 {
             this.set_position(world, spec.initial);
@@ -599,6 +602,20 @@ impl ReducedJoint {
     /// World pose of the link.
     pub fn link_pose(&self, world: &PhysicsWorld) -> Isometry3<f64> {
         pose_of(world, self.link)
+    }
+
+    /// The motion this joint allows its link now, in the world: the joint frame carried by
+    /// the link (its x the axis; for a revolute joint its origin stays on the axis).
+    pub fn motion(&self, world: &PhysicsWorld) -> super::HeldJoint {
+        let frame = self.link_pose(world) * self.link_from_joint;
+        let axis = frame.rotation * Vector3::x();
+        match self.dof {
+            Dof::Prismatic => super::HeldJoint::Prismatic { axis },
+            Dof::Revolute => super::HeldJoint::Revolute {
+                axis,
+                point: frame.translation.vector,
+            },
+        }
     }
 }
 

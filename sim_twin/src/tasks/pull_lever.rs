@@ -54,7 +54,7 @@ use super::keys;
 use super::objects::{
     Dof, DriveType, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric, uniform,
 };
-use super::{Build, InitialOverrides, Scene, TaskId, TaskObservation, TaskStatus, View};
+use super::{Build, HeldJoint, InitialOverrides, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
 
 /// Lever angle above which it counts as pulled, rad (40°).
@@ -214,6 +214,11 @@ impl Scene for PullLever {
 
     fn obstacle_face_x(&self, _world: &PhysicsWorld) -> Option<f64> {
         self.wall.map(|w| w.face_x())
+    }
+
+    fn held_joint(&self, world: &PhysicsWorld, object: RigidBodyHandle) -> Option<HeldJoint> {
+        let lever = self.lever.as_ref().filter(|l| l.link == object)?;
+        Some(lever.motion(world))
     }
 }
 

@@ -24,7 +24,7 @@ use super::keys;
 use super::objects::{
     Dof, DriveType, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric,
 };
-use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
+use super::{Build, HeldJoint, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
 
 /// Slider position at which it counts as pushed, m.
@@ -148,6 +148,11 @@ impl Scene for PushSlider {
 
     fn obstacle_face_x(&self, _world: &PhysicsWorld) -> Option<f64> {
         self.wall.map(|w| w.face_x())
+    }
+
+    fn held_joint(&self, world: &PhysicsWorld, object: RigidBodyHandle) -> Option<HeldJoint> {
+        let slider = self.slider.as_ref().filter(|s| s.link == object)?;
+        Some(slider.motion(world))
     }
 }
 

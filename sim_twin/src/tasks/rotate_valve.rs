@@ -45,7 +45,7 @@ use super::keys;
 use super::objects::{
     Dof, DriveType, JointSpec, ReducedJoint, Wall, attach, fixed_body, symmetric,
 };
-use super::{Build, Scene, TaskId, TaskObservation, TaskStatus, View};
+use super::{Build, HeldJoint, Scene, TaskId, TaskObservation, TaskStatus, View};
 use crate::error::TwinError;
 
 /// Shaft angle at which the valve counts as rotated, rad (170°).
@@ -212,6 +212,13 @@ impl Scene for RotateValve {
     fn obstacle_face_x(&self, _world: &PhysicsWorld) -> Option<f64> {
         self.wall.map(|w| w.face_x())
     }
+
+    fn held_joint(&self, world: &PhysicsWorld, object: RigidBodyHandle) -> Option<HeldJoint> {
+        // The handle spins on the wheel about its own axis (the hand's roll about n); the
+        // grasp point goes round the shaft.
+        self.handle.as_ref().filter(|h| h.link == object)?;
+        Some(self.shaft.as_ref()?.motion(world))
+    }
 }
 
 #[cfg(test)]
@@ -269,6 +276,44 @@ mod tests {
             assert!((root_local.x - ROOT_X_M).abs() < 1e-9);
             assert!((root_local.z - local.z - HANDLE_RADIUS_M).abs() < 1e-9);
         }
+    }
+
+    #[test]
+    fn the_handle_reports_the_shaft_as_its_held_joint_and_turns_on_its_circle() {
+        let (mut w, scene, graspable) = built(3);
+        let wall = scene.wall.unwrap_or_else(|| panic!("no wall"));
+        let handle = scene.handle.clone().unwrap_or_else(|| panic!("no handle"));
+        let Some(HeldJoint::Revolute { axis, point }) = scene.held_joint(&w, graspable[0]) else {
+            panic!("the handle goes round the shaft");
+        };
+        // The wall's normal, through the root.
+        let root =
+            crate::tasks::objects::pose_of(&w, scene.root.unwrap_or_else(|| panic!("no root")));
+        assert!(
+            axis.cross(&(wall.pose.rotation * Vector3::x())).norm() < 1e-9,
+            "{axis}"
+        );
+        assert!(axis.cross(&(point - root.translation.vector)).norm() < 1e-9);
+        // Turned by a quarter and a half turn, the handle keeps its distance from the axis
+        // (0.12 m) and its place along it.
+        let polar = |p: Vector3<f64>| {
+            let d = p - point;
+            let along = axis.dot(&d);
+            ((d - axis * along).norm(), along)
+        };
+        let (r0, a0) = polar(handle.link_pose(&w).translation.vector);
+        assert!((r0 - HANDLE_RADIUS_M).abs() < 1e-9, "{r0}");
+        for angle in [std::f64::consts::FRAC_PI_2, std::f64::consts::PI] {
+            shaft(&scene).set_position(&mut w, angle);
+            let p = handle.link_pose(&w).translation.vector;
+            let (r, a) = polar(p);
+            assert!(
+                (r - r0).abs() < 1e-9 && (a - a0).abs() < 1e-9,
+                "{angle}: {r} {a}"
+            );
+        }
+        // The wheel itself is no handle.
+        assert_eq!(scene.held_joint(&w, shaft(&scene).link), None);
     }
 
     #[test]

@@ -257,6 +257,34 @@ fn the_slider_engages_at_5_percent_and_succeeds_at_045() {
 }
 
 #[test]
+fn the_slider_reports_its_rail_as_the_held_joint_and_the_knob_moves_along_it() {
+    use super::Scene;
+    let mut scene = super::push_slider::PushSlider::default();
+    let mut w = built(&mut scene, 4);
+    let knob = scene.knob().unwrap_or_else(|| panic!("a knob"));
+    let wall = scene.wall().unwrap_or_else(|| panic!("a wall"));
+    let Some(super::HeldJoint::Prismatic { axis }) = scene.held_joint(&w, knob) else {
+        panic!("the knob slides on a prismatic joint");
+    };
+    // The push direction −w_y, along the wall face.
+    assert!(
+        (axis - wall.rotation * -Vector3::y()).norm() < 1e-9,
+        "{axis}"
+    );
+    let at = |w: &PhysicsWorld| super::objects::pose_of(w, knob).translation.vector;
+    let before = at(&w);
+    scene.set_slider(&mut w, 0.2);
+    let moved = at(&w) - before;
+    // 0.7 m along the axis, nothing across it.
+    assert!((moved - axis * 0.7).norm() < 1e-9, "{moved}");
+    // Nothing else is a held joint of this scene.
+    let wall_body = w.bodies.iter().find(|(h, _)| *h != knob).map(|(h, _)| h);
+    if let Some(other) = wall_body {
+        assert_eq!(scene.held_joint(&w, other), None);
+    }
+}
+
+#[test]
 fn wall_and_button_randomisation_stays_in_the_spec_ranges() {
     use super::Scene;
     for seed in 0..20 {
