@@ -357,6 +357,9 @@ pub struct MpcStatus {
     pub ee_error_m: f64,
     /// Predicted base position at the end of the horizon, world, m.
     pub predicted_terminal_position_m: [f64; 3],
+    /// The EE target's velocity the MPC extrapolated over its horizon, world, m/s (zero for
+    /// a held target or a jump).
+    pub target_velocity_mps: [f64; 3],
 }
 
 /// The state estimator's tick (flights with `--state-source estimator`): the estimate handed
@@ -799,6 +802,7 @@ impl FlightLog {
                 solve_time_ms: status.solve_time_s.map(|s| s * 1e3),
                 ee_error_m: status.ee_error_m,
                 predicted_terminal_position_m: v3(&status.predicted_terminal_position_m),
+                target_velocity_mps: v3(&status.target_velocity_mps),
             };
             let logged = self.recorder.log(&channel, t, &message);
             self.mpc = Some(channel);

@@ -134,6 +134,9 @@ pub struct MpcStatus {
     pub ee_error_m: f64,
     /// Predicted base position at the end of the horizon, m.
     pub predicted_terminal_position_m: Vector3<f64>,
+    /// The EE target's velocity extrapolated over the horizon, world, m/s
+    /// ([`MpcConfig::target_velocity_limit_mps`]; zero for a held target or a jump).
+    pub target_velocity_mps: Vector3<f64>,
     /// What the RTI step was given (None when nothing was solved); not logged.
     #[serde(skip)]
     pub problem: Option<MpcProblem>,
@@ -172,6 +175,8 @@ pub struct WholeBodyMpc {
     /// The offset added to the EE position target (world, m): see
     /// [`MpcConfig::ee_offset_rate_per_s`].
     ee_offset: Vector3<f64>,
+    /// The EE target position of the previous tick (None: first tick since a reset).
+    previous_target_m: Option<Vector3<f64>>,
 }
 
 impl WholeBodyMpc {
@@ -199,10 +204,12 @@ impl WholeBodyMpc {
                 solve_time_s: None,
                 ee_error_m: 0.0,
                 predicted_terminal_position_m: Vector3::zeros(),
+                target_velocity_mps: Vector3::zeros(),
                 problem: None,
             },
             last_command: None,
             ee_offset: Vector3::zeros(),
+            previous_target_m: None,
         })
     }
 
@@ -227,7 +234,7 @@ impl WholeBodyMpc {
     }
 
     /// The joint of the object the hand holds (None: nothing held, or a free object), for
-    /// the next ticks: the grasp model of [`crate::mpc::grasp`] (with `grasp_band_m`). Given
+    /// the next ticks: the grasp model of [`crate::mpc::grasp`]. Given
     /// every tick by the flight stack from the scene, as the wall's face.
     pub fn set_held_joint(&mut self, joint: Option<crate::mpc::GraspJoint>) {
         self.rti
@@ -252,6 +259,7 @@ impl WholeBodyMpc {
         self.mode = MpcMode::Mpc;
         self.last_command = None;
         self.ee_offset = Vector3::zeros();
+        self.previous_target_m = None;
         let _ = (state, configuration);
         self.status.event = None;
         self.status.failure = None;
@@ -302,9 +310,15 @@ impl WholeBodyMpc {
         let mut failure = None;
         let mut report = None;
         let mut problem = None;
+        let target_velocity_mps = if inputs_finite {
+            self.target_velocity(&target_world_from_ee.translation.vector, dt)
+        } else {
+            Vector3::zeros()
+        };
         if inputs_finite {
             let reference = MpcReference {
                 ee_position_m: target_world_from_ee.translation.vector + self.ee_offset,
+                ee_velocity_mps: target_velocity_mps,
                 ee_rotation: target_world_from_ee.rotation,
                 input_previous: self.u_last.unwrap_or_else(|| self.seed_input(&x_hat)),
             };
@@ -370,7 +384,7 @@ impl WholeBodyMpc {
             0
         };
         if self.mode == MpcMode::Mpc {
-            self.integrate_ee_offset(&target_world_from_ee.translation.vector, dt);
+            self.integrate_ee_offset(&x_hat, dt);
         }
         // A non-finite state cannot be flown by either path: hold the last command.
         if failure == Some(SolveFailure::NonFiniteInput)
@@ -413,6 +427,7 @@ impl WholeBodyMpc {
                 terminal[IX_P + 1],
                 terminal[IX_P + 2],
             ),
+            target_velocity_mps,
             problem,
         };
         command.status = self.status;
@@ -432,23 +447,58 @@ impl WholeBodyMpc {
         self.ee_offset
     }
 
+    /// The EE target's velocity from this tick's target and the previous one (see
+    /// [`MpcConfig::target_velocity_limit_mps`]; zero while the hand holds an object on a
+    /// joint); remembers `target_m` for the next tick.
+    fn target_velocity(&mut self, target_m: &Vector3<f64>, dt: f64) -> Vector3<f64> {
+        let previous = self.previous_target_m.replace(*target_m);
+        let (Some(limit), Some(previous)) = (self.config.target_velocity_limit_mps, previous)
+        else {
+            return Vector3::zeros();
+        };
+        if self.rti.grasp().is_some() {
+            return Vector3::zeros();
+        }
+        let velocity = (target_m - previous) / dt;
+        if velocity.iter().all(|v| v.is_finite()) && velocity.norm() <= limit {
+            velocity
+        } else {
+            Vector3::zeros()
+        }
+    }
+
     /// One step of the offset-free EE reference after a solve the MPC flies:
-    /// `b ← b + rate·dt·(p_target − p_ee(x_N))` with x_N the solution's terminal state, taken
-    /// only while that predicted error is within `ee_offset_limit_m` (a larger one is a move
-    /// still under way, not a steady-state offset), and `‖b‖` clipped to the same bound.
-    fn integrate_ee_offset(&mut self, target_m: &Vector3<f64>, dt: f64) {
+    /// `b ← b + rate·dt·e`, with `e` the error the solution predicts at the end of its
+    /// horizon, `p_ref(t_N) − p_ee(x_N)` (the target there, extrapolated along its velocity),
+    /// or, once the measured EE lies within `ee_offset_gap_m` of that prediction, the
+    /// measured error `p_target − p_ee(x̂)` (at `ee_offset_measured_rate_per_s`); taken only while `e` is within
+    /// `ee_offset_limit_m` (a larger one is a move still under way, not a steady-state
+    /// offset), and `‖b‖` clipped to the same bound. The offset is part of the reference, so
+    /// the errors are taken against the target without it.
+    fn integrate_ee_offset(&mut self, x_hat: &StateVector, dt: f64) {
         let Some(rate) = self.config.ee_offset_rate_per_s else {
             return;
         };
-        let Some(terminal) = self.rti.states().last().copied() else {
+        let (Some(terminal), Some(reference_end)) = (
+            self.rti.states().last().copied(),
+            self.rti.terminal_target(),
+        ) else {
             return;
         };
         let predicted = self.rti.ee_kinematics(&terminal).position;
+        let target_end = reference_end - self.ee_offset;
+        let measured = self.rti.ee_kinematics(x_hat).position;
+        let (at, error, rate) = match (self.config.ee_offset_gap_m, self.previous_target_m) {
+            (Some(gap), Some(target_now)) if (measured - predicted).norm() <= gap => (
+                measured,
+                target_now - measured,
+                self.config.ee_offset_measured_rate_per_s,
+            ),
+            _ => (predicted, target_end - predicted, rate),
+        };
         // Holding an object on a joint, only what the joint lets the hand move is an offset
         // the MPC can remove.
-        let error = self
-            .rti
-            .grasp_allowed_part(&predicted, &(target_m - predicted));
+        let error = self.rti.grasp_allowed_part(&at, &error);
         let limit = self.config.ee_offset_limit_m;
         if !(error.iter().all(|v| v.is_finite()) && error.norm() <= limit) {
             return;

@@ -94,8 +94,12 @@ pub enum MpcError {
 /// What the MPC tracks at one tick.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MpcReference {
-    /// Target `ee_link` position in the world, m (held over the horizon).
+    /// Target `ee_link` position in the world, m, now.
     pub ee_position_m: Vector3<f64>,
+    /// The target position's velocity, world, m/s: the reference at stage k is
+    /// `ee_position_m + ee_velocity_mps · min(t_k, target_extrapolation_s)` (zero: the target
+    /// held over the horizon, as in the reference).
+    pub ee_velocity_mps: Vector3<f64>,
     /// Target `ee_link` orientation in the world.
     pub ee_rotation: UnitQuaternion<f64>,
     /// The last applied input (world force without gravity, world torque, arm references).
@@ -341,8 +345,8 @@ impl SqpRti {
     }
 
     /// The joint of the object the hand holds from the next preparation on (None: nothing
-    /// held): with `grasp_band_m` set, the grasp rows of [`crate::mpc::grasp`] keep the
-    /// predicted EE on its motion.
+    /// held): the grasp model of [`crate::mpc::grasp`] (the EE target on the joint's motion
+    /// with `grasp_reference`, the grasp rows with `grasp_band_m`).
     pub fn set_grasp(&mut self, joint: Option<GraspJoint>) {
         self.grasp = joint;
     }
@@ -353,7 +357,7 @@ impl SqpRti {
     }
 
     /// The part of an EE position error (at the EE position `at`) the held joint lets the
-    /// hand move (the error itself when nothing is held or without grasp rows).
+    /// hand move (the error itself when nothing is held or the grasp model is off).
     pub fn grasp_allowed_part(&self, at: &Vector3<f64>, error: &Vector3<f64>) -> Vector3<f64> {
         match &self.anchored_grasp {
             Some(g) => g.allowed_part(at, error),
@@ -493,18 +497,35 @@ impl SqpRti {
         }
     }
 
-    /// Residual vector of the EE (position, wrapped rpy) and its Jacobian at x.
+    /// The EE position reference at stage `k`: the target moved along its velocity for
+    /// `min(t_k, target_extrapolation_s)`, and, holding an object on a joint with the grasp
+    /// model on, moved back onto the joint's motion (a straight extrapolation leaves a
+    /// valve's circle).
+    fn stage_target(&self, reference: &MpcReference, k: usize) -> Vector3<f64> {
+        if reference.ee_velocity_mps == Vector3::zeros() {
+            return reference.ee_position_m;
+        }
+        let t = (k as f64 * self.h).min(self.config.target_extrapolation_s);
+        let target = reference.ee_position_m + reference.ee_velocity_mps * t;
+        match &self.anchored_grasp {
+            Some(g) if self.config.grasp_reference => g.project(&target),
+            _ => target,
+        }
+    }
+
+    /// Residual vector of the EE (position against `target`, wrapped rpy) and its Jacobian
+    /// at x.
     fn ee_residual(
         &mut self,
         x: &StateVector,
-        reference: &MpcReference,
+        target: &Vector3<f64>,
         ref_rpy: &Vector3<f64>,
     ) -> (SMatrix<f64, 6, 1>, SMatrix<f64, 6, NX>, f64, StateVector) {
         let ee = self.model.ee(x);
         let mut y = SMatrix::<f64, 6, 1>::zeros();
         let mut jac = SMatrix::<f64, 6, NX>::zeros();
         for i in 0..3 {
-            y[i] = ee.position[i] - reference.ee_position_m[i];
+            y[i] = ee.position[i] - target[i];
             y[3 + i] = wrap_angle(ee.rpy[i] - ref_rpy[i]);
         }
         jac.fixed_rows_mut::<3>(0).copy_from(&ee.position_jacobian);
@@ -549,7 +570,8 @@ impl SqpRti {
         for k in 0..=n {
             let x = self.xs[k];
             let scale = self.stage_scale(k);
-            let (y, jac, height, height_gradient) = self.ee_residual(&x, reference, &ref_rpy);
+            let target = self.stage_target(reference, k);
+            let (y, jac, height, height_gradient) = self.ee_residual(&x, &target, &ref_rpy);
             let r_state = self.state_residual(&x, ry);
             let wj = w_ee * jac;
             let mut q = jac.transpose() * wj;
@@ -633,7 +655,8 @@ impl SqpRti {
         let mut violation: f64 = 0.0;
         for k in 0..=n {
             let x = self.xs[k];
-            let (y, _, height, _) = self.ee_residual(&x, &reference, &ref_rpy);
+            let target = self.stage_target(&reference, k);
+            let (y, _, height, _) = self.ee_residual(&x, &target, &ref_rpy);
             let r_state = self.state_residual(&x, ry);
             let mut stage = 0.0;
             for i in 0..6 {
@@ -728,6 +751,14 @@ impl SqpRti {
             cost,
             max_constraint_violation,
         }
+    }
+
+    /// The EE position reference of the last prepared QP at the end of its horizon (the
+    /// grasp model's projection and the target's extrapolation applied; None before any).
+    pub fn terminal_target(&self) -> Option<Vector3<f64>> {
+        self.reference
+            .as_ref()
+            .map(|r| self.stage_target(r, self.config.intervals))
     }
 
     /// The QP solution (deltas) of the last feedback.

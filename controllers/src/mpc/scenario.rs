@@ -58,6 +58,7 @@ impl WallStepScenario {
             x,
             reference: MpcReference {
                 ee_position_m: goal,
+                ee_velocity_mps: Vector3::zeros(),
                 ee_rotation: UnitQuaternion::from_rotation_matrix(&ee.rotation),
                 input_previous,
             },

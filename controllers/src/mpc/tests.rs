@@ -4,7 +4,7 @@
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 use platform::Vehicle;
 
-use super::model::{IX_ETA, IX_P, IX_Q};
+use super::model::{IX_ETA, IX_OMEGA, IX_P, IX_Q, IX_V};
 use super::*;
 use crate::ik::BaseLimits;
 
@@ -484,7 +484,7 @@ fn contact_like_qp() -> StructuredQp {
         .unwrap_or_else(|e| panic!("mpc: {e}"));
     run.prepare();
     let mut qp = run.rti().qp().clone();
-    qp.x0[model::IX_V] = 3.0;
+    qp.x0[IX_V] = 3.0;
     qp
 }
 
@@ -604,49 +604,83 @@ fn soft_state_rows_leave_a_feasible_qp_unchanged() {
     }
 }
 
+/// The base state and joint configuration the MPC's model state `x` stands for (the arm's
+/// joints written into `configuration` at `arm_dofs`).
+fn measured_from_model(
+    x: &StateVector,
+    arm_dofs: &[usize],
+    configuration: &mut [f64],
+) -> platform::RigidBodyState {
+    let orientation = UnitQuaternion::from_euler_angles(x[IX_ETA], x[IX_ETA + 1], x[IX_ETA + 2]);
+    let mut measured = platform::RigidBodyState::at_rest(nalgebra::Isometry3::from_parts(
+        Vector3::new(x[IX_P], x[IX_P + 1], x[IX_P + 2]).into(),
+        orientation,
+    ));
+    measured.velocity_in_world_mps = Vector3::new(x[IX_V], x[IX_V + 1], x[IX_V + 2]);
+    measured.angular_velocity_in_body_radps =
+        Vector3::new(x[IX_OMEGA], x[IX_OMEGA + 1], x[IX_OMEGA + 2]);
+    for (j, &d) in arm_dofs.iter().enumerate() {
+        configuration[d] = x[IX_Q + j];
+    }
+    measured
+}
+
 /// Flies the controller on its own prediction model (RK4 over each tick, the filtered input
-/// applied) from hover toward `target`, the base behind a wall face at x = 1.15 m (0.85 m
-/// margin), for `ticks`; returns the final EE error vector (target − EE, world, m) and the
-/// controller.
+/// applied, plus a constant drift `drift` of the state's rate that the model does not know)
+/// from hover toward the target `target_at(tick, hover_ee)`, the base behind a
+/// wall face at x = 1.15 m (0.85 m margin), for `ticks`; returns the final EE error vector
+/// (target − EE, world, m), the controller, and the status of every tick.
+fn fly_on_the_model(
+    config: MpcConfig,
+    target_at: impl Fn(usize, &nalgebra::Isometry3<f64>) -> nalgebra::Isometry3<f64>,
+    drift: StateVector,
+    ticks: usize,
+) -> (Vector3<f64>, WholeBodyMpc, Vec<MpcStatus>) {
+    let vehicle = fa_hexa();
+    let mut mpc = WholeBodyMpc::new(&vehicle, config).unwrap_or_else(|e| panic!("{e}"));
+    let (state, q) = hover_measurement(&vehicle);
+    mpc.reset(&state, &q);
+    let hover_ee = state.pose() * vehicle.base_from_ee(&q);
+    let limits = BaseLimits::in_front_of_face_x(1.15, 0.85);
+    let arm_dofs = vehicle.arm_dofs();
+    let mut x = mpc.state_vector(&state, &q);
+    let mut configuration = q.clone();
+    let mut target = hover_ee;
+    let mut statuses = Vec::with_capacity(ticks);
+    for tick in 0..ticks {
+        target = target_at(tick, &hover_ee);
+        let measured = measured_from_model(&x, &arm_dofs, &mut configuration);
+        let c = mpc.update(&measured, &configuration, &target, &limits, DT, None);
+        assert_eq!(c.status.mode, MpcMode::Mpc, "tick {tick}");
+        statuses.push(c.status);
+        let u = mpc
+            .last_input()
+            .unwrap_or_else(|| panic!("tick {tick}: no input"));
+        x = mpc.rti().model().rk4(&x, &u, DT).0 + drift * DT;
+    }
+    let ee = mpc.rti_mut().ee_kinematics(&x).position;
+    (target.translation.vector - ee, mpc, statuses)
+}
+
+/// [`fly_on_the_model`] toward a fixed target `target_offset_m` from the hover EE, without
+/// a disturbance.
 fn controller_on_the_model(
     config: MpcConfig,
     target_offset_m: Vector3<f64>,
     ticks: usize,
 ) -> (Vector3<f64>, WholeBodyMpc) {
-    let vehicle = fa_hexa();
-    let mut mpc = WholeBodyMpc::new(&vehicle, config).unwrap_or_else(|e| panic!("{e}"));
-    let (state, q) = hover_measurement(&vehicle);
-    mpc.reset(&state, &q);
-    let target = state.pose() * vehicle.base_from_ee(&q);
-    let target = nalgebra::Isometry3::from_parts(
-        (target.translation.vector + target_offset_m).into(),
-        target.rotation,
+    let (error, mpc, _) = fly_on_the_model(
+        config,
+        |_, hover| {
+            nalgebra::Isometry3::from_parts(
+                (hover.translation.vector + target_offset_m).into(),
+                hover.rotation,
+            )
+        },
+        StateVector::zeros(),
+        ticks,
     );
-    let limits = BaseLimits::in_front_of_face_x(1.15, 0.85);
-    let arm_dofs = vehicle.arm_dofs();
-    let mut x = mpc.state_vector(&state, &q);
-    let mut configuration = q.clone();
-    for tick in 0..ticks {
-        let orientation =
-            UnitQuaternion::from_euler_angles(x[IX_ETA], x[IX_ETA + 1], x[IX_ETA + 2]);
-        let mut measured = platform::RigidBodyState::at_rest(nalgebra::Isometry3::from_parts(
-            Vector3::new(x[IX_P], x[IX_P + 1], x[IX_P + 2]).into(),
-            orientation,
-        ));
-        measured.velocity_in_world_mps = Vector3::new(x[3], x[4], x[5]);
-        measured.angular_velocity_in_body_radps = Vector3::new(x[9], x[10], x[11]);
-        for (j, &d) in arm_dofs.iter().enumerate() {
-            configuration[d] = x[IX_Q + j];
-        }
-        let c = mpc.update(&measured, &configuration, &target, &limits, DT, None);
-        assert_eq!(c.status.mode, MpcMode::Mpc, "tick {tick}");
-        let u = mpc
-            .last_input()
-            .unwrap_or_else(|| panic!("tick {tick}: no input"));
-        x = mpc.rti().model().rk4(&x, &u, DT).0;
-    }
-    let ee = mpc.rti_mut().ee_kinematics(&x).position;
-    (target.translation.vector - ee, mpc)
+    (error, mpc)
 }
 
 #[test]
@@ -694,6 +728,123 @@ fn the_ee_offset_does_not_integrate_an_unreachable_target() {
     assert_eq!(mpc.ee_offset(), Vector3::zeros());
 }
 
+/// The hover EE moved by `offset`, same orientation.
+fn moved(hover: &nalgebra::Isometry3<f64>, offset: Vector3<f64>) -> nalgebra::Isometry3<f64> {
+    nalgebra::Isometry3::from_parts((hover.translation.vector + offset).into(), hover.rotation)
+}
+
+/// A servo that settles `sag_rad` below its target on the arm's second joint (as a position
+/// servo holding the arm against gravity does): the model's arm, `q̇ = k_a (q_ref − q)`, with
+/// a drift `c` settles at `q_ref + c / k_a`.
+fn servo_sag(sag_rad: f64) -> StateVector {
+    let mut drift = StateVector::zeros();
+    drift[IX_Q + 1] = MpcConfig::default().arm_gain_per_s * sag_rad;
+    drift
+}
+
+#[test]
+fn the_ee_offset_removes_a_small_error_the_model_does_not_predict() {
+    // The arm's servo sags 6 mrad (1.8 mm at the EE): the MPC's prediction, started from each measurement,
+    // settles on its reference, while the measured EE hangs off it. Its own prediction
+    // cannot see that error; the measured one, integrated once the two agree within
+    // `ee_offset_gap_m`, removes it.
+    let hold = |_: usize, hover: &nalgebra::Isometry3<f64>| moved(hover, Vector3::zeros());
+    let predicted_only = MpcConfig {
+        ee_offset_gap_m: None,
+        ..MpcConfig::default()
+    };
+    let (sag, _, _) = fly_on_the_model(predicted_only, hold, servo_sag(6e-3), 720);
+    let gap = MpcConfig::default().ee_offset_gap_m.unwrap_or(0.0);
+    assert!(
+        sag.norm() > 0.2 * gap && sag.norm() < gap,
+        "the sag leaves {sag} m, within the gap {gap} m"
+    );
+    let (error, mpc, _) = fly_on_the_model(MpcConfig::default(), hold, servo_sag(6e-3), 720);
+    assert!(
+        error.norm() < 0.1 * sag.norm(),
+        "with the measured error: {error} (predicted only: {sag})"
+    );
+    assert!(
+        (mpc.ee_offset() - sag).norm() < 0.2 * sag.norm(),
+        "offset {} against the sag it removes {sag}",
+        mpc.ee_offset()
+    );
+}
+
+#[test]
+fn the_ee_offset_does_not_wind_up_against_a_hand_stopped_short_of_its_prediction() {
+    // Ten times the sag: the measured EE hangs further off the prediction than
+    // `ee_offset_gap_m` (as a hand pushed back by a contact does), so only the predicted
+    // error, which is nil, is integrated: the measured error stays.
+    let hold = |_: usize, hover: &nalgebra::Isometry3<f64>| moved(hover, Vector3::zeros());
+    let (error, mpc, _) = fly_on_the_model(MpcConfig::default(), hold, servo_sag(3e-2), 720);
+    let gap = MpcConfig::default().ee_offset_gap_m.unwrap_or(0.0);
+    assert!(
+        error.norm() > gap,
+        "the sag leaves {error} m, beyond the gap {gap} m"
+    );
+    assert!(
+        mpc.ee_offset().norm() < 0.1 * gap,
+        "offset {} against a hand held short",
+        mpc.ee_offset()
+    );
+}
+
+#[test]
+fn a_moving_target_is_followed_along_its_velocity() {
+    // The target moves along y at 0.3 m/s for 1.5 s. Held over the horizon (the
+    // reference), it is followed at a lag; extrapolated along its velocity (estimated from
+    // the last two ticks' targets), much closer.
+    let speed = 0.3;
+    let ramp = move |tick: usize, hover: &nalgebra::Isometry3<f64>| {
+        moved(hover, Vector3::y() * speed * tick as f64 * DT)
+    };
+    let held = MpcConfig {
+        target_velocity_limit_mps: None,
+        ..MpcConfig::default()
+    };
+    let (lag_held, _, statuses_held) = fly_on_the_model(held, ramp, StateVector::zeros(), 180);
+    let (lag, _, statuses) =
+        fly_on_the_model(MpcConfig::default(), ramp, StateVector::zeros(), 180);
+    assert!(
+        lag_held.y > 0.02,
+        "the held reference lags {lag_held} m behind"
+    );
+    assert!(
+        lag.norm() < 0.25 * lag_held.norm(),
+        "extrapolated: {lag} m behind (held: {lag_held})"
+    );
+    // The estimate is the ramp's velocity from the second tick on (nothing before).
+    assert_eq!(statuses[0].target_velocity_mps, Vector3::zeros());
+    for s in &statuses[1..] {
+        assert!(
+            (s.target_velocity_mps - Vector3::y() * speed).norm() < 1e-9,
+            "{}",
+            s.target_velocity_mps
+        );
+    }
+    assert!(
+        statuses_held
+            .iter()
+            .all(|s| s.target_velocity_mps == Vector3::zeros())
+    );
+}
+
+#[test]
+fn a_jump_of_the_target_extrapolates_nothing() {
+    // A 5 cm jump in one tick (6 m/s, beyond `target_velocity_limit_mps`) is a new
+    // waypoint: no velocity on that tick, nor after it (the target holds).
+    let jump = |tick: usize, hover: &nalgebra::Isometry3<f64>| {
+        moved(hover, Vector3::x() * if tick >= 10 { 0.05 } else { 0.0 })
+    };
+    let (_, _, statuses) = fly_on_the_model(MpcConfig::default(), jump, StateVector::zeros(), 20);
+    assert!(
+        statuses
+            .iter()
+            .all(|s| s.target_velocity_mps == Vector3::zeros())
+    );
+}
+
 /// Flies the controller on its own model from hover toward a target 1.5 cm off a rail (into
 /// the "wall", +x) and 0.1 m along it (+y) for 2 s, the hand holding an object that slides
 /// on that rail (world y); returns the EE's final displacement from its start and the
@@ -722,17 +873,7 @@ fn held_on_a_rail(config: MpcConfig) -> (Vector3<f64>, f64) {
     let off_rail = |d: Vector3<f64>| (d - Vector3::y() * d.y).norm();
     let mut worst: f64 = 0.0;
     for tick in 0..240 {
-        let orientation =
-            UnitQuaternion::from_euler_angles(x[IX_ETA], x[IX_ETA + 1], x[IX_ETA + 2]);
-        let mut measured = platform::RigidBodyState::at_rest(nalgebra::Isometry3::from_parts(
-            Vector3::new(x[IX_P], x[IX_P + 1], x[IX_P + 2]).into(),
-            orientation,
-        ));
-        measured.velocity_in_world_mps = Vector3::new(x[3], x[4], x[5]);
-        measured.angular_velocity_in_body_radps = Vector3::new(x[9], x[10], x[11]);
-        for (j, &d) in arm_dofs.iter().enumerate() {
-            configuration[d] = x[IX_Q + j];
-        }
+        let measured = measured_from_model(&x, &arm_dofs, &mut configuration);
         mpc.set_held_joint(Some(rail));
         let c = mpc.update(&measured, &configuration, &target, &limits, DT, None);
         assert_eq!(
