@@ -742,6 +742,14 @@ fn servo_sag(sag_rad: f64) -> StateVector {
     drift
 }
 
+/// The default settings with the measured error of `ee_offset_gap_m` integrated.
+fn with_gap(gap_m: f64) -> MpcConfig {
+    MpcConfig {
+        ee_offset_gap_m: Some(gap_m),
+        ..MpcConfig::default()
+    }
+}
+
 #[test]
 fn the_ee_offset_removes_a_small_error_the_model_does_not_predict() {
     // The arm's servo sags 6 mrad (1.8 mm at the EE): the MPC's prediction, started from each measurement,
@@ -754,12 +762,12 @@ fn the_ee_offset_removes_a_small_error_the_model_does_not_predict() {
         ..MpcConfig::default()
     };
     let (sag, _, _) = fly_on_the_model(predicted_only, hold, servo_sag(6e-3), 720);
-    let gap = MpcConfig::default().ee_offset_gap_m.unwrap_or(0.0);
+    let gap = 0.003;
     assert!(
         sag.norm() > 0.2 * gap && sag.norm() < gap,
         "the sag leaves {sag} m, within the gap {gap} m"
     );
-    let (error, mpc, _) = fly_on_the_model(MpcConfig::default(), hold, servo_sag(6e-3), 720);
+    let (error, mpc, _) = fly_on_the_model(with_gap(gap), hold, servo_sag(6e-3), 720);
     assert!(
         error.norm() < 0.1 * sag.norm(),
         "with the measured error: {error} (predicted only: {sag})"
@@ -777,8 +785,8 @@ fn the_ee_offset_does_not_wind_up_against_a_hand_stopped_short_of_its_prediction
     // `ee_offset_gap_m` (as a hand pushed back by a contact does), so only the predicted
     // error, which is nil, is integrated: the measured error stays.
     let hold = |_: usize, hover: &nalgebra::Isometry3<f64>| moved(hover, Vector3::zeros());
-    let (error, mpc, _) = fly_on_the_model(MpcConfig::default(), hold, servo_sag(3e-2), 720);
-    let gap = MpcConfig::default().ee_offset_gap_m.unwrap_or(0.0);
+    let gap = 0.003;
+    let (error, mpc, _) = fly_on_the_model(with_gap(gap), hold, servo_sag(3e-2), 720);
     assert!(
         error.norm() > gap,
         "the sag leaves {error} m, beyond the gap {gap} m"
