@@ -384,7 +384,7 @@ impl WholeBodyMpc {
             0
         };
         if self.mode == MpcMode::Mpc {
-            self.integrate_ee_offset(&x_hat, dt);
+            self.integrate_ee_offset(&target_world_from_ee.translation.vector, &x_hat, dt);
         }
         // A non-finite state cannot be flown by either path: hold the last command.
         if failure == Some(SolveFailure::NonFiniteInput)
@@ -469,13 +469,13 @@ impl WholeBodyMpc {
 
     /// One step of the offset-free EE reference after a solve the MPC flies:
     /// `b ← b + rate·dt·e`, with `e` the error the solution predicts at the end of its
-    /// horizon, `p_ref(t_N) − p_ee(x_N)` (the target there, extrapolated along its velocity),
-    /// or, once the measured EE lies within `ee_offset_gap_m` of that prediction, the
-    /// measured error `p_target − p_ee(x̂)` (at `ee_offset_measured_rate_per_s`); taken only while `e` is within
-    /// `ee_offset_limit_m` (a larger one is a move still under way, not a steady-state
-    /// offset), and `‖b‖` clipped to the same bound. The offset is part of the reference, so
-    /// the errors are taken against the target without it.
-    fn integrate_ee_offset(&mut self, x_hat: &StateVector, dt: f64) {
+    /// horizon, `p_ref(t_N) − p_ee(x_N)` (the target there, extrapolated along its
+    /// velocity), or, once the measured EE lies within `ee_offset_gap_m` of that prediction,
+    /// the measured error `p_target − p_ee(x̂)` (at `ee_offset_measured_rate_per_s`); taken
+    /// only while `e` is within `ee_offset_limit_m` (a larger one is a move still under way,
+    /// not a steady-state offset), and `‖b‖` clipped to the same bound. The offset is part of
+    /// the reference, so the errors are taken against the target without it.
+    fn integrate_ee_offset(&mut self, target_m: &Vector3<f64>, x_hat: &StateVector, dt: f64) {
         let Some(rate) = self.config.ee_offset_rate_per_s else {
             return;
         };
@@ -486,15 +486,17 @@ impl WholeBodyMpc {
             return;
         };
         let predicted = self.rti.ee_kinematics(&terminal).position;
-        let target_end = reference_end - self.ee_offset;
-        let measured = self.rti.ee_kinematics(x_hat).position;
-        let (at, error, rate) = match (self.config.ee_offset_gap_m, self.previous_target_m) {
-            (Some(gap), Some(target_now)) if (measured - predicted).norm() <= gap => (
+        let settled = self.config.ee_offset_gap_m.and_then(|gap| {
+            let measured = self.rti.ee_kinematics(x_hat).position;
+            ((measured - predicted).norm() <= gap).then_some(measured)
+        });
+        let (at, error, rate) = match settled {
+            Some(measured) => (
                 measured,
-                target_now - measured,
+                target_m - measured,
                 self.config.ee_offset_measured_rate_per_s,
             ),
-            _ => (predicted, target_end - predicted, rate),
+            None => (predicted, reference_end - self.ee_offset - predicted, rate),
         };
         // Holding an object on a joint, only what the joint lets the hand move is an offset
         // the MPC can remove.

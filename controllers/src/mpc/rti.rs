@@ -98,7 +98,8 @@ pub struct MpcReference {
     pub ee_position_m: Vector3<f64>,
     /// The target position's velocity, world, m/s: the reference at stage k is
     /// `ee_position_m + ee_velocity_mps · min(t_k, target_extrapolation_s)` (zero: the target
-    /// held over the horizon, as in the reference).
+    /// held over the horizon, as in the reference). A straight line: `WholeBodyMpc` gives
+    /// none while a joint is held, whose motion it would leave.
     pub ee_velocity_mps: Vector3<f64>,
     /// Target `ee_link` orientation in the world.
     pub ee_rotation: UnitQuaternion<f64>,
@@ -498,19 +499,10 @@ impl SqpRti {
     }
 
     /// The EE position reference at stage `k`: the target moved along its velocity for
-    /// `min(t_k, target_extrapolation_s)`, and, holding an object on a joint with the grasp
-    /// model on, moved back onto the joint's motion (a straight extrapolation leaves a
-    /// valve's circle).
+    /// `min(t_k, target_extrapolation_s)`.
     fn stage_target(&self, reference: &MpcReference, k: usize) -> Vector3<f64> {
-        if reference.ee_velocity_mps == Vector3::zeros() {
-            return reference.ee_position_m;
-        }
         let t = (k as f64 * self.h).min(self.config.target_extrapolation_s);
-        let target = reference.ee_position_m + reference.ee_velocity_mps * t;
-        match &self.anchored_grasp {
-            Some(g) if self.config.grasp_reference => g.project(&target),
-            _ => target,
-        }
+        reference.ee_position_m + reference.ee_velocity_mps * t
     }
 
     /// Residual vector of the EE (position against `target`, wrapped rpy) and its Jacobian

@@ -671,12 +671,7 @@ fn controller_on_the_model(
 ) -> (Vector3<f64>, WholeBodyMpc) {
     let (error, mpc, _) = fly_on_the_model(
         config,
-        |_, hover| {
-            nalgebra::Isometry3::from_parts(
-                (hover.translation.vector + target_offset_m).into(),
-                hover.rotation,
-            )
-        },
+        |_, hover| moved(hover, target_offset_m),
         StateVector::zeros(),
         ticks,
     );
@@ -752,8 +747,8 @@ fn with_gap(gap_m: f64) -> MpcConfig {
 
 #[test]
 fn the_ee_offset_removes_a_small_error_the_model_does_not_predict() {
-    // The arm's servo sags 6 mrad (1.8 mm at the EE): the MPC's prediction, started from each measurement,
-    // settles on its reference, while the measured EE hangs off it. Its own prediction
+    // The arm's servo sags 6 mrad (~2 mm at the EE): the MPC's prediction, started from
+    // each measurement, settles on its reference, while the measured EE hangs off it. Its own prediction
     // cannot see that error; the measured one, integrated once the two agree within
     // `ee_offset_gap_m`, removes it.
     let hold = |_: usize, hover: &nalgebra::Isometry3<f64>| moved(hover, Vector3::zeros());
@@ -781,7 +776,7 @@ fn the_ee_offset_removes_a_small_error_the_model_does_not_predict() {
 
 #[test]
 fn the_ee_offset_does_not_wind_up_against_a_hand_stopped_short_of_its_prediction() {
-    // Ten times the sag: the measured EE hangs further off the prediction than
+    // Five times that sag: the measured EE hangs further off the prediction than
     // `ee_offset_gap_m` (as a hand pushed back by a contact does), so only the predicted
     // error, which is nil, is integrated: the measured error stays.
     let hold = |_: usize, hover: &nalgebra::Isometry3<f64>| moved(hover, Vector3::zeros());
