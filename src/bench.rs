@@ -82,6 +82,11 @@ pub struct Args {
     /// Controller [default: pid on ee-only, ik-pid otherwise].
     #[arg(long)]
     pub(crate) controller: Option<String>,
+    /// With --controller mpc: a TOML file of `MpcConfig` fields (horizon_s, arm_gain_per_s,
+    /// rotor_margin_for_force, target_extrapolation_s, weights, …; the defaults fill the rest,
+    /// unknown keys are refused), recorded in config.json's controller_gains.
+    #[arg(long, value_name = "FILE.toml")]
+    pub(crate) mpc_config: Option<PathBuf>,
     /// Action interface: ee (end-effector target) or joint (base pose + arm joints, from the
     /// scripted end-effector targets through the whole-body IK).
     #[arg(long, default_value = "ee", value_parser = ["ee", "joint"])]
@@ -198,8 +203,23 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
             "--interface joint: the whole-body MPC takes end-effector targets (valid: ee)",
         ));
     }
-    let controller =
-        profile(&vehicle, kind).map_err(|e| bad_input(format!("--controller {name}: {e}")))?;
+    let controller = match (&args.mpc_config, kind) {
+        (Some(path), ControllerKind::Mpc) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))?;
+            let mpc = controllers::mpc::MpcConfig::from_toml_str(&text)
+                .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))?;
+            controllers::ControllerConfig::Mpc(mpc)
+        }
+        (Some(_), _) => {
+            return Err(bad_input(format!(
+                "--mpc-config: the {name} controller takes no MPC settings (use --controller mpc)"
+            )));
+        }
+        (None, _) => {
+            profile(&vehicle, kind).map_err(|e| bad_input(format!("--controller {name}: {e}")))?
+        }
+    };
     if args.rollouts == 0 {
         return Err(bad_input("--rollouts 0: run at least one rollout"));
     }

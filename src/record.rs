@@ -134,6 +134,7 @@ impl Args {
             task: self.task.clone(),
             platform: self.platform.clone(),
             controller: self.controller.clone(),
+            mpc_config: None,
             interface: self.interface.clone(),
             rollouts: 1,
             episode_length: self.episode_length.clone(),

@@ -614,6 +614,67 @@ fn bench_refuses_unknown_names_and_impossible_combinations_listing_the_choices()
     );
 }
 
+/// `--mpc-config`: a partial TOML of the MPC's settings over its defaults, refused with the
+/// file and the field named, flown, and recorded in the results' configuration.
+#[test]
+fn bench_takes_the_mpcs_settings_from_a_toml_file() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let file = dir.path().join("mpc.toml");
+    let path = file.to_string_lossy().into_owned();
+    assert_bad_input(
+        &amstack(&["bench", "--controller", "mpc", "--mpc-config", &path]),
+        &["--mpc-config", "mpc.toml"],
+    );
+    std::fs::write(&file, "arm_gain = 66.7\n").unwrap_or_else(|e| panic!("{e}"));
+    assert_bad_input(
+        &amstack(&["bench", "--controller", "mpc", "--mpc-config", &path]),
+        &["mpc.toml", "unknown field `arm_gain`", "arm_gain_per_s"],
+    );
+    std::fs::write(&file, "arm_gain_per_s = -1.0\n").unwrap_or_else(|e| panic!("{e}"));
+    assert_bad_input(
+        &amstack(&["bench", "--controller", "mpc", "--mpc-config", &path]),
+        &["mpc.toml", "arm_gain_per_s = -1"],
+    );
+    std::fs::write(
+        &file,
+        "arm_gain_per_s = 30.0\ntarget_extrapolation_s = 0.1\n",
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_bad_input(
+        &amstack(&["bench", "--mpc-config", &path]),
+        &["--mpc-config", "ik-pid", "--controller mpc"],
+    );
+    let json = dir.path().join("results.json");
+    let out = amstack(&[
+        "bench",
+        "--controller",
+        "mpc",
+        "--mpc-config",
+        &path,
+        "--task",
+        "press-button",
+        "--rollouts",
+        "1",
+        "--jobs",
+        "1",
+        "--episode-length",
+        "0.25",
+        "--json",
+        &json.to_string_lossy(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&json).unwrap_or_default();
+    let v: serde_json::Value =
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+    let gains = &v["config"]["controller_gains"];
+    assert_eq!(gains["controller"], "mpc", "{gains}");
+    assert_eq!(gains["arm_gain_per_s"], 30.0, "{gains}");
+    assert_eq!(gains["target_extrapolation_s"], 0.1, "{gains}");
+    // The fields the file leaves out keep their defaults.
+    assert_eq!(gains["horizon_s"], 0.8, "{gains}");
+    assert_eq!(v["tasks"]["press-button"]["rollouts"], 1);
+}
+
 #[test]
 fn bench_writes_the_documented_results_and_one_log_per_rollout() {
     let dir = match tempfile::tempdir() {

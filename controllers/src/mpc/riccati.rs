@@ -1886,7 +1886,9 @@ mod tests {
     fn fa_hexa_scenario() -> WallStepScenario {
         let vehicle = platform::Vehicle::builtin("fa-hexa")
             .unwrap_or_else(|e| panic!("fa-hexa is built in: {e}"));
-        WallStepScenario::new(&vehicle, MpcConfig::default()).unwrap_or_else(|e| panic!("{e}"))
+        // The QPs the solver's figures were measured on (the reference's arm model).
+        WallStepScenario::new(&vehicle, MpcConfig::reference_arm_model())
+            .unwrap_or_else(|e| panic!("{e}"))
     }
 
     /// The standard scenario's first QP (its A, B: the FA-Hexa's integrator chains).
