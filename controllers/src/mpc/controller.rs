@@ -320,6 +320,7 @@ impl WholeBodyMpc {
                 ee_position_m: target_world_from_ee.translation.vector + self.ee_offset,
                 ee_velocity_mps: target_velocity_mps,
                 ee_rotation: target_world_from_ee.rotation,
+                ee_offset_m: self.ee_offset,
                 input_previous: self.u_last.unwrap_or_else(|| self.seed_input(&x_hat)),
             };
             let elapsed = if self.solved_once { dt } else { 0.0 };

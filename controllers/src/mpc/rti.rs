@@ -103,6 +103,11 @@ pub struct MpcReference {
     pub ee_velocity_mps: Vector3<f64>,
     /// Target `ee_link` orientation in the world.
     pub ee_rotation: UnitQuaternion<f64>,
+    /// The offset-free EE reference's offset already added to `ee_position_m`, m
+    /// (`WholeBodyMpc`'s `ee_offset`). While a joint is held, the target without it is moved
+    /// onto the joint's motion and the offset added back, so the plan's steady state stays
+    /// where the hand is along the directions the joint blocks.
+    pub ee_offset_m: Vector3<f64>,
     /// The last applied input (world force without gravity, world torque, arm references).
     pub input_previous: InputVector,
 }
@@ -439,12 +444,18 @@ impl SqpRti {
             .filter(|_| self.config.grasp_band_m.is_some() || self.config.grasp_reference)
             .and_then(|joint| joint.anchored(self.model.ee(x_hat).position));
         // Holding: the EE target moved onto the joint's motion through the measured EE (what
-        // the hand can reach without leaving it).
+        // the hand can reach without leaving it), the offset added back: it makes up for the
+        // arm regularisation's steady-state shortfall, which does not vanish along the
+        // blocked directions. (Projected with it, its blocked part is dropped the tick the
+        // grasp engages, the plan's EE settles that far back — 1–2 cm with the arm extended
+        // against the wall — and the hand, welded to the object, pulls the base instead:
+        // measured in Push Slider, 0.13 m/s into the wall bound on that tick.)
         let mut reference = *reference;
         if self.config.grasp_reference
             && let Some(g) = &self.anchored_grasp
         {
-            reference.ee_position_m = g.project(&reference.ee_position_m);
+            let offset = reference.ee_offset_m;
+            reference.ee_position_m = g.project(&(reference.ee_position_m - offset)) + offset;
         }
         self.reference = Some(reference);
         self.set_bounds(x_hat, limits);

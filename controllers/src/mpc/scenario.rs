@@ -60,6 +60,7 @@ impl WallStepScenario {
                 ee_position_m: goal,
                 ee_velocity_mps: Vector3::zeros(),
                 ee_rotation: UnitQuaternion::from_rotation_matrix(&ee.rotation),
+                ee_offset_m: Vector3::zeros(),
                 input_previous,
             },
             limits: BaseLimits::in_front_of_face_x(WALL_FACE_X_M, WALL_MARGIN_M),
