@@ -915,14 +915,19 @@ fn a_jump_of_the_target_extrapolates_nothing() {
     );
 }
 
-/// Flies the controller on its own model from hover toward a target 1.5 cm off a rail (into
-/// the "wall", +x) and 0.1 m along it (+y) for 2 s, the hand holding an object that slides
-/// on that rail (world y); returns the EE's final displacement from its start and the
-/// largest distance of a predicted EE from the rail through the measured EE, over the
-/// horizons of the first 0.1 s (the move under way).
-fn held_on_a_rail(config: MpcConfig) -> (Vector3<f64>, f64) {
+/// The FA-Hexa's controller with `config` on ideal rotors (as the flight stack flies the
+/// benchmark: no saturation fallback), reset at hover: the vehicle, the controller, the
+/// hover state and configuration, and the EE's pose there.
+fn ideal_rotors_at_hover(
+    config: MpcConfig,
+) -> (
+    Vehicle,
+    WholeBodyMpc,
+    platform::RigidBodyState,
+    Vec<f64>,
+    nalgebra::Isometry3<f64>,
+) {
     let vehicle = fa_hexa();
-    // Ideal rotors, as the flight stack flies the benchmark: no saturation fallback.
     let config = MpcConfig {
         rotor_saturation_fallback: false,
         ..config
@@ -930,7 +935,17 @@ fn held_on_a_rail(config: MpcConfig) -> (Vector3<f64>, f64) {
     let mut mpc = WholeBodyMpc::new(&vehicle, config).unwrap_or_else(|e| panic!("{e}"));
     let (state, q) = hover_measurement(&vehicle);
     mpc.reset(&state, &q);
-    let start = state.pose() * vehicle.base_from_ee(&q);
+    let ee = state.pose() * vehicle.base_from_ee(&q);
+    (vehicle, mpc, state, q, ee)
+}
+
+/// Flies the controller on its own model from hover toward a target 1.5 cm off a rail (into
+/// the "wall", +x) and 0.1 m along it (+y) for 2 s, the hand holding an object that slides
+/// on that rail (world y); returns the EE's final displacement from its start and the
+/// largest distance of a predicted EE from the rail through the measured EE, over the
+/// horizons of the first 0.1 s (the move under way).
+fn held_on_a_rail(config: MpcConfig) -> (Vector3<f64>, f64) {
+    let (vehicle, mut mpc, state, q, start) = ideal_rotors_at_hover(config);
     let target = nalgebra::Isometry3::from_parts(
         (start.translation.vector + Vector3::new(0.015, 0.1, 0.0)).into(),
         start.rotation,
@@ -1019,15 +1034,7 @@ fn a_hand_held_on_a_rail_moves_along_it_and_does_not_chase_a_target_off_it() {
 /// horizon's end jumps along x (the rail's blocked normal) on the tick the grasp engages,
 /// and how far the EE moves along x in the 0.1 s after it.
 fn grasping_a_rail_after_settling(config: MpcConfig) -> (Vector3<f64>, f64, f64) {
-    let vehicle = fa_hexa();
-    let config = MpcConfig {
-        rotor_saturation_fallback: false,
-        ..config
-    };
-    let mut mpc = WholeBodyMpc::new(&vehicle, config).unwrap_or_else(|e| panic!("{e}"));
-    let (state, q) = hover_measurement(&vehicle);
-    mpc.reset(&state, &q);
-    let hover_ee = state.pose() * vehicle.base_from_ee(&q);
+    let (vehicle, mut mpc, state, q, hover_ee) = ideal_rotors_at_hover(config);
     let target = moved(&hover_ee, Vector3::new(0.55, 0.0, -0.1));
     let limits = BaseLimits::in_front_of_face_x(1.15, 0.85);
     let arm_dofs = vehicle.arm_dofs();
