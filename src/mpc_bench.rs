@@ -85,6 +85,11 @@ pub struct Args {
     /// Comma-separated QP paths: riccati, clarabel.
     #[arg(long, default_value = "riccati,clarabel")]
     paths: String,
+    /// A TOML file of `MpcConfig` fields over the FA-Hexa's defaults (as `amstack bench
+    /// --mpc-config`), for the scenario and its replay; `--state-rows`, `--penalty` apply
+    /// on top of it. E.g. `arm_gain_per_s = 12.0`, the reference's arm servo model.
+    #[arg(long, value_name = "FILE.toml")]
+    mpc_config: Option<std::path::PathBuf>,
     /// `soft` (the config's exact-penalty slacks on the state rows) or `hard` (none).
     #[arg(long, default_value = "soft")]
     state_rows: String,
@@ -860,7 +865,16 @@ pub fn run(args: &Args) -> Result<()> {
             )));
         }
     };
-    let mut config = MpcConfig::fa_hexa();
+    let base = match &args.mpc_config {
+        None => MpcConfig::fa_hexa(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))?;
+            MpcConfig::from_toml_str(&text)
+                .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))?
+        }
+    };
+    let mut config = base;
     match args.state_rows.as_str() {
         "soft" => {
             if let Some(rho) = args.penalty {
@@ -883,7 +897,10 @@ pub fn run(args: &Args) -> Result<()> {
     let replay_config = match args.replay_state_rows.as_deref() {
         None => config,
         Some("soft") => MpcConfig {
-            state_row_penalty: args.penalty.or(MpcConfig::fa_hexa().state_row_penalty),
+            state_row_penalty: args
+                .penalty
+                .or(base.state_row_penalty)
+                .or(MpcConfig::fa_hexa().state_row_penalty),
             ..config
         },
         Some("hard") => MpcConfig {

@@ -422,12 +422,24 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     };
     let json = dir.path().join("slider.json");
     let json_arg = json.to_string_lossy().into_owned();
+    // The reference's arm servo model (k_a 12/s): its contact QPs turn infeasible, which the
+    // early infeasibility exit below needs. (With the default, matched arm model every QP of
+    // this rollout is solved: the last assertions.)
+    let reference_arm = dir.path().join("reference-arm.toml");
+    std::fs::write(
+        &reference_arm,
+        "arm_gain_per_s = 12.0\nrotor_margin_for_force = 0.6\ntarget_extrapolation_s = 0.4\n",
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let reference_arm_arg = reference_arm.to_string_lossy().into_owned();
     let out = amstack(&[
         "mpc-bench",
         "--scenario",
         "push-slider",
         "--paths",
         "riccati",
+        "--mpc-config",
+        &reference_arm_arg,
         "--infeasibility-exit",
         "check",
         "--json",
@@ -490,6 +502,27 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
         check["iterations_converged"].as_u64().unwrap_or(0),
     );
     assert!(with_exit < converged, "{check}");
+    // The defaults: the MPC flies every tick of the contact, every QP solved.
+    let out = amstack(&[
+        "mpc-bench",
+        "--scenario",
+        "push-slider",
+        "--paths",
+        "riccati",
+        "--json",
+        &json_arg,
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{e}"));
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+    let p = &v["paths"]["riccati"];
+    assert_eq!(v["rollout"]["success"], true, "{}", v["rollout"]);
+    assert_eq!(p["statuses"]["solved"], p["ticks"], "{p}");
+    // A bad settings file: one line naming it.
+    assert_bad_input(
+        &amstack(&["mpc-bench", "--mpc-config", "/nonexistent/mpc.toml"]),
+        &["--mpc-config", "/nonexistent/mpc.toml"],
+    );
 }
 
 #[test]
