@@ -89,7 +89,7 @@ pub struct Args {
     /// --mpc-config`), for the scenario and its replay; `--state-rows`, `--penalty` apply
     /// on top of it. E.g. `arm_gain_per_s = 12.0`, the reference's arm servo model.
     #[arg(long, value_name = "FILE.toml")]
-    mpc_config: Option<std::path::PathBuf>,
+    mpc_config: Option<PathBuf>,
     /// `soft` (the config's exact-penalty slacks on the state rows) or `hard` (none).
     #[arg(long, default_value = "soft")]
     state_rows: String,
