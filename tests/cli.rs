@@ -414,6 +414,25 @@ fn mpc_bench_reports_both_qp_paths_and_refuses_bad_input() {
     );
 }
 
+/// `amstack mpc-bench --scenario push-slider --paths riccati` with `extra` flags, its JSON
+/// report written to `json` and read back.
+fn push_slider_replay(extra: &[&str], json: &str) -> serde_json::Value {
+    let mut args = vec![
+        "mpc-bench",
+        "--scenario",
+        "push-slider",
+        "--paths",
+        "riccati",
+        "--json",
+        json,
+    ];
+    args.extend_from_slice(extra);
+    let out = amstack(&args);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = std::fs::read_to_string(json).unwrap_or_else(|e| panic!("{e}"));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"))
+}
+
 #[test]
 fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     let dir = match tempfile::tempdir() {
@@ -432,22 +451,15 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     )
     .unwrap_or_else(|e| panic!("{e}"));
     let reference_arm_arg = reference_arm.to_string_lossy().into_owned();
-    let out = amstack(&[
-        "mpc-bench",
-        "--scenario",
-        "push-slider",
-        "--paths",
-        "riccati",
-        "--mpc-config",
-        &reference_arm_arg,
-        "--infeasibility-exit",
-        "check",
-        "--json",
+    let v = push_slider_replay(
+        &[
+            "--mpc-config",
+            &reference_arm_arg,
+            "--infeasibility-exit",
+            "check",
+        ],
         &json_arg,
-    ]);
-    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
-    let text = std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{e}"));
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+    );
     let rollout = &v["rollout"];
     assert_eq!(rollout["task"], "push-slider");
     assert_eq!(rollout["success"], true, "{rollout}");
@@ -503,18 +515,7 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     );
     assert!(with_exit < converged, "{check}");
     // The defaults: the MPC flies every tick of the contact, every QP solved.
-    let out = amstack(&[
-        "mpc-bench",
-        "--scenario",
-        "push-slider",
-        "--paths",
-        "riccati",
-        "--json",
-        &json_arg,
-    ]);
-    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
-    let text = std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{e}"));
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+    let v = push_slider_replay(&[], &json_arg);
     let p = &v["paths"]["riccati"];
     assert_eq!(v["rollout"]["success"], true, "{}", v["rollout"]);
     assert_eq!(p["statuses"]["solved"], p["ticks"], "{p}");
