@@ -1,7 +1,7 @@
 //! `amstack bench`: the benchmark — tasks × rollouts of the scripted policies on one
 //! platform and controller, scored as the paper's tables.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -167,6 +167,15 @@ fn tasks(name: &str) -> Result<Vec<TaskId>> {
         .collect()
 }
 
+/// The MPC's settings of an `--mpc-config` file: its fields over the defaults; a missing
+/// file, an unknown key or a bad value is bad input naming the file.
+pub(crate) fn mpc_config(path: &Path) -> Result<controllers::mpc::MpcConfig> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))?;
+    controllers::mpc::MpcConfig::from_toml_str(&text)
+        .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))
+}
+
 pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
     let vehicle = find_vehicle(&args.vehicles, &args.platform)?;
     let tasks = tasks(&args.task)?;
@@ -204,13 +213,7 @@ pub(crate) fn config(args: &Args) -> Result<BenchConfig> {
         ));
     }
     let controller = match (&args.mpc_config, kind) {
-        (Some(path), ControllerKind::Mpc) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))?;
-            let mpc = controllers::mpc::MpcConfig::from_toml_str(&text)
-                .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))?;
-            controllers::ControllerConfig::Mpc(mpc)
-        }
+        (Some(path), ControllerKind::Mpc) => controllers::ControllerConfig::Mpc(mpc_config(path)?),
         (Some(_), _) => {
             return Err(bad_input(format!(
                 "--mpc-config: the {name} controller takes no MPC settings (use --controller mpc)"

@@ -867,12 +867,7 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let base = match &args.mpc_config {
         None => MpcConfig::fa_hexa(),
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))?;
-            MpcConfig::from_toml_str(&text)
-                .map_err(|e| bad_input(format!("--mpc-config {}: {e}", path.display())))?
-        }
+        Some(path) => crate::bench::mpc_config(path)?,
     };
     let mut config = base;
     match args.state_rows.as_str() {

@@ -247,8 +247,8 @@ pub struct MpcConfig {
     /// How far ahead the target's velocity is extrapolated, s (see
     /// `target_velocity_limit_mps`). Default 0.2: the extrapolation knows only the velocity,
     /// so it runs past a target that is stopping, the farther the longer it looks (a 0.3 m
-    /// smootherstep in 0.6 s on the model: 24 mm past the end with 0.2 s, 38 mm with 0.4 s,
-    /// 4.6 mm held); Toss Ball's throw is let go as its swing decelerates (30 rollouts: 0.4 s
+    /// smootherstep in 0.6 s on the model: 34 mm past the end with 0.2 s, 52 mm with 0.4 s,
+    /// 4.5 mm held); Toss Ball's throw is let go as its swing decelerates (30 rollouts: 0.4 s
     /// 66.7 %, landing up to 0.36 m long; 0.2 s 96.7 %).
     pub target_extrapolation_s: f64,
     /// Grasp rows: while the hand holds an object on a joint (given per tick by

@@ -23,25 +23,24 @@ use rand_chacha::ChaCha8Rng;
 
 use super::{PolicyContext, WallFrame, identity, uniform, wp};
 use crate::scripted::WaypointPolicy;
-use sim_twin::tasks::keys;
+use sim_twin::tasks::{keys, peg};
 
-/// Half the peg length, m (AMBENCH_SPEC §4.1: 0.15 m).
-const PEG_HALF_LENGTH_M: f64 = 0.075;
-/// How far past the hole's centre (the success boundary) the script aims the peg's tip, m:
-/// half-way to the wall face, 0.02 m behind the centre (the hole is 0.04 m thick).
-pub(crate) const INSERTION_DEPTH_M: f64 = 0.01;
+/// How far past the hole's centre the script aims the peg's tip, m: half-way from the
+/// success boundary (`INSERTION_DEPTH_MIN_M` past the centre) to the wall face, half the
+/// hole's thickness behind the centre — 0.01 m.
+const INSERTION_DEPTH_M: f64 = 0.5 * (peg::INSERTION_DEPTH_MIN_M + 0.5 * peg::HOLE_THICKNESS_M);
 /// Waypoint times (env steps).
 const TIMES: (u64, u64, u64) = (200, 800, 1100);
 
 pub(crate) fn policy(ctx: &PolicyContext, rng: &mut ChaCha8Rng) -> Result<WaypointPolicy, String> {
     let wall = WallFrame::of(ctx)?;
     let goal = ctx.task.vec3(keys::GOAL_POS, 0)?;
-    let peg = ctx.task.vec3(keys::PEG_POS, 0)?;
+    let peg_pos = ctx.task.vec3(keys::PEG_POS, 0)?;
     let approach = goal - wall.n * uniform(rng, 0.40, 0.60);
     let wp1 = ctx.init + uniform(rng, 0.2, 0.4) * (approach - ctx.init);
     let q = wall.aligned();
     // The tip in the hand's frame (the hand starts in the command frame), turned with it.
-    let tip_in_hand = peg - ctx.init + nalgebra::Vector3::x() * PEG_HALF_LENGTH_M;
+    let tip_in_hand = peg_pos - ctx.init + nalgebra::Vector3::x() * (0.5 * peg::PEG_LENGTH_M);
     let insert = goal + wall.n * INSERTION_DEPTH_M - q * tip_in_hand;
     let (t0, t1, t2) = TIMES;
     WaypointPolicy::new(vec![
@@ -95,6 +94,7 @@ mod tests {
             // reference's lead put it 0.18·(1 − cos pitch) past: 0 to 22 mm here).
             assert!(w[3].orientation.angle_to(&wall) < 1e-12);
             let tip = w[3].position + w[3].orientation * Vector3::new(0.255, 0.0, 0.0);
+            assert!((INSERTION_DEPTH_M - 0.01).abs() < 1e-15);
             assert!((tip - goal - n * 0.01).norm() < 1e-12, "{tip:?}");
             assert!(w.iter().all(|w| w.gripper == -1.0));
         }

@@ -80,6 +80,10 @@ mod lemon_harvesting;
 mod ndt;
 mod open_door;
 mod peg_in_hole;
+/// Peg-in-Hole's geometry and success threshold (AMBENCH_SPEC §4.1), for its scripted policy.
+pub mod peg {
+    pub use super::peg_in_hole::{HOLE_THICKNESS_M, INSERTION_DEPTH_MIN_M, PEG_LENGTH_M};
+}
 mod press_button;
 mod pull_lever;
 mod push_slider;

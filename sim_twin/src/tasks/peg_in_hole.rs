@@ -58,7 +58,7 @@ use crate::error::TwinError;
 /// Nominal side of the square bore, m.
 pub(crate) const HOLE_SIDE_M: f64 = 0.06;
 /// Hole thickness along the wall normal, m.
-pub(crate) const HOLE_THICKNESS_M: f64 = 0.04;
+pub const HOLE_THICKNESS_M: f64 = 0.04;
 /// Nominal width of the frame's bars, m ([U]).
 const BAR_WIDTH_M: f64 = 0.03;
 /// Nominal widening of the bore at the front face by the chamfer, m ([U]).
@@ -68,13 +68,13 @@ const CHAMFER_DEPTH_M: f64 = 0.02;
 /// Friction coefficient of the hole's surfaces ([U]).
 const HOLE_FRICTION: f64 = 0.3;
 /// Peg length, m.
-pub(crate) const PEG_LENGTH_M: f64 = 0.15;
+pub const PEG_LENGTH_M: f64 = 0.15;
 /// Peg radius, m.
 pub(crate) const PEG_RADIUS_M: f64 = 0.02;
 /// Peg mass, kg.
 const PEG_MASS_KG: f64 = 0.01;
 /// How far past the hole's mid-plane the tip must be, m.
-pub(crate) const INSERTION_DEPTH_MIN_M: f64 = 0.0;
+pub const INSERTION_DEPTH_MIN_M: f64 = 0.0;
 
 #[derive(Debug, Default)]
 pub(crate) struct PegInHole {
