@@ -1862,15 +1862,57 @@ fn cholesky(m: &InputMatrix) -> Option<InputMatrix> {
         .then_some(l)
 }
 
-/// v ← L⁻¹v.
+/// v ← L⁻¹v: column by column over the fixed-size factor (nalgebra's generic solve walks
+/// dynamic-length views; this is the same arithmetic in the same order, on fixed sizes).
 fn forward_substitute(l: &InputMatrix, v: &mut InputVector) {
-    // L comes from `cholesky`: its diagonal is positive, so the solve cannot fail.
-    let _ = l.solve_lower_triangular_mut(v);
+    // L comes from `cholesky`: its diagonal is positive and finite.
+    let l = l.as_slice();
+    let v = v.as_mut_slice();
+    for i in 0..NU {
+        let coeff = v[i] / l[i * NU + i];
+        v[i] = coeff;
+        let col = &l[i * NU + i + 1..(i + 1) * NU];
+        for (b, c) in v[i + 1..].iter_mut().zip(col) {
+            *b -= coeff * c;
+        }
+    }
 }
 
-/// v ← L⁻ᵀv.
+/// v ← L⁻ᵀv (row i of Lᵀ is column i of L, contiguous).
 fn backward_substitute(l: &InputMatrix, v: &mut InputVector) {
-    let _ = l.tr_solve_lower_triangular_mut(v);
+    let l = l.as_slice();
+    let v = v.as_mut_slice();
+    for i in (0..NU).rev() {
+        let col = &l[i * NU + i + 1..(i + 1) * NU];
+        let dot = dot(col, &v[i + 1..]);
+        v[i] = (v[i] - dot) / l[i * NU + i];
+    }
+}
+
+/// a · b summed in nalgebra's order for a dynamic-length view (`Matrix::dot`): eight
+/// interleaved partial sums while eight entries remain, folded pairwise, then the rest in
+/// order — so the substitutions above are bit-identical to nalgebra's triangular solves.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut res = 0.0;
+    let mut i = 0;
+    if a.len() >= 8 {
+        let p = |k: usize| a[k] * b[k];
+        let mut acc = [0.0f64; 8];
+        while a.len() - i >= 8 {
+            for (k, s) in acc.iter_mut().enumerate() {
+                *s += p(i + k);
+            }
+            i += 8;
+        }
+        res += acc[0] + acc[4];
+        res += acc[1] + acc[5];
+        res += acc[2] + acc[6];
+        res += acc[3] + acc[7];
+    }
+    for k in i..a.len() {
+        res += a[k] * b[k];
+    }
+    res
 }
 
 /// Compile-time check of the dimensions the recursion assumes.
