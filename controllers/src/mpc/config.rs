@@ -190,6 +190,13 @@ pub struct MpcConfig {
     /// unbounded too, as in the reference (limited only by its small weight: a 1 m step then
     /// asks for ~270 N and, with thrust limits, flips the vehicle).
     pub rotor_margin_for_force: Option<f64>,
+    /// Share of each rotor's thrust margin around hover that the MPC's whole wrench (force
+    /// and torque) may use: six more input rows per stage keep the thrust the wrench
+    /// allocates to each rotor (pseudo-inverse around hover, measured heading) within that
+    /// share, so the MPC plans only wrenches its rotors can deliver. With the soft state rows
+    /// a tilt bound that would need more torque is violated (and paid for) instead of making
+    /// the QP infeasible. None: the torque is unbounded, as in the reference.
+    pub rotor_margin_for_wrench: Option<f64>,
     /// Whether a solution whose wrench would take a rotor beyond its limits hands over to the
     /// IK-PID path at once (for rotors with enforced thrust limits; with ideal, unbounded
     /// rotors there is nothing to protect). Default true.
@@ -295,6 +302,7 @@ impl Default for MpcConfig {
             qp: QpSettings::default(),
             qp_path: QpPath::Riccati,
             rotor_margin_for_force: Some(0.8),
+            rotor_margin_for_wrench: None,
             rotor_saturation_fallback: true,
             fallback_hold_ticks: 12,
             ee_offset_rate_per_s: Some(20.0),
@@ -458,6 +466,15 @@ impl MpcConfig {
         {
             return Err(invalid(
                 "rotor_margin_for_force",
+                f,
+                "must be within (0, 1]",
+            ));
+        }
+        if let Some(f) = self.rotor_margin_for_wrench
+            && !(f.is_finite() && f > 0.0 && f <= 1.0)
+        {
+            return Err(invalid(
+                "rotor_margin_for_wrench",
                 f,
                 "must be within (0, 1]",
             ));

@@ -91,8 +91,9 @@ pub enum SolveFailure {
     OverBudget,
     /// The measured state or the target was not finite (nothing was solved).
     NonFiniteInput,
-    /// The MPC's wrench would take a rotor beyond its thrust limits (linearised allocation
-    /// around hover): the IK-PID path takes over at once.
+    /// The MPC's wrench (gravity compensation included, at the measured attitude and
+    /// posture) would take a rotor beyond its thrust limits through the pseudo-inverse
+    /// allocation: the IK-PID path takes over at once.
     RotorSaturation,
 }
 
@@ -243,6 +244,8 @@ impl WholeBodyMpc {
 
     /// Replaces the mass properties used for gravity compensation.
     pub fn set_body(&mut self, body: BodyParams) {
+        self.rti
+            .set_compensated_weight(body.mass_kg * GRAVITY_MPS2, body.com_in_body_m);
         self.body = body;
     }
 
@@ -537,44 +540,43 @@ impl WholeBodyMpc {
     }
 
     /// Whether the filtered input would take a rotor beyond its limits (by more than
-    /// `ROTOR_LIMIT_TOLERANCE_N`), allocated linearly around hover at the measured attitude.
+    /// `ROTOR_LIMIT_TOLERANCE_N`): the body wrench it commands (gravity compensation
+    /// included, at the measured attitude and posture) through the pseudo-inverse allocation.
     fn would_saturate(&self, state: &RigidBodyState) -> bool {
         let Some(envelope) = &self.envelope else {
             return false;
         };
-        let u = self.filtered_input();
+        let w = self.body_wrench(&self.filtered_input(), state);
+        envelope.allocation_rows.iter().any(|row| {
+            let thrust = (0..3)
+                .map(|i| row[i] * w.force[i] + row[3 + i] * w.torque[i])
+                .sum::<f64>();
+            thrust < envelope.thrust_min_n - ROTOR_LIMIT_TOLERANCE_N
+                || thrust > envelope.thrust_max_n + ROTOR_LIMIT_TOLERANCE_N
+        })
+    }
+
+    /// The body wrench of input `u`: gravity compensation added, `F_b = Rᵀ(F_w + m g ẑ)`,
+    /// `τ_b = Rᵀτ_w + c × Rᵀ(m g ẑ)`.
+    fn body_wrench(&self, u: &InputVector, state: &RigidBodyState) -> Wrench {
+        let weight = self.body.mass_kg * GRAVITY_MPS2;
+        let force_w = Vector3::new(u[IU_F], u[IU_F + 1], u[IU_F + 2] + weight);
+        let torque_w = Vector3::new(u[IU_TAU], u[IU_TAU + 1], u[IU_TAU + 2]);
         let body_from_world = state.world_from_body.inverse();
-        let force = body_from_world * Vector3::new(u[IU_F], u[IU_F + 1], u[IU_F + 2]);
-        let torque = body_from_world * Vector3::new(u[IU_TAU], u[IU_TAU + 1], u[IU_TAU + 2]);
-        envelope
-            .allocation_rows
-            .iter()
-            .zip(&envelope.hover_thrust_n)
-            .any(|(row, hover)| {
-                let thrust = hover
-                    + (0..3)
-                        .map(|i| row[i] * force[i] + row[3 + i] * torque[i])
-                        .sum::<f64>();
-                thrust < envelope.thrust_min_n - ROTOR_LIMIT_TOLERANCE_N
-                    || thrust > envelope.thrust_max_n + ROTOR_LIMIT_TOLERANCE_N
-            })
+        Wrench::new(
+            body_from_world * force_w,
+            body_from_world * torque_w
+                + self
+                    .body
+                    .gravity_moment_compensation(&state.world_from_body),
+        )
     }
 
     /// Filter, gravity compensation and frame change of the RTI iterate's first input.
     fn mpc_command(&mut self, state: &RigidBodyState) -> MpcCommand {
         let u = self.filtered_input();
         self.u_last = Some(u);
-        let weight = self.body.mass_kg * GRAVITY_MPS2;
-        let force_w = Vector3::new(u[IU_F], u[IU_F + 1], u[IU_F + 2] + weight);
-        let torque_w = Vector3::new(u[IU_TAU], u[IU_TAU + 1], u[IU_TAU + 2]);
-        let body_from_world = state.world_from_body.inverse();
-        let wrench = Wrench::new(
-            body_from_world * force_w,
-            body_from_world * torque_w
-                + self
-                    .body
-                    .gravity_moment_compensation(&state.world_from_body),
-        );
+        let wrench = self.body_wrench(&u, state);
         let (lower, upper) = self.rti.joint_bounds();
         let mut arm = [0.0; NQ];
         for j in 0..NQ {

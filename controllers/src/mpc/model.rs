@@ -280,6 +280,10 @@ pub struct RotorEnvelope {
     pub thrust_min_n: f64,
     /// Highest rotor thrust, N.
     pub thrust_max_n: f64,
+    /// Weight, N.
+    pub weight_n: f64,
+    /// Centre of mass in the base frame, m (its gravity moment is compensated with the weight).
+    pub com_in_body_m: Vector3<f64>,
 }
 
 impl RotorEnvelope {
@@ -326,17 +330,19 @@ impl RotorEnvelope {
             hover_thrust_n: thrust.iter().copied().collect(),
             thrust_min_n: rotors.thrust_min_n,
             thrust_max_n: rotors.thrust_max_n,
+            weight_n: weight.z,
+            com_in_body_m: body.com_in_body_m,
         })
     }
 
     /// The input rows `e_i` (over the force part of u) and bounds of each rotor for base
     /// attitude `world_from_base` and margin share `fraction`: `lower_i ≤ e_iᵀu ≤ upper_i`
     /// bounds the thrust change the force alone asks of rotor i.
-    pub fn input_rows(
-        &self,
+    pub fn input_rows<'s>(
+        &'s self,
         world_from_base: &Rotation3<f64>,
         fraction: f64,
-    ) -> impl Iterator<Item = (InputVector, f64, f64)> + '_ {
+    ) -> impl Iterator<Item = (InputVector, f64, f64)> + use<'s> {
         let r = *world_from_base;
         self.allocation_rows
             .iter()
@@ -354,6 +360,45 @@ impl RotorEnvelope {
                     fraction * (self.thrust_max_n - hover),
                 )
             })
+    }
+}
+
+impl RotorEnvelope {
+    /// The input rows `e_i` (over the force and torque parts of u, both world frame) and
+    /// bounds of each rotor at base attitude `world_from_base` (roll and pitch included) for
+    /// margin share `fraction`: `lower_i ≤ e_iᵀu ≤ upper_i` keeps the thrust the whole
+    /// commanded wrench allocates to rotor i,
+    /// `T_i = A⁺_i [R_bᵀ(F + W ẑ); R_bᵀτ + c × R_bᵀW ẑ]` (the weight W and its moment about the
+    /// base origin compensated as the controller does), within `fraction` of its margin
+    /// around `T_0,i`, the thrust that compensation alone takes at this attitude.
+    pub fn wrench_rows<'s>(
+        &'s self,
+        world_from_base: &Rotation3<f64>,
+        fraction: f64,
+    ) -> impl Iterator<Item = (InputVector, f64, f64)> + use<'s> {
+        let r = *world_from_base;
+        let lift = r.inverse() * Vector3::new(0.0, 0.0, self.weight_n);
+        let moment = self.com_in_body_m.cross(&lift);
+        let (t_min, t_max) = (self.thrust_min_n, self.thrust_max_n);
+        self.allocation_rows.iter().map(move |row| {
+            let f = r * Vector3::new(row[0], row[1], row[2]);
+            let t = r * Vector3::new(row[3], row[4], row[5]);
+            let t0 = (0..3)
+                .map(|k| row[k] * lift[k] + row[3 + k] * moment[k])
+                .sum::<f64>();
+            let mut e = InputVector::zeros();
+            for k in 0..3 {
+                e[IU_F + k] = f[k];
+                e[IU_TAU + k] = t[k];
+            }
+            // T_0 outside [T_min, T_max] (an attitude no hover holds): the rows keep the
+            // wrench from asking more of that rotor in the wrong direction.
+            (
+                e,
+                (fraction * (t_min - t0)).min(0.0),
+                (fraction * (t_max - t0)).max(0.0),
+            )
+        })
     }
 }
 

@@ -30,6 +30,11 @@
 //!   each rotor within `rotor_margin_for_force` of its margin around hover
 //!   ([`crate::mpc::model::RotorEnvelope`]), with the measured heading over the horizon (roll
 //!   and pitch, within ±0.01 rad, neglected). The reference's force is unbounded.
+//! - Optionally (`rotor_margin_for_wrench`, off by default) the whole wrench as well: six
+//!   more rows per stage keep the thrust the force, the torque and the gravity compensation
+//!   allocate to each rotor (pseudo-inverse, measured attitude and posture) within that share
+//!   of its margin, so the MPC plans only wrenches the rotors can deliver. The reference's
+//!   torque is unbounded.
 //! - Joint and arm-reference bounds are the URDF limits within ±π (the reference: ±π).
 //! - A grasp model ([`crate::mpc::grasp`], not in the reference): while the hand holds an
 //!   object on a joint ([`SqpRti::set_grasp`]), the EE position target is moved onto the
@@ -196,8 +201,13 @@ impl SqpRti {
         }
         let envelope = config
             .rotor_margin_for_force
+            .or(config.rotor_margin_for_wrench)
             .and_then(|_| crate::mpc::model::RotorEnvelope::of(vehicle));
-        let rotor_rows = envelope.as_ref().map_or(0, |e| e.allocation_rows.len());
+        let rotor_rows = envelope.as_ref().map_or(0, |e| {
+            e.allocation_rows.len()
+                * (usize::from(config.rotor_margin_for_force.is_some())
+                    + usize::from(config.rotor_margin_for_wrench.is_some()))
+        });
         let w = &config.weights;
         let mut state_weights = StateVector::zeros();
         for i in 0..3 {
@@ -298,6 +308,15 @@ impl SqpRti {
     /// The rotors' thrust envelope that bounds force and torque (None: unbounded).
     pub fn rotor_envelope(&self) -> Option<&crate::mpc::model::RotorEnvelope> {
         self.envelope.as_ref()
+    }
+
+    /// The weight (N) and centre of mass (base frame, m) whose compensation the wrench rows
+    /// add to the MPC's wrench: the controller's, which follows the arm's posture.
+    pub fn set_compensated_weight(&mut self, weight_n: f64, com_in_body_m: Vector3<f64>) {
+        if let Some(e) = &mut self.envelope {
+            e.weight_n = weight_n;
+            e.com_in_body_m = com_in_body_m;
+        }
     }
 
     /// Arm joint bounds used (URDF ∩ ±joint_limit_rad), rad.
@@ -600,18 +619,13 @@ impl SqpRti {
                     c.input_lower[j] = self.joint_lower[j] - u[iu];
                     c.input_upper[j] = self.joint_upper[j] - u[iu];
                 }
-                if let (Some(envelope), Some(fraction)) =
-                    (&self.envelope, self.config.rotor_margin_for_force)
+                for (j, (e, lo, hi)) in
+                    rotor_rows(&self.envelope, &self.config, &self.xs[0]).enumerate()
                 {
-                    // Heading of the measured state over the whole horizon; roll and pitch
-                    // (within ±0.01 rad) neglected, as the reference does for the frame change.
-                    let attitude = Rotation3::from_euler_angles(0.0, 0.0, self.xs[0][IX_ETA + 2]);
-                    for (j, (e, lo, hi)) in envelope.input_rows(&attitude, fraction).enumerate() {
-                        let v = e.dot(&u);
-                        c.input_general[j] = e;
-                        c.input_general_lower[j] = lo - v;
-                        c.input_general_upper[j] = hi - v;
-                    }
+                    let v = e.dot(&u);
+                    c.input_general[j] = e;
+                    c.input_general_lower[j] = lo - v;
+                    c.input_general_upper[j] = hi - v;
                 }
             }
             if k > 0 {
@@ -681,16 +695,9 @@ impl SqpRti {
                         .max(self.joint_lower[j] - u[iu])
                         .max(u[iu] - self.joint_upper[j]);
                 }
-                if let (Some(envelope), Some(fraction)) =
-                    (&self.envelope, self.config.rotor_margin_for_force)
-                {
-                    // Heading of the measured state over the whole horizon; roll and pitch
-                    // (within ±0.01 rad) neglected, as the reference does for the frame change.
-                    let attitude = Rotation3::from_euler_angles(0.0, 0.0, self.xs[0][IX_ETA + 2]);
-                    for (e, lo, hi) in envelope.input_rows(&attitude, fraction) {
-                        let v = e.dot(&u);
-                        violation = violation.max(lo - v).max(v - hi);
-                    }
+                for (e, lo, hi) in rotor_rows(&self.envelope, &self.config, &self.xs[0]) {
+                    let v = e.dot(&u);
+                    violation = violation.max(lo - v).max(v - hi);
                 }
             }
             cost += 0.5 * self.stage_scale(k) * stage;
@@ -781,4 +788,29 @@ impl SqpRti {
         self.prepare(x_hat, reference, limits, elapsed_s);
         self.feedback(path)
     }
+}
+
+/// The rotor rows of a stage (`lower ≤ eᵀu ≤ upper`): the force's share of each rotor's
+/// margin (`rotor_margin_for_force`) at the heading of the measured state `x0` (roll and
+/// pitch, within ±0.01 rad, neglected, as the reference does for the frame change), then the
+/// whole wrench's (`rotor_margin_for_wrench`) at its full attitude (the weight's share of
+/// each rotor moves with the tilt), both over the whole horizon.
+fn rotor_rows<'a>(
+    envelope: &'a Option<crate::mpc::model::RotorEnvelope>,
+    config: &MpcConfig,
+    x0: &StateVector,
+) -> impl Iterator<Item = (InputVector, f64, f64)> + 'a {
+    let heading = Rotation3::from_euler_angles(0.0, 0.0, x0[IX_ETA + 2]);
+    let attitude = Rotation3::from_euler_angles(x0[IX_ETA], x0[IX_ETA + 1], x0[IX_ETA + 2]);
+    let force = envelope
+        .as_ref()
+        .zip(config.rotor_margin_for_force)
+        .into_iter()
+        .flat_map(move |(e, f)| e.input_rows(&heading, f));
+    let wrench = envelope
+        .as_ref()
+        .zip(config.rotor_margin_for_wrench)
+        .into_iter()
+        .flat_map(move |(e, f)| e.wrench_rows(&attitude, f));
+    force.chain(wrench)
 }

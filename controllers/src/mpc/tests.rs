@@ -1136,3 +1136,150 @@ fn grasp_rows_of_a_revolute_joint_vanish_on_its_circle_and_match_their_gradient(
         .is_valid()
     );
 }
+
+/// Thrust of every rotor (pseudo-inverse allocation) for the MPC input `u` at attitude
+/// `world_from_base`, the controller's gravity compensation (weight and its moment about the
+/// base origin, centre of mass `com`) added.
+fn allocated_thrusts(
+    envelope: &model::RotorEnvelope,
+    u: &InputVector,
+    world_from_base: &UnitQuaternion<f64>,
+    weight_n: f64,
+    com: &Vector3<f64>,
+) -> Vec<f64> {
+    let lift = world_from_base.inverse() * Vector3::new(0.0, 0.0, weight_n);
+    let force = world_from_base.inverse() * Vector3::new(u[0], u[1], u[2]) + lift;
+    let torque = world_from_base.inverse() * Vector3::new(u[3], u[4], u[5]) + com.cross(&lift);
+    envelope
+        .allocation_rows
+        .iter()
+        .map(|row| {
+            (0..3)
+                .map(|i| row[i] * force[i] + row[3 + i] * torque[i])
+                .sum()
+        })
+        .collect()
+}
+
+#[test]
+fn the_saturation_check_allocates_the_wrench_of_the_flown_posture() {
+    let vehicle = fa_hexa();
+    let envelope =
+        model::RotorEnvelope::of(&vehicle).unwrap_or_else(|| panic!("the FA-Hexa has one"));
+    let t_max = vehicle.rotors.thrust_max_n;
+    let (state, q) = hover_measurement(&vehicle);
+    let target = state.pose() * vehicle.base_from_ee(&q);
+    let body = crate::BodyParams::from_vehicle(&vehicle);
+    let weight = body.mass_kg * platform::GRAVITY_MPS2;
+    // A posture whose centre of mass sits 0.25 m ahead of the base origin: compensating its
+    // weight's moment alone takes a rotor past its limit (checked, not assumed), though the
+    // hover thrusts of the initial posture are all within the limits.
+    let ahead = crate::BodyParams {
+        com_in_body_m: body.com_in_body_m + Vector3::new(0.25, 0.0, 0.0),
+        ..body
+    };
+    let at_rest = |com: &Vector3<f64>| {
+        let t = allocated_thrusts(
+            &envelope,
+            &InputVector::zeros(),
+            &state.world_from_body,
+            weight,
+            com,
+        );
+        t.iter().copied().fold(0.0, f64::max)
+    };
+    assert!(at_rest(&body.com_in_body_m) < t_max);
+    assert!(at_rest(&ahead.com_in_body_m) > t_max + 1.0);
+    for (posture, saturates) in [(body, false), (ahead, true)] {
+        let mut mpc =
+            WholeBodyMpc::new(&vehicle, MpcConfig::default()).unwrap_or_else(|e| panic!("{e}"));
+        mpc.reset(&state, &q);
+        mpc.set_body(posture);
+        let c = mpc.update(&state, &q, &target, &BaseLimits::above_ground(), DT, None);
+        assert_eq!(
+            c.status.failure == Some(SolveFailure::RotorSaturation),
+            saturates,
+            "{:?}",
+            c.status
+        );
+        assert_eq!(c.status.mode == MpcMode::IkPid, saturates);
+    }
+}
+
+#[test]
+fn with_wrench_rows_the_flown_wrench_allocates_within_the_rotor_margins() {
+    // The hand held in place while the EE turns 60° about the vertical: the base has to yaw,
+    // and the yaw torque the plan asks for takes rotors past their limits unless the whole
+    // wrench is bounded.
+    let vehicle = fa_hexa();
+    let envelope =
+        model::RotorEnvelope::of(&vehicle).unwrap_or_else(|| panic!("the FA-Hexa has one"));
+    let (t_min, t_max) = (vehicle.rotors.thrust_min_n, vehicle.rotors.thrust_max_n);
+    let body = crate::BodyParams::from_vehicle(&vehicle);
+    let weight = body.mass_kg * platform::GRAVITY_MPS2;
+    let turn = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 60f64.to_radians());
+    // Each tick's flown input and measured attitude, through the controller's own record.
+    let extremes = |config: MpcConfig| {
+        let mut mpc = WholeBodyMpc::new(&vehicle, config).unwrap_or_else(|e| panic!("{e}"));
+        let (state, q) = hover_measurement(&vehicle);
+        mpc.reset(&state, &q);
+        let hover_ee = state.pose() * vehicle.base_from_ee(&q);
+        let target =
+            nalgebra::Isometry3::from_parts(hover_ee.translation, turn * hover_ee.rotation);
+        let limits = BaseLimits::in_front_of_face_x(1.15, 0.85);
+        let arm_dofs = vehicle.arm_dofs();
+        let mut x = mpc.state_vector(&state, &q);
+        let mut configuration = q.clone();
+        let (mut lowest, mut highest) = (f64::INFINITY, f64::NEG_INFINITY);
+        for tick in 0..120 {
+            let measured = measured_from_model(&x, &arm_dofs, &mut configuration);
+            let c = mpc.update(&measured, &configuration, &target, &limits, DT, None);
+            assert_eq!(c.status.mode, MpcMode::Mpc, "tick {tick}");
+            let u = mpc.last_input().unwrap_or_else(|| panic!("tick {tick}"));
+            for t in allocated_thrusts(
+                &envelope,
+                &u,
+                &measured.world_from_body,
+                weight,
+                &body.com_in_body_m,
+            ) {
+                lowest = lowest.min(t);
+                highest = highest.max(t);
+            }
+            x = mpc.rti().model().rk4(&x, &u, DT).0;
+        }
+        (lowest, highest)
+    };
+    // Ideal rotors (no saturation fallback): the plan is flown whatever it asks.
+    let ideal = MpcConfig {
+        rotor_saturation_fallback: false,
+        ..MpcConfig::default()
+    };
+    let free = extremes(ideal);
+    assert!(
+        free.1 > t_max,
+        "the turn must need more than the rotors give: {free:?}"
+    );
+    let fraction = 0.95;
+    let (lowest, highest) = extremes(MpcConfig {
+        rotor_margin_for_wrench: Some(fraction),
+        ..ideal
+    });
+    // Within the share of the margin around the thrusts at hover (which the turn's tilt of a
+    // few mrad moves by well under 0.1 N), to the QP's tolerance.
+    let hover_max = envelope.hover_thrust_n.iter().copied().fold(0.0, f64::max);
+    let hover_min = envelope
+        .hover_thrust_n
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        highest <= hover_max + fraction * (t_max - hover_max) + 0.1,
+        "highest thrust {highest}"
+    );
+    assert!(
+        lowest >= hover_min - fraction * (hover_min - t_min) - 0.1,
+        "lowest thrust {lowest}"
+    );
+    assert!(highest > t_min && lowest < t_max);
+}
