@@ -791,6 +791,7 @@ fn replay(
             rti.reset();
         }
         rti.set_grasp(p.grasp);
+        rti.set_compensated_weight(p.compensated_weight.0, p.compensated_weight.1);
         let t0 = Stamp::now();
         rti.prepare(&p.x_hat, &p.reference, &p.limits, p.elapsed_s);
         let t1 = Instant::now();
@@ -808,6 +809,7 @@ fn replay(
                 twin.reset();
             }
             twin.set_grasp(p.grasp);
+            twin.set_compensated_weight(p.compensated_weight.0, p.compensated_weight.1);
             twin.prepare(&p.x_hat, &p.reference, &p.limits, p.elapsed_s);
             let converged = twin.feedback(path);
             check.push(&report, &converged, &twin.last_qp_solution().slack);

@@ -114,6 +114,9 @@ pub struct MpcProblem {
     pub warm: bool,
     /// The held object's joint ([`SqpRti::set_grasp`] before the step; None: nothing held).
     pub grasp: Option<crate::mpc::GraspJoint>,
+    /// The weight (N) and centre of mass (base frame, m) the rotor rows compensate, the flown
+    /// posture's ([`SqpRti::set_compensated_weight`] before the step).
+    pub compensated_weight: (f64, Vector3<f64>),
 }
 
 /// The controller's report of one tick.
@@ -334,6 +337,7 @@ impl WholeBodyMpc {
                 elapsed_s: elapsed,
                 warm: self.rti.is_warm(),
                 grasp: self.rti.grasp().copied(),
+                compensated_weight: (self.body.mass_kg * GRAVITY_MPS2, self.body.com_in_body_m),
             });
             let r = self
                 .rti
