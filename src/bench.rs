@@ -83,8 +83,10 @@ pub struct Args {
     #[arg(long)]
     pub(crate) controller: Option<String>,
     /// With --controller mpc: a TOML file of `MpcConfig` fields (horizon_s, arm_gain_per_s,
-    /// rotor_margin_for_force, target_extrapolation_s, weights, …; the defaults fill the rest,
-    /// unknown keys are refused), recorded in config.json's controller_gains.
+    /// rotor_margin_for_force, rotor_margin_for_wrench, target_extrapolation_s, [qp], [weights],
+    /// …; the defaults fill the rest, unknown keys are refused), recorded in config.json's
+    /// controller_gains. E.g. `rotor_margin_for_wrench = 0.95` (plan only wrenches the rotors
+    /// deliver) or `[qp]` `tolerance = 1e-3` (the reference's QP tolerance).
     #[arg(long, value_name = "FILE.toml")]
     pub(crate) mpc_config: Option<PathBuf>,
     /// Action interface: ee (end-effector target) or joint (base pose + arm joints, from the
