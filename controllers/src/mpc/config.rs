@@ -190,10 +190,11 @@ pub struct MpcConfig {
     /// unbounded too, as in the reference (limited only by its small weight: a 1 m step then
     /// asks for ~270 N and, with thrust limits, flips the vehicle).
     pub rotor_margin_for_force: Option<f64>,
-    /// Share of each rotor's thrust margin around hover that the MPC's whole wrench (force
-    /// and torque) may use: six more input rows per stage keep the thrust the wrench
-    /// allocates to each rotor (pseudo-inverse around hover, measured heading) within that
-    /// share, so the MPC plans only wrenches its rotors can deliver. With the soft state rows
+    /// Share of each rotor's thrust margin that the MPC's whole wrench may use: six more
+    /// input rows per stage keep the thrust that the force, the torque and the gravity
+    /// compensation (of the flown posture, at the measured attitude) allocate to each rotor
+    /// (pseudo-inverse) within that share of its margin around the compensation's own thrust,
+    /// so the MPC plans only wrenches its rotors can deliver. With the soft state rows
     /// a tilt bound that would need more torque is violated (and paid for) instead of making
     /// the QP infeasible. None: the torque is unbounded, as in the reference.
     pub rotor_margin_for_wrench: Option<f64>,

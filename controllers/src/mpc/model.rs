@@ -361,9 +361,7 @@ impl RotorEnvelope {
                 )
             })
     }
-}
 
-impl RotorEnvelope {
     /// The input rows `e_i` (over the force and torque parts of u, both world frame) and
     /// bounds of each rotor at base attitude `world_from_base` (roll and pitch included) for
     /// margin share `fraction`: `lower_i ≤ e_iᵀu ≤ upper_i` keeps the thrust the whole

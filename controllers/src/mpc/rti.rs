@@ -164,6 +164,9 @@ pub struct SqpRti {
     joint_upper: [f64; NQ],
     /// The rotors' thrust envelope bounding force and torque (None: unbounded).
     envelope: Option<crate::mpc::model::RotorEnvelope>,
+    /// This tick's rotor rows (`lower ≤ eᵀu ≤ upper`, the same at every stage), from
+    /// [`rotor_rows`] once per linearisation.
+    rotor_rows: Vec<(InputVector, f64, f64)>,
     /// Diagonal state weights of the linear residuals (v, η, ω, q), stage and terminal alike.
     state_weights: StateVector,
     input_weights: InputVector,
@@ -282,6 +285,7 @@ impl SqpRti {
             clarabel: ClarabelQp::new(config.qp),
             warm: false,
             qp_warm_start: true,
+            rotor_rows: Vec::with_capacity(rotor_rows),
             grasp: None,
             anchored_grasp: None,
             config,
@@ -589,6 +593,9 @@ impl SqpRti {
         let u_ref = self.input_reference();
         let r_diag = self.input_weights + self.rate_weights;
         let w_ee = SMatrix::<f64, 6, 6>::from_diagonal(&self.ee_weights);
+        self.rotor_rows.clear();
+        self.rotor_rows
+            .extend(rotor_rows(&self.envelope, &self.config, &self.xs[0]));
         for k in 0..=n {
             let x = self.xs[k];
             let scale = self.stage_scale(k);
@@ -619,9 +626,7 @@ impl SqpRti {
                     c.input_lower[j] = self.joint_lower[j] - u[iu];
                     c.input_upper[j] = self.joint_upper[j] - u[iu];
                 }
-                for (j, (e, lo, hi)) in
-                    rotor_rows(&self.envelope, &self.config, &self.xs[0]).enumerate()
-                {
+                for (j, &(e, lo, hi)) in self.rotor_rows.iter().enumerate() {
                     let v = e.dot(&u);
                     c.input_general[j] = e;
                     c.input_general_lower[j] = lo - v;
@@ -695,7 +700,7 @@ impl SqpRti {
                         .max(self.joint_lower[j] - u[iu])
                         .max(u[iu] - self.joint_upper[j]);
                 }
-                for (e, lo, hi) in rotor_rows(&self.envelope, &self.config, &self.xs[0]) {
+                for (e, lo, hi) in &self.rotor_rows {
                     let v = e.dot(&u);
                     violation = violation.max(lo - v).max(v - hi);
                 }

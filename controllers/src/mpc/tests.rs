@@ -1281,5 +1281,7 @@ fn with_wrench_rows_the_flown_wrench_allocates_within_the_rotor_margins() {
         lowest >= hover_min - fraction * (hover_min - t_min) - 0.1,
         "lowest thrust {lowest}"
     );
-    assert!(highest > t_min && lowest < t_max);
+    // The rows bind: the turn takes the busiest rotor to its bound, not short of it.
+    let bound = hover_max + fraction * (t_max - hover_max);
+    assert!(highest > bound - 0.5, "highest thrust {highest} of {bound}");
 }
