@@ -19,10 +19,19 @@ thrust-to-weight is Σ T_max·n_z / (m·g). Max reach is the tracking-metric nor
 Warnings name physically impossible data: the FA-Hexa's and UA-Hexa's base inertia is the
 reference's diag(0.198, 0.198, 0.460), whose Izz exceeds Ixx + Iyy (kept for comparable results).
 
+`--dynamics FILE.json` writes each vehicle's rigid-body dynamics at seeded random states: the
+joint-space mass matrix M(q) (composite-rigid-body algorithm) and the bias forces b(q, ν)
+(Coriolis, centrifugal, gravity; recursive Newton-Euler), with M ν̇ + b = τ. ν is the base
+origin's velocity and the base's angular velocity in base axes (Pinocchio's free-flyer
+convention), then the joint rates; joint positions are drawn within their limits, rates in
+±1.5, the base attitude's roll and pitch in ±0.5 rad. `scripts/pinocchio-peer.sh` checks the
+file against Pinocchio.
+
 Examples:
   amstack platforms
   amstack platforms --json platforms.json
-  amstack platforms --vehicle my-hexa/my-hexa.toml")]
+  amstack platforms --vehicle my-hexa/my-hexa.toml
+  amstack platforms --dynamics dynamics.json --samples 20 --seed 3")]
 pub struct Args {
     /// Also write the figures as JSON: an object keyed by vehicle id.
     #[arg(long, value_name = "FILE")]
@@ -31,6 +40,90 @@ pub struct Args {
     /// like the built-in ones.
     #[arg(long = "vehicle", value_name = "FILE.toml")]
     vehicles: Vec<PathBuf>,
+    /// Also write each vehicle's mass matrix and bias forces at `--samples` random states
+    /// (see below).
+    #[arg(long, value_name = "FILE.json")]
+    dynamics: Option<PathBuf>,
+    /// States per vehicle in `--dynamics`.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    samples: u32,
+    /// Seed of the `--dynamics` states.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+/// One state of `--dynamics`.
+#[derive(Debug, Serialize)]
+struct DynamicsSample {
+    /// Joint positions, configuration order.
+    q: Vec<f64>,
+    /// Generalised velocity [v_B, ω_B, q̇].
+    nu: Vec<f64>,
+    /// World-from-base attitude, w x y z.
+    attitude_wxyz: [f64; 4],
+    /// Mass matrix, row by row.
+    mass_matrix: Vec<Vec<f64>>,
+    /// Bias forces b(q, ν), gravity included.
+    bias: Vec<f64>,
+}
+
+/// One vehicle's `--dynamics` entry.
+#[derive(Debug, Serialize)]
+struct VehicleDynamics {
+    /// The movable joints' URDF names, configuration order.
+    joints: Vec<String>,
+    /// Rigid bodies (links joined by fixed joints count once).
+    bodies: usize,
+    samples: Vec<DynamicsSample>,
+}
+
+fn dynamics(v: &Vehicle, samples: u32, seed: u64) -> VehicleDynamics {
+    use nalgebra::{DMatrix, DVector, UnitQuaternion};
+    use rand::{Rng, SeedableRng};
+    let tree = platform::ArticulatedBody::new(&v.model);
+    let mut ws = tree.workspace();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let dof = v.model.dof();
+    let joints = (0..dof)
+        .map(|d| v.model.dof_joint(d).name.clone())
+        .collect();
+    let samples = (0..samples)
+        .map(|_| {
+            let q: Vec<f64> = (0..dof)
+                .map(|d| {
+                    let (lo, hi) = v
+                        .model
+                        .dof_joint(d)
+                        .limits
+                        .map_or((-3.0, 3.0), |l| (l.lower, l.upper));
+                    rng.random_range(lo..=hi)
+                })
+                .collect();
+            let nu = DVector::from_fn(tree.nv(), |_, _| rng.random_range(-1.5..1.5));
+            let attitude = UnitQuaternion::from_euler_angles(
+                rng.random_range(-0.5..0.5),
+                rng.random_range(-0.5..0.5),
+                rng.random_range(-3.0..3.0),
+            );
+            let mut m = DMatrix::zeros(tree.nv(), tree.nv());
+            tree.mass_matrix(&q, &mut ws, &mut m);
+            let mut b = DVector::zeros(tree.nv());
+            tree.bias(&attitude, &q, &nu, &mut ws, &mut b);
+            let w = attitude.quaternion();
+            DynamicsSample {
+                q,
+                nu: nu.iter().copied().collect(),
+                attitude_wxyz: [w.w, w.i, w.j, w.k],
+                mass_matrix: m.row_iter().map(|r| r.iter().copied().collect()).collect(),
+                bias: b.iter().copied().collect(),
+            }
+        })
+        .collect();
+    VehicleDynamics {
+        joints,
+        bodies: tree.body_count(),
+        samples,
+    }
 }
 
 /// One vehicle's figures, named with their units.
@@ -85,6 +178,9 @@ pub fn run(args: &Args) -> Result<()> {
     if let Some(path) = &args.json {
         check_writable("--json", path)?;
     }
+    if let Some(path) = &args.dynamics {
+        check_writable("--dynamics", path)?;
+    }
     let vehicles = all_vehicles(&args.vehicles)?;
     let rows: Vec<(String, Figures)> = vehicles
         .iter()
@@ -135,6 +231,19 @@ pub fn run(args: &Args) -> Result<()> {
         let object: serde_json::Map<String, serde_json::Value> = rows
             .into_iter()
             .map(|(id, f)| Ok((id, serde_json::to_value(f)?)))
+            .collect::<Result<_>>()?;
+        write_json(path, &serde_json::Value::Object(object))?;
+        eprintln!("wrote {}", path.display());
+    }
+    if let Some(path) = &args.dynamics {
+        let object: serde_json::Map<String, serde_json::Value> = vehicles
+            .iter()
+            .map(|v| {
+                Ok((
+                    v.id.clone(),
+                    serde_json::to_value(dynamics(v, args.samples, args.seed))?,
+                ))
+            })
             .collect::<Result<_>>()?;
         write_json(path, &serde_json::Value::Object(object))?;
         eprintln!("wrote {}", path.display());

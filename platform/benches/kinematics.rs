@@ -1,11 +1,13 @@
-//! Forward kinematics, tool-tip Jacobian and mass properties of each vehicle.
+//! Forward kinematics, tool-tip Jacobian and mass properties of each vehicle; its rigid-body
+//! dynamics (CRBA mass matrix, RNEA bias forces, forward dynamics through a Cholesky).
 //! Run: `cargo bench -p platform --bench kinematics`.
 
 use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use platform::{BUILTIN_IDS, Vehicle};
+use nalgebra::{DMatrix, DVector, UnitQuaternion};
+use platform::{ArticulatedBody, BUILTIN_IDS, Vehicle};
 
 fn kinematics(c: &mut Criterion) {
     let mut group = c.benchmark_group("kinematics");
@@ -36,6 +38,24 @@ fn kinematics(c: &mut Criterion) {
         });
         group.bench_function(format!("{id}/mass_properties"), |b| {
             b.iter(|| v.mass_properties(black_box(&q)))
+        });
+        let tree = ArticulatedBody::new(&v.model);
+        let mut ws = tree.workspace();
+        let nu = DVector::from_fn(tree.nv(), |i, _| 0.3 - 0.05 * i as f64);
+        let tau = DVector::from_fn(tree.nv(), |i, _| 1.0 + 0.1 * i as f64);
+        let attitude = UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3);
+        let mut m = DMatrix::zeros(tree.nv(), tree.nv());
+        let mut out = DVector::zeros(tree.nv());
+        group.bench_function(format!("{id}/mass_matrix_crba"), |b| {
+            b.iter(|| tree.mass_matrix(black_box(&q), &mut ws, &mut m))
+        });
+        group.bench_function(format!("{id}/bias_rnea"), |b| {
+            b.iter(|| tree.bias(&attitude, black_box(&q), &nu, &mut ws, &mut out))
+        });
+        group.bench_function(format!("{id}/forward_dynamics"), |b| {
+            b.iter(|| {
+                tree.forward_dynamics(&attitude, black_box(&q), &nu, &tau, &[], &mut ws, &mut out)
+            })
         });
     }
     group.finish();

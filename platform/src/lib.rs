@@ -20,6 +20,7 @@
 
 mod actuation;
 mod builtin;
+mod dynamics;
 mod error;
 mod kinematics;
 mod link;
@@ -39,6 +40,7 @@ mod tests;
 
 pub use actuation::Actuation;
 pub use builtin::BUILTIN_IDS;
+pub use dynamics::{ArticulatedBody, Workspace as DynamicsWorkspace};
 pub use error::{DescriptionError, Problem};
 pub use link::{
     ActuatorCommand, AttitudeSetpoint, DisturbanceReport, Measurement, PositionSetpoint,

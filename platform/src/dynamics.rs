@@ -1,0 +1,711 @@
+//! Rigid-body dynamics of a vehicle's floating-base tree, the way robotics engines compute it:
+//! the joint-space mass matrix by the composite-rigid-body algorithm (CRBA), the bias forces
+//! (Coriolis, centrifugal, gravity) and inverse dynamics by recursive Newton–Euler (RNEA),
+//! forward dynamics through a Cholesky factorisation of the symmetric positive-definite mass
+//! matrix. Fixed-size 6 × 6 spatial blocks, one body per group of links joined by fixed
+//! joints; the mass matrix, the bias forces and forward dynamics allocate nothing once a
+//! [`Workspace`] exists.
+//!
+//! Conventions (Pinocchio's, so its numbers compare one for one):
+//! - generalised velocity ν = [v_B, ω_B, q̇]: the base origin's velocity and the base's angular
+//!   velocity, both in base axes (the free-flyer's local twist), then the joint rates in
+//!   configuration order; ν̇ is its time derivative (for the base: the spatial acceleration in
+//!   base axes, not the classical acceleration of the origin, which is v̇_B + ω_B × v_B);
+//! - spatial vectors are [linear; angular]; a body's velocity and the forces on it are
+//!   expressed in its frame, at its origin;
+//! - the equation of motion is M(q) ν̇ + b(q, ν) = τ, with τ = [base force and torque about the
+//!   base origin, in base axes; joint efforts]; gravity (0, 0, −g) in world axes enters b
+//!   through the base's attitude.
+//!
+//! Sources: R. Featherstone, *Rigid Body Dynamics Algorithms* (2008), ch. 5–6 (RNEA, CRBA);
+//! the spatial algebra rewritten for the [linear; angular] order.
+
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Matrix6, UnitQuaternion, Vector3, Vector6};
+
+use crate::model::{JointKind, KinematicModel, LinkId};
+use crate::vehicle::GRAVITY_MPS2;
+
+/// How a body moves against its parent.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Motion {
+    /// Rotation about the unit axis (joint frame = body frame axes).
+    Revolute(Vector3<f64>),
+    /// Translation along the unit axis.
+    Prismatic(Vector3<f64>),
+}
+
+/// One rigid body: a link and every link fixed to it.
+#[derive(Debug, Clone, PartialEq)]
+struct Body {
+    /// Parent body (None for the base).
+    parent: Option<usize>,
+    /// Index of the joint rate in ν (6 + configuration index); unused for the base.
+    column: usize,
+    /// Configuration index of the joint.
+    dof: usize,
+    /// The joint frame in the parent body's frame (the body frame is the joint frame moved).
+    parent_from_joint: Isometry3<f64>,
+    motion: Motion,
+    /// Spatial inertia about the body origin, body axes.
+    inertia: Matrix6<f64>,
+}
+
+/// The floating-base tree of a [`KinematicModel`], ready for the recursive algorithms.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ArticulatedBody {
+    /// Bodies with parents before children; body 0 is the base (its `motion` unused).
+    bodies: Vec<Body>,
+    /// (body, body_from_link) of every link, by link id.
+    link_body: Vec<(usize, Isometry3<f64>)>,
+    dof: usize,
+}
+
+/// Buffers of the recursions, sized for one [`ArticulatedBody`].
+#[derive(Debug, Clone)]
+pub struct Workspace {
+    /// Motion transform child ← parent of every body.
+    x: Vec<Matrix6<f64>>,
+    /// Composite inertias.
+    ic: Vec<Matrix6<f64>>,
+    v: Vec<Vector6<f64>>,
+    a: Vec<Vector6<f64>>,
+    f: Vec<Vector6<f64>>,
+    /// Motion subspace of every body's joint (body axes).
+    s: Vec<Vector6<f64>>,
+    /// The mass matrix and its factor.
+    m: DMatrix<f64>,
+    rhs: DVector<f64>,
+}
+
+/// [·]×: the cross-product matrix.
+fn skew(p: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -p.z, p.y, p.z, 0.0, -p.x, -p.y, p.x, 0.0)
+}
+
+/// Spatial inertia about a frame's origin of mass `m` at `c` with rotational inertia `i_c`
+/// about the centre of mass (frame axes): [[m·1, −m[c]×], [m[c]×, I_c − m[c]×[c]×]].
+fn spatial_inertia(m: f64, c: &Vector3<f64>, i_c: &Matrix3<f64>) -> Matrix6<f64> {
+    let cx = skew(c);
+    let mut out = Matrix6::zeros();
+    out.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(Matrix3::identity() * m));
+    out.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-cx * m));
+    out.fixed_view_mut::<3, 3>(3, 0).copy_from(&(cx * m));
+    out.fixed_view_mut::<3, 3>(3, 3)
+        .copy_from(&(i_c - cx * cx * m));
+    out
+}
+
+/// The motion transform child ← parent for `parent_from_child` = (R, p):
+/// [[Rᵀ, −Rᵀ[p]×], [0, Rᵀ]]. Its transpose carries a force from the child to the parent.
+fn motion_transform(parent_from_child: &Isometry3<f64>) -> Matrix6<f64> {
+    let e = parent_from_child
+        .rotation
+        .to_rotation_matrix()
+        .into_inner()
+        .transpose();
+    let mut out = Matrix6::zeros();
+    out.fixed_view_mut::<3, 3>(0, 0).copy_from(&e);
+    out.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&(-e * skew(&parent_from_child.translation.vector)));
+    out.fixed_view_mut::<3, 3>(3, 3).copy_from(&e);
+    out
+}
+
+/// v ×ₘ m, the spatial cross product of motions ([linear; angular]).
+fn cross_motion(v: &Vector6<f64>, m: &Vector6<f64>) -> Vector6<f64> {
+    let (vl, va) = (v.fixed_rows::<3>(0), v.fixed_rows::<3>(3));
+    let (ml, ma) = (m.fixed_rows::<3>(0), m.fixed_rows::<3>(3));
+    let lin = va.cross(&ml) + vl.cross(&ma);
+    let ang = va.cross(&ma);
+    Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+}
+
+/// v ×_f f, the spatial cross product of a motion and a force.
+fn cross_force(v: &Vector6<f64>, f: &Vector6<f64>) -> Vector6<f64> {
+    let (vl, va) = (v.fixed_rows::<3>(0), v.fixed_rows::<3>(3));
+    let (fl, fa) = (f.fixed_rows::<3>(0), f.fixed_rows::<3>(3));
+    let lin = va.cross(&fl);
+    let ang = va.cross(&fa) + vl.cross(&fl);
+    Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+}
+
+impl Motion {
+    fn subspace(&self) -> Vector6<f64> {
+        match self {
+            Self::Revolute(a) => Vector6::new(0.0, 0.0, 0.0, a.x, a.y, a.z),
+            Self::Prismatic(a) => Vector6::new(a.x, a.y, a.z, 0.0, 0.0, 0.0),
+        }
+    }
+
+    /// The body frame in the joint frame at joint position q.
+    fn joint_from_body(&self, q: f64) -> Isometry3<f64> {
+        match self {
+            Self::Revolute(a) => Isometry3::from_parts(
+                nalgebra::Translation3::identity(),
+                UnitQuaternion::from_scaled_axis(a * q),
+            ),
+            Self::Prismatic(a) => Isometry3::translation(a.x * q, a.y * q, a.z * q),
+        }
+    }
+}
+
+impl ArticulatedBody {
+    /// The tree of `model` with its root as the floating base. Links with no inertial add no
+    /// mass; a body with no mass at all is kept (its joint then has a zero row in M only if
+    /// nothing moves with it, which [`Self::forward_dynamics`] reports as a failed
+    /// factorisation).
+    pub fn new(model: &KinematicModel) -> Self {
+        let mut link_body = vec![(0usize, Isometry3::identity()); model.links.len()];
+        let mut bodies = vec![Body {
+            parent: None,
+            column: 0,
+            dof: 0,
+            parent_from_joint: Isometry3::identity(),
+            motion: Motion::Revolute(Vector3::z()),
+            inertia: Matrix6::zeros(),
+        }];
+        link_body[model.root] = (0, Isometry3::identity());
+        for &j in &model.topological {
+            let joint = &model.joints[j];
+            let (parent_body, body_from_parent) = link_body[joint.parent];
+            match (joint.kind, joint.dof) {
+                (JointKind::Fixed, _) | (_, None) => {
+                    link_body[joint.child] =
+                        (parent_body, body_from_parent * joint.parent_from_child(0.0));
+                }
+                (kind, Some(dof)) => {
+                    let axis = joint.axis.into_inner();
+                    let motion = if kind == JointKind::Prismatic {
+                        Motion::Prismatic(axis)
+                    } else {
+                        Motion::Revolute(axis)
+                    };
+                    bodies.push(Body {
+                        parent: Some(parent_body),
+                        column: 6 + dof,
+                        dof,
+                        parent_from_joint: body_from_parent * joint.parent_from_joint,
+                        motion,
+                        inertia: Matrix6::zeros(),
+                    });
+                    link_body[joint.child] = (bodies.len() - 1, Isometry3::identity());
+                }
+            }
+        }
+        for (link, &(body, body_from_link)) in model.links.iter().zip(&link_body) {
+            if let Some(i) = link.inertial {
+                let body_from_inertial = body_from_link * i.link_from_inertial;
+                let r = body_from_inertial
+                    .rotation
+                    .to_rotation_matrix()
+                    .into_inner();
+                bodies[body].inertia += spatial_inertia(
+                    i.mass_kg,
+                    &body_from_inertial.translation.vector,
+                    &(r * i.inertia_kgm2 * r.transpose()),
+                );
+            }
+        }
+        Self {
+            bodies,
+            link_body,
+            dof: model.dof(),
+        }
+    }
+
+    /// Entries of ν (6 + the configuration's).
+    pub fn nv(&self) -> usize {
+        6 + self.dof
+    }
+
+    /// Rigid bodies the tree has (links joined by fixed joints count once).
+    pub fn body_count(&self) -> usize {
+        self.bodies.len()
+    }
+
+    /// The body a link belongs to and the link's frame in that body's frame.
+    pub fn link_body(&self, link: LinkId) -> (usize, Isometry3<f64>) {
+        self.link_body[link]
+    }
+
+    /// Buffers for this tree.
+    pub fn workspace(&self) -> Workspace {
+        let n = self.bodies.len();
+        Workspace {
+            x: vec![Matrix6::identity(); n],
+            ic: vec![Matrix6::zeros(); n],
+            v: vec![Vector6::zeros(); n],
+            a: vec![Vector6::zeros(); n],
+            f: vec![Vector6::zeros(); n],
+            s: vec![Vector6::zeros(); n],
+            m: DMatrix::zeros(self.nv(), self.nv()),
+            rhs: DVector::zeros(self.nv()),
+        }
+    }
+
+    /// Joint transforms and subspaces at q.
+    fn kinematics(&self, q: &[f64], ws: &mut Workspace) {
+        assert_eq!(
+            q.len(),
+            self.dof,
+            "configuration length must equal the model's DoF"
+        );
+        for (i, body) in self.bodies.iter().enumerate().skip(1) {
+            let parent_from_body =
+                body.parent_from_joint * body.motion.joint_from_body(q[body.dof]);
+            ws.x[i] = motion_transform(&parent_from_body);
+            ws.s[i] = body.motion.subspace();
+        }
+    }
+
+    /// The mass matrix M(q) (nv × nv, symmetric) into `out`, by CRBA.
+    ///
+    /// # Panics
+    /// If `q` or `out` have the wrong size (a caller bug).
+    pub fn mass_matrix(&self, q: &[f64], ws: &mut Workspace, out: &mut DMatrix<f64>) {
+        assert_eq!(out.shape(), (self.nv(), self.nv()), "mass matrix size");
+        self.kinematics(q, ws);
+        for (ic, body) in ws.ic.iter_mut().zip(&self.bodies) {
+            *ic = body.inertia;
+        }
+        for i in (1..self.bodies.len()).rev() {
+            let p = self.bodies[i].parent.unwrap_or(0);
+            let carried = ws.x[i].transpose() * ws.ic[i] * ws.x[i];
+            ws.ic[p] += carried;
+        }
+        out.fill(0.0);
+        out.fixed_view_mut::<6, 6>(0, 0).copy_from(&ws.ic[0]);
+        for i in 1..self.bodies.len() {
+            let col = self.bodies[i].column;
+            let mut f = ws.ic[i] * ws.s[i];
+            out[(col, col)] = ws.s[i].dot(&f);
+            let mut j = i;
+            while let Some(p) = self.bodies[j].parent {
+                f = ws.x[j].transpose() * f;
+                j = p;
+                if j == 0 {
+                    for r in 0..6 {
+                        out[(r, col)] = f[r];
+                        out[(col, r)] = f[r];
+                    }
+                } else {
+                    let row = self.bodies[j].column;
+                    let v = ws.s[j].dot(&f);
+                    out[(row, col)] = v;
+                    out[(col, row)] = v;
+                }
+            }
+        }
+    }
+
+    /// Inverse dynamics by RNEA: the generalised forces τ = M ν̇ + b that give ν̇ at (q, ν),
+    /// with the base at attitude `world_from_base` under gravity, minus the external spatial
+    /// forces `external` (one per body, body axes at the body origin; empty for none).
+    ///
+    /// # Panics
+    /// On wrong sizes (a caller bug).
+    #[allow(clippy::too_many_arguments)]
+    pub fn inverse_dynamics(
+        &self,
+        world_from_base: &UnitQuaternion<f64>,
+        q: &[f64],
+        nu: &DVector<f64>,
+        nu_dot: &DVector<f64>,
+        external: &[Vector6<f64>],
+        ws: &mut Workspace,
+        tau: &mut DVector<f64>,
+    ) {
+        assert_eq!(nu_dot.len(), self.nv(), "ν̇ size");
+        self.rnea(world_from_base, q, nu, Some(nu_dot), external, ws, tau);
+    }
+
+    /// RNEA with ν̇ (None: zero).
+    #[allow(clippy::too_many_arguments)]
+    fn rnea(
+        &self,
+        world_from_base: &UnitQuaternion<f64>,
+        q: &[f64],
+        nu: &DVector<f64>,
+        nu_dot: Option<&DVector<f64>>,
+        external: &[Vector6<f64>],
+        ws: &mut Workspace,
+        tau: &mut DVector<f64>,
+    ) {
+        let nv = self.nv();
+        assert!(nu.len() == nv && tau.len() == nv, "ν sizes");
+        assert!(
+            external.is_empty() || external.len() == self.bodies.len(),
+            "one external force per body"
+        );
+        self.kinematics(q, ws);
+        let acc = |k: usize| nu_dot.map_or(0.0, |a| a[k]);
+        // Gravity as an upward acceleration of the whole tree.
+        let up = world_from_base.inverse() * Vector3::new(0.0, 0.0, GRAVITY_MPS2);
+        ws.v[0] = nu.fixed_rows::<6>(0).into_owned();
+        ws.a[0] = Vector6::new(
+            acc(0) + up.x,
+            acc(1) + up.y,
+            acc(2) + up.z,
+            acc(3),
+            acc(4),
+            acc(5),
+        );
+        for i in 1..self.bodies.len() {
+            let body = &self.bodies[i];
+            let p = body.parent.unwrap_or(0);
+            let vj = ws.s[i] * nu[body.column];
+            let v = ws.x[i] * ws.v[p] + vj;
+            ws.a[i] = ws.x[i] * ws.a[p] + ws.s[i] * acc(body.column) + cross_motion(&v, &vj);
+            ws.v[i] = v;
+        }
+        for i in 0..self.bodies.len() {
+            let inertia = &self.bodies[i].inertia;
+            let h = inertia * ws.v[i];
+            ws.f[i] = inertia * ws.a[i] + cross_force(&ws.v[i], &h);
+            if let Some(fx) = external.get(i) {
+                ws.f[i] -= fx;
+            }
+        }
+        for i in (1..self.bodies.len()).rev() {
+            let body = &self.bodies[i];
+            tau[body.column] = ws.s[i].dot(&ws.f[i]);
+            let p = body.parent.unwrap_or(0);
+            let carried = ws.x[i].transpose() * ws.f[i];
+            ws.f[p] += carried;
+        }
+        tau.fixed_rows_mut::<6>(0).copy_from(&ws.f[0]);
+    }
+
+    /// The bias forces b(q, ν) (Coriolis, centrifugal and gravity): M ν̇ + b = τ.
+    pub fn bias(
+        &self,
+        world_from_base: &UnitQuaternion<f64>,
+        q: &[f64],
+        nu: &DVector<f64>,
+        ws: &mut Workspace,
+        out: &mut DVector<f64>,
+    ) {
+        self.rnea(world_from_base, q, nu, None, &[], ws, out);
+    }
+
+    /// Forward dynamics: ν̇ = M⁻¹(τ − b) with the external forces (as
+    /// [`Self::inverse_dynamics`]). False if M is not positive definite (a body without mass
+    /// moving on its own); ν̇ is then not written.
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward_dynamics(
+        &self,
+        world_from_base: &UnitQuaternion<f64>,
+        q: &[f64],
+        nu: &DVector<f64>,
+        tau: &DVector<f64>,
+        external: &[Vector6<f64>],
+        ws: &mut Workspace,
+        nu_dot: &mut DVector<f64>,
+    ) -> bool {
+        // b − Σ Jᵀf_ext: the recursion with ν̇ = 0. (0 × 0 placeholders do not allocate.)
+        let mut rhs = std::mem::replace(&mut ws.rhs, DVector::zeros(0));
+        self.rnea(world_from_base, q, nu, None, external, ws, &mut rhs);
+        let mut m = std::mem::replace(&mut ws.m, DMatrix::zeros(0, 0));
+        self.mass_matrix(q, ws, &mut m);
+        rhs.neg_mut();
+        rhs += tau;
+        // The factor is computed in M's own storage and handed back to the workspace.
+        let ok = match nalgebra::Cholesky::new(m) {
+            Some(chol) => {
+                chol.solve_mut(&mut rhs);
+                nu_dot.copy_from(&rhs);
+                ws.m = chol.unpack();
+                true
+            }
+            None => {
+                ws.m = DMatrix::zeros(self.nv(), self.nv());
+                false
+            }
+        };
+        ws.rhs = rhs;
+        ok
+    }
+
+    /// The tree's spatial momentum about the base origin in base axes: the first six rows of
+    /// M ν (linear momentum; angular momentum about the base origin).
+    pub fn momentum(&self, q: &[f64], nu: &DVector<f64>, ws: &mut Workspace) -> Vector6<f64> {
+        let mut m = std::mem::replace(&mut ws.m, DMatrix::zeros(0, 0));
+        self.mass_matrix(q, ws, &mut m);
+        let h = (m.rows(0, 6) * nu).fixed_rows::<6>(0).into_owned();
+        ws.m = m;
+        h
+    }
+
+    /// Kinetic energy ½ νᵀ M ν, J.
+    pub fn kinetic_energy(&self, q: &[f64], nu: &DVector<f64>, ws: &mut Workspace) -> f64 {
+        let mut m = std::mem::replace(&mut ws.m, DMatrix::zeros(0, 0));
+        self.mass_matrix(q, ws, &mut m);
+        let e = 0.5 * nu.dot(&(&m * nu));
+        ws.m = m;
+        e
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{DVector, Matrix3, Point3, Quaternion, UnitQuaternion, Vector3, Vector6};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::{ArticulatedBody, skew};
+    use crate::{BUILTIN_IDS, GRAVITY_MPS2, Vehicle};
+
+    fn vehicles() -> Vec<Vehicle> {
+        BUILTIN_IDS
+            .iter()
+            .map(|id| Vehicle::builtin(id).unwrap_or_else(|e| panic!("{id}: {e}")))
+            .collect()
+    }
+
+    /// A configuration within the joint limits, a velocity, an attitude.
+    fn random_state(
+        v: &Vehicle,
+        rng: &mut ChaCha8Rng,
+    ) -> (Vec<f64>, DVector<f64>, UnitQuaternion<f64>) {
+        let q = (0..v.model.dof())
+            .map(|d| {
+                let (lower, upper) = v
+                    .model
+                    .dof_joint(d)
+                    .limits
+                    .map_or((-3.0, 3.0), |l| (l.lower, l.upper));
+                rng.random_range(lower..=upper)
+            })
+            .collect();
+        let nu = DVector::from_fn(6 + v.model.dof(), |_, _| rng.random_range(-1.5..1.5));
+        let attitude = UnitQuaternion::from_euler_angles(
+            rng.random_range(-0.5..0.5),
+            rng.random_range(-0.5..0.5),
+            rng.random_range(-3.0..3.0),
+        );
+        (q, nu, attitude)
+    }
+
+    fn relative_gap(a: f64, b: f64) -> f64 {
+        (a - b).abs() / a.abs().max(b.abs()).max(1.0)
+    }
+
+    #[test]
+    fn the_base_block_of_the_mass_matrix_is_the_composite_rigid_body() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        for v in vehicles() {
+            let tree = ArticulatedBody::new(&v.model);
+            let mut ws = tree.workspace();
+            let mut m = nalgebra::DMatrix::zeros(tree.nv(), tree.nv());
+            for _ in 0..5 {
+                let (q, _, _) = random_state(&v, &mut rng);
+                tree.mass_matrix(&q, &mut ws, &mut m);
+                let props = v.model.mass_properties(&q);
+                let (mass, c) = (props.mass_kg, props.com_in_root_m);
+                let about_origin = props.inertia_about_com_kgm2 - skew(&c) * skew(&c) * mass;
+                let expected_lin = Matrix3::identity() * mass;
+                let expected_cross = -skew(&c) * mass;
+                let gap = (m.fixed_view::<3, 3>(0, 0) - expected_lin).amax()
+                    + (m.fixed_view::<3, 3>(0, 3) - expected_cross).amax()
+                    + (m.fixed_view::<3, 3>(3, 3) - about_origin).amax();
+                assert!(gap < 1e-12, "{}: base block off by {gap:e}", v.id);
+                assert!(
+                    (&m - m.transpose()).amax() < 1e-14,
+                    "{}: M not symmetric",
+                    v.id
+                );
+                assert!(
+                    m.clone().cholesky().is_some(),
+                    "{}: M not positive definite",
+                    v.id
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn kinetic_energy_equals_the_sum_over_links_through_the_jacobians() {
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        for v in vehicles() {
+            let tree = ArticulatedBody::new(&v.model);
+            let mut ws = tree.workspace();
+            for _ in 0..5 {
+                let (q, nu, _) = random_state(&v, &mut rng);
+                let vb = Vector3::new(nu[0], nu[1], nu[2]);
+                let wb = Vector3::new(nu[3], nu[4], nu[5]);
+                let qd = nu.rows(6, v.model.dof()).into_owned();
+                let poses = v.model.forward_kinematics(&q);
+                let mut expected = 0.0;
+                for (id, link) in v.model.links.iter().enumerate() {
+                    let Some(inertial) = link.inertial else {
+                        continue;
+                    };
+                    let com_in_link = inertial.link_from_inertial.translation.vector;
+                    let com = (poses[id] * Point3::from(com_in_link)).coords;
+                    let jac = v.model.jacobian(&q, id, &com_in_link);
+                    let lin = vb + wb.cross(&com) + jac.fixed_rows::<3>(0) * &qd;
+                    let ang = wb + jac.fixed_rows::<3>(3) * &qd;
+                    let r = (poses[id] * inertial.link_from_inertial)
+                        .rotation
+                        .to_rotation_matrix()
+                        .into_inner();
+                    let inertia = r * inertial.inertia_kgm2 * r.transpose();
+                    expected += 0.5 * inertial.mass_kg * lin.norm_squared()
+                        + 0.5 * ang.dot(&(inertia * ang));
+                }
+                let energy = tree.kinetic_energy(&q, &nu, &mut ws);
+                assert!(
+                    relative_gap(energy, expected) < 1e-12,
+                    "{}: ½νᵀMν = {energy} J, links sum to {expected} J",
+                    v.id
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_gravity_bias_is_the_weight_carried_through_the_jacobians() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for v in vehicles() {
+            let tree = ArticulatedBody::new(&v.model);
+            let mut ws = tree.workspace();
+            let mut b = DVector::zeros(tree.nv());
+            for _ in 0..5 {
+                let (q, _, attitude) = random_state(&v, &mut rng);
+                tree.bias(&attitude, &q, &DVector::zeros(tree.nv()), &mut ws, &mut b);
+                // Holding the tree still takes its weight upward at every centre of mass.
+                let up = attitude.inverse() * Vector3::new(0.0, 0.0, GRAVITY_MPS2);
+                let props = v.model.mass_properties(&q);
+                let force = up * props.mass_kg;
+                let torque = props.com_in_root_m.cross(&force);
+                let poses = v.model.forward_kinematics(&q);
+                let mut joints = DVector::zeros(v.model.dof());
+                for (id, link) in v.model.links.iter().enumerate() {
+                    let Some(inertial) = link.inertial else {
+                        continue;
+                    };
+                    let com_in_link = inertial.link_from_inertial.translation.vector;
+                    let jac = v.model.jacobian(&q, id, &com_in_link);
+                    joints += jac.fixed_rows::<3>(0).transpose() * (up * inertial.mass_kg);
+                    let _ = poses[id];
+                }
+                let gap = (b.fixed_rows::<3>(0) - force).amax()
+                    + (b.fixed_rows::<3>(3) - torque).amax()
+                    + (b.rows(6, v.model.dof()) - &joints).amax();
+                assert!(gap < 1e-11, "{}: gravity bias off by {gap:e}", v.id);
+            }
+        }
+    }
+
+    #[test]
+    fn forward_dynamics_inverts_inverse_dynamics() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        for v in vehicles() {
+            let tree = ArticulatedBody::new(&v.model);
+            let mut ws = tree.workspace();
+            let (q, nu, attitude) = random_state(&v, &mut rng);
+            let tau = DVector::from_fn(tree.nv(), |_, _| rng.random_range(-5.0..5.0));
+            let external: Vec<Vector6<f64>> = (0..tree.body_count())
+                .map(|_| Vector6::from_fn(|_, _| rng.random_range(-2.0..2.0)))
+                .collect();
+            let mut acc = DVector::zeros(tree.nv());
+            assert!(tree.forward_dynamics(&attitude, &q, &nu, &tau, &external, &mut ws, &mut acc));
+            let mut back = DVector::zeros(tree.nv());
+            tree.inverse_dynamics(&attitude, &q, &nu, &acc, &external, &mut ws, &mut back);
+            let gap = (&back - &tau).amax();
+            assert!(gap < 1e-9, "{}: τ back off by {gap:e}", v.id);
+        }
+    }
+
+    /// The state of a free-falling tree: base position and attitude (world), q, ν.
+    #[derive(Clone)]
+    struct State {
+        p: Vector3<f64>,
+        r: Quaternion<f64>,
+        q: DVector<f64>,
+        nu: DVector<f64>,
+    }
+
+    fn derivative(tree: &ArticulatedBody, ws: &mut super::Workspace, s: &State) -> State {
+        let attitude = UnitQuaternion::from_quaternion(s.r);
+        let vb = Vector3::new(s.nu[0], s.nu[1], s.nu[2]);
+        let wb = Vector3::new(s.nu[3], s.nu[4], s.nu[5]);
+        let mut acc = DVector::zeros(tree.nv());
+        let zero = DVector::zeros(tree.nv());
+        assert!(tree.forward_dynamics(&attitude, s.q.as_slice(), &s.nu, &zero, &[], ws, &mut acc));
+        State {
+            p: attitude * vb,
+            r: s.r * Quaternion::from_parts(0.0, wb) * 0.5,
+            q: s.nu.rows(6, s.q.len()).into_owned(),
+            nu: acc,
+        }
+    }
+
+    fn advance(s: &State, d: &State, h: f64) -> State {
+        State {
+            p: s.p + d.p * h,
+            r: s.r + d.r * h,
+            q: &s.q + &d.q * h,
+            nu: &s.nu + &d.nu * h,
+        }
+    }
+
+    #[test]
+    fn a_falling_tree_keeps_its_energy_and_its_angular_momentum_about_the_centre_of_mass() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for v in vehicles() {
+            let tree = ArticulatedBody::new(&v.model);
+            let mut ws = tree.workspace();
+            let (q, nu, attitude) = random_state(&v, &mut rng);
+            let mut s = State {
+                p: Vector3::new(0.0, 0.0, 1.0),
+                r: *attitude.quaternion(),
+                q: DVector::from_vec(q),
+                nu,
+            };
+            // Energy (kinetic + potential) and angular momentum about the centre of mass, in
+            // world axes.
+            let invariants = |s: &State, ws: &mut super::Workspace| {
+                let attitude = UnitQuaternion::from_quaternion(s.r);
+                let q = s.q.as_slice();
+                let props = v.model.mass_properties(q);
+                let height = (s.p + attitude * props.com_in_root_m).z;
+                let energy =
+                    tree.kinetic_energy(q, &s.nu, ws) + props.mass_kg * GRAVITY_MPS2 * height;
+                let h = tree.momentum(q, &s.nu, ws);
+                let (lin, ang) = (h.fixed_rows::<3>(0), h.fixed_rows::<3>(3));
+                let about_com = ang - props.com_in_root_m.cross(&lin);
+                (energy, attitude * about_com)
+            };
+            let (e0, l0) = invariants(&s, &mut ws);
+            let h = 1e-3;
+            for _ in 0..1000 {
+                let k1 = derivative(&tree, &mut ws, &s);
+                let k2 = derivative(&tree, &mut ws, &advance(&s, &k1, h / 2.0));
+                let k3 = derivative(&tree, &mut ws, &advance(&s, &k2, h / 2.0));
+                let k4 = derivative(&tree, &mut ws, &advance(&s, &k3, h));
+                let step = |a: &State, b: &State, c: &State, d: &State| State {
+                    p: (a.p + b.p * 2.0 + c.p * 2.0 + d.p) / 6.0,
+                    r: (a.r + b.r * 2.0 + c.r * 2.0 + d.r) / 6.0,
+                    q: (&a.q + &b.q * 2.0 + &c.q * 2.0 + &d.q) / 6.0,
+                    nu: (&a.nu + &b.nu * 2.0 + &c.nu * 2.0 + &d.nu) / 6.0,
+                };
+                s = advance(&s, &step(&k1, &k2, &k3, &k4), h);
+                s.r = s.r.normalize();
+            }
+            let (e1, l1) = invariants(&s, &mut ws);
+            let scale = l0.norm().max(1e-3);
+            assert!(
+                relative_gap(e1, e0) < 1e-7,
+                "{}: energy {e0} J → {e1} J over 1 s of free fall",
+                v.id
+            );
+            assert!(
+                (l1 - l0).norm() / scale < 1e-7,
+                "{}: angular momentum about the CoM {l0:?} → {l1:?}",
+                v.id
+            );
+        }
+    }
+}
