@@ -102,6 +102,63 @@ fn platforms_json_holds_the_figures_keyed_by_vehicle_id() {
 }
 
 #[test]
+fn platforms_dynamics_writes_each_vehicles_mass_matrix_and_bias() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let path = dir.path().join("dynamics.json");
+    let file = path.to_string_lossy();
+    let out = amstack(&[
+        "platforms",
+        "--dynamics",
+        &file,
+        "--samples",
+        "3",
+        "--seed",
+        "7",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&path).unwrap_or_default();
+    let json: serde_json::Value =
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+    let fa = &json["fa-hexa"];
+    // 4 arm joints and 2 fingers: 12 entries of ν; the base and six moving links.
+    assert_eq!(fa["joints"].as_array().map(Vec::len), Some(6), "{fa}");
+    assert_eq!(fa["bodies"], 7);
+    let samples = fa["samples"].as_array().cloned().unwrap_or_default();
+    assert_eq!(samples.len(), 3);
+    for s in &samples {
+        let m = |r: usize, c: usize| s["mass_matrix"][r][c].as_f64().unwrap_or(f64::NAN);
+        // The base block's linear part is the total mass (AMBENCH_SPEC §1: 6.635 kg).
+        for i in 0..3 {
+            assert!((m(i, i) - 6.635).abs() < 1e-9, "M[{i}][{i}] = {}", m(i, i));
+        }
+        for r in 0..12 {
+            for c in 0..12 {
+                assert!(
+                    (m(r, c) - m(c, r)).abs() < 1e-12,
+                    "M not symmetric at {r}, {c}"
+                );
+            }
+        }
+        assert_eq!(s["bias"].as_array().map(Vec::len), Some(12));
+    }
+    // Seeded: the same flags write the same file.
+    let again = dir.path().join("again.json");
+    let out = amstack(&[
+        "platforms",
+        "--dynamics",
+        &again.to_string_lossy(),
+        "--samples",
+        "3",
+        "--seed",
+        "7",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(std::fs::read_to_string(&again).unwrap_or_default(), text);
+    let out = amstack(&["platforms", "--dynamics", &file, "--samples", "0"]);
+    assert_bad_input(&out, &["--samples", "0"]);
+}
+
+#[test]
 fn platforms_json_into_a_missing_directory_is_bad_input() {
     let out = amstack(&["platforms", "--json", "/no/such/dir/x.json"]);
     assert_bad_input(&out, &["--json", "/no/such/dir/x.json", "does not exist"]);

@@ -6,8 +6,8 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use nalgebra::{DMatrix, DVector, UnitQuaternion};
-use platform::{ArticulatedBody, BUILTIN_IDS, Vehicle};
+use nalgebra::{DMatrix, DVector, Isometry3, UnitQuaternion};
+use platform::{ArticulatedBody, BUILTIN_IDS, Drive, TreeState, Vehicle};
 
 fn kinematics(c: &mut Criterion) {
     let mut group = c.benchmark_group("kinematics");
@@ -51,6 +51,32 @@ fn kinematics(c: &mut Criterion) {
         });
         group.bench_function(format!("{id}/bias_rnea"), |b| {
             b.iter(|| tree.bias(&attitude, black_box(&q), &nu, &mut ws, &mut out))
+        });
+        let drives: Vec<Drive> = v
+            .drives
+            .iter()
+            .filter_map(|d| {
+                Some(Drive {
+                    dof: v.model.joints[d.joint].dof?,
+                    stiffness: d.stiffness,
+                    damping: d.damping,
+                    target: 0.2,
+                    effort_limit: d.effort_limit,
+                })
+            })
+            .collect();
+        let start = TreeState {
+            world_from_base: Isometry3::translation(0.0, 0.0, 1.0),
+            q: q.clone(),
+            nu: nu.clone(),
+        };
+        let mut state = start.clone();
+        let zero = DVector::zeros(tree.nv());
+        group.bench_function(format!("{id}/step_implicit_drives"), |b| {
+            b.iter(|| {
+                state.clone_from(&start);
+                tree.step(&mut state, &zero, black_box(&drives), 1.0 / 480.0, &mut ws)
+            })
         });
         group.bench_function(format!("{id}/forward_dynamics"), |b| {
             b.iter(|| {

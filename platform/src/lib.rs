@@ -40,7 +40,7 @@ mod tests;
 
 pub use actuation::Actuation;
 pub use builtin::BUILTIN_IDS;
-pub use dynamics::{ArticulatedBody, Workspace as DynamicsWorkspace};
+pub use dynamics::{ArticulatedBody, Drive, TreeState, Workspace as DynamicsWorkspace};
 pub use error::{DescriptionError, Problem};
 pub use link::{
     ActuatorCommand, AttitudeSetpoint, DisturbanceReport, Measurement, PositionSetpoint,
