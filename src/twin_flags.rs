@@ -3,7 +3,9 @@
 //! the same flags, or the handshake refuses them.
 
 use anyhow::Result;
-use sim_twin::{Disturbances, MotorConfig, SaturatedAllocation, TaskId, TwinConfig};
+use sim_twin::{
+    Disturbances, MotorConfig, SaturatedAllocation, TaskId, TwinConfig, VehicleDynamics,
+};
 
 use crate::cli_error::bad_input;
 
@@ -49,6 +51,23 @@ pub struct PhysicsFlags {
     /// rebuild of the vehicle's mass matrix). Default 4; see docs/speed.md.
     #[arg(long, value_name = "N")]
     pub solver_iterations: Option<u32>,
+    /// What steps the vehicle's dynamics: `rapier` (default: rapier's multibody) or
+    /// `articulated` — EXPERIMENTAL, free flight only: amstack's own rigid-body dynamics
+    /// (CRBA, RNEA, implicit joint drives, `--solver-iterations` steps per physics substep)
+    /// with the vehicle's bodies moved kinematically in rapier; objects feel the vehicle, but
+    /// the vehicle feels no contact and no grasp. Several times faster per tick
+    /// (docs/speed.md).
+    #[arg(long, value_name = "ENGINE")]
+    pub vehicle_dynamics: Option<DynamicsEngine>,
+}
+
+/// `--vehicle-dynamics`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DynamicsEngine {
+    /// rapier's multibody.
+    Rapier,
+    /// amstack's own articulated-body dynamics (free flight only).
+    Articulated,
 }
 
 impl PhysicsFlags {
@@ -74,6 +93,12 @@ impl PhysicsFlags {
         if let Some(n) = self.solver_iterations {
             twin.solver_iterations = n;
         }
+        if let Some(e) = self.vehicle_dynamics {
+            twin.vehicle_dynamics = match e {
+                DynamicsEngine::Rapier => VehicleDynamics::Rapier,
+                DynamicsEngine::Articulated => VehicleDynamics::Articulated,
+            };
+        }
         Ok(())
     }
 
@@ -85,6 +110,13 @@ impl PhysicsFlags {
         }
         if let Some(n) = self.solver_iterations {
             f.extend(["--solver-iterations".to_owned(), n.to_string()]);
+        }
+        if let Some(e) = self.vehicle_dynamics {
+            let name = match e {
+                DynamicsEngine::Rapier => "rapier",
+                DynamicsEngine::Articulated => "articulated",
+            };
+            f.extend(["--vehicle-dynamics".to_owned(), name.to_owned()]);
         }
         f
     }

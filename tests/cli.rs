@@ -159,6 +159,34 @@ fn platforms_dynamics_writes_each_vehicles_mass_matrix_and_bias() {
 }
 
 #[test]
+fn track_flies_the_articulated_vehicle_dynamics_and_refuses_an_unknown_engine() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let json = dir.path().join("track.json");
+    let out = amstack(&[
+        "track",
+        "--platform",
+        "fa-hexa",
+        "--trajectory",
+        "step",
+        "--duration",
+        "3",
+        "--vehicle-dynamics",
+        "articulated",
+        "--json",
+        &json.to_string_lossy(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&json).unwrap_or_default();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+    // The 1 m x step flown: the base tracks it (the default engine's EE RMSE on this
+    // 3 s flight is of the same size; docs/speed.md compares the two).
+    let rmse = v["ee_pos_rmse_m"].as_f64().unwrap_or(f64::NAN);
+    assert!(rmse > 0.01 && rmse < 0.2, "EE RMSE {rmse} m: {text}");
+    let out = amstack(&["track", "--vehicle-dynamics", "mujoco"]);
+    assert_bad_input(&out, &["--vehicle-dynamics", "mujoco"]);
+}
+
+#[test]
 fn platforms_json_into_a_missing_directory_is_bad_input() {
     let out = amstack(&["platforms", "--json", "/no/such/dir/x.json"]);
     assert_bad_input(&out, &["--json", "/no/such/dir/x.json", "does not exist"]);

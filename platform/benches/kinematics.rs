@@ -75,7 +75,14 @@ fn kinematics(c: &mut Criterion) {
         group.bench_function(format!("{id}/step_implicit_drives"), |b| {
             b.iter(|| {
                 state.clone_from(&start);
-                tree.step(&mut state, &zero, black_box(&drives), 1.0 / 480.0, &mut ws)
+                tree.step(
+                    &mut state,
+                    &zero,
+                    &[],
+                    black_box(&drives),
+                    1.0 / 480.0,
+                    &mut ws,
+                )
             })
         });
         group.bench_function(format!("{id}/forward_dynamics"), |b| {

@@ -78,6 +78,7 @@ pub struct Workspace {
     /// The stepper's accelerations, its matrix and which drives push at their limit.
     acc: DVector<f64>,
     lhs: DMatrix<f64>,
+    lhs_capped: DMatrix<f64>,
     capped: Vec<bool>,
 }
 
@@ -276,6 +277,7 @@ impl ArticulatedBody {
             rhs: DVector::zeros(self.nv()),
             acc: DVector::zeros(self.nv()),
             lhs: DMatrix::zeros(self.nv(), self.nv()),
+            lhs_capped: DMatrix::zeros(self.nv(), self.nv()),
             capped: Vec::new(),
         }
     }
@@ -464,7 +466,8 @@ impl ArticulatedBody {
     }
 
     /// Advances `state` by `h` seconds under the generalised forces `tau` (base wrench in base
-    /// axes about its origin; joint efforts) and the joint `drives`: semi-implicit Euler, the
+    /// axes about its origin; joint efforts), the spatial forces `external` on the bodies (as
+    /// [`Self::inverse_dynamics`]; empty for none) and the joint `drives`: semi-implicit Euler, the
     /// drives implicit, (M + h·(h·K + D)) a = τ − b + K(r − q − h·q̇) − D·q̇ on the driven
     /// rows, ν⁺ = ν + h·a, then q⁺ = q + h·q̇⁺ and the base pose moved by h·ν⁺ (the
     /// rotation by the exponential map). A drive whose effort at the end of the step would
@@ -478,65 +481,125 @@ impl ArticulatedBody {
         &self,
         state: &mut TreeState,
         tau: &DVector<f64>,
+        external: &[Vector6<f64>],
         drives: &[Drive],
         h: f64,
         ws: &mut Workspace,
     ) -> bool {
+        self.steps(state, tau, external, drives, h, 1, ws)
+    }
+
+    /// `n` steps of `h` as [`Self::step`] takes them, but with the mass matrix of the first
+    /// (and the factor of its drive-augmented form) kept for all `n`: the bias forces, the
+    /// external forces' Jacobians and the drives' efforts are evaluated at every step, M is
+    /// not (it moves little over a few milliseconds; rapier's multibody likewise keeps its
+    /// mass matrix through a substep's constraint iterations). A step with a drive at its
+    /// limit factors its own matrix. `n = 1` is [`Self::step`]. False (the state as the
+    /// steps before the failing one left it) if a factorisation fails or a step is not
+    /// finite.
+    ///
+    /// # Panics
+    /// On wrong sizes (a caller bug).
+    #[allow(clippy::too_many_arguments)]
+    pub fn steps(
+        &self,
+        state: &mut TreeState,
+        tau: &DVector<f64>,
+        external: &[Vector6<f64>],
+        drives: &[Drive],
+        h: f64,
+        n: u32,
+        ws: &mut Workspace,
+    ) -> bool {
         let nv = self.nv();
         assert!(tau.len() == nv && state.nu.len() == nv, "ν sizes");
-        let attitude = state.world_from_base.rotation;
-        // τ − b (0 × 0 placeholders do not allocate).
-        let mut rhs = std::mem::replace(&mut ws.rhs, DVector::zeros(0));
-        self.rnea(&attitude, &state.q, &state.nu, None, &[], ws, &mut rhs);
-        rhs.neg_mut();
-        rhs += tau;
+        // (0 × 0 placeholders do not allocate.)
         let mut m = std::mem::replace(&mut ws.m, DMatrix::zeros(0, 0));
-        let mut acc = std::mem::replace(&mut ws.acc, DVector::zeros(0));
         self.mass_matrix(&state.q, ws, &mut m);
+        let augment = |lhs: &mut DMatrix<f64>, capped: &[bool]| {
+            lhs.copy_from(&m);
+            for (d, &c) in drives.iter().zip(capped) {
+                if !c {
+                    let col = 6 + d.dof;
+                    lhs[(col, col)] += h * (h * d.stiffness + d.damping);
+                }
+            }
+        };
         let mut capped = std::mem::take(&mut ws.capped);
         capped.clear();
         capped.resize(drives.len(), false);
-        let mut solved = false;
-        for _pass in 0..2 {
-            let mut lhs = std::mem::replace(&mut ws.lhs, DMatrix::zeros(0, 0));
-            lhs.copy_from(&m);
-            acc.copy_from(&rhs);
-            for (i, d) in drives.iter().enumerate() {
-                let c = 6 + d.dof;
-                let (q, qd) = (state.q[d.dof], state.nu[c]);
-                let predicted = d.stiffness * (d.target - q - h * qd) - d.damping * qd;
-                if capped[i] {
-                    acc[c] += predicted.clamp(-d.effort_limit, d.effort_limit);
-                } else {
-                    acc[c] += predicted;
-                    lhs[(c, c)] += h * (h * d.stiffness + d.damping);
+        // The factor of M + h(hK + D) with every drive implicit, kept for the n steps.
+        let mut lhs = std::mem::replace(&mut ws.lhs, DMatrix::zeros(0, 0));
+        augment(&mut lhs, &capped);
+        let factor = nalgebra::Cholesky::new(lhs);
+        let mut rhs = std::mem::replace(&mut ws.rhs, DVector::zeros(0));
+        let mut acc = std::mem::replace(&mut ws.acc, DVector::zeros(0));
+        let mut spare = std::mem::replace(&mut ws.lhs_capped, DMatrix::zeros(0, 0));
+        let mut ok = factor.is_some();
+        for _ in 0..n {
+            let Some(factor) = &factor else { break };
+            // τ − b + Σ Jᵀf_ext at this step's state.
+            let attitude = state.world_from_base.rotation;
+            self.rnea(&attitude, &state.q, &state.nu, None, external, ws, &mut rhs);
+            rhs.neg_mut();
+            rhs += tau;
+            capped.fill(false);
+            let mut capped_factor = None;
+            for _pass in 0..2 {
+                acc.copy_from(&rhs);
+                for (d, &c) in drives.iter().zip(&capped) {
+                    let col = 6 + d.dof;
+                    let (q, qd) = (state.q[d.dof], state.nu[col]);
+                    let predicted = d.stiffness * (d.target - q - h * qd) - d.damping * qd;
+                    acc[col] += if c {
+                        predicted.clamp(-d.effort_limit, d.effort_limit)
+                    } else {
+                        predicted
+                    };
+                }
+                match &capped_factor {
+                    None => factor.solve_mut(&mut acc),
+                    Some(f) => nalgebra::Cholesky::solve_mut(f, &mut acc),
+                }
+                // The drives' efforts at the end of the step.
+                let mut again = false;
+                for (d, c) in drives.iter().zip(capped.iter_mut()) {
+                    let col = 6 + d.dof;
+                    let (q, qd) = (state.q[d.dof], state.nu[col]);
+                    let qd_next = qd + h * acc[col];
+                    let effort = d.stiffness * (d.target - q - h * qd_next) - d.damping * qd_next;
+                    if !*c && effort.abs() > d.effort_limit {
+                        *c = true;
+                        again = true;
+                    }
+                }
+                if !again {
+                    break;
+                }
+                // A drive at its limit pushes with it: this step's own factor.
+                if let Some(f) = capped_factor.take() {
+                    spare = nalgebra::Cholesky::unpack(f);
+                }
+                let mut other = std::mem::replace(&mut spare, DMatrix::zeros(0, 0));
+                if other.shape() != (nv, nv) {
+                    other = DMatrix::zeros(nv, nv);
+                }
+                augment(&mut other, &capped);
+                match nalgebra::Cholesky::new(other) {
+                    Some(f) => capped_factor = Some(f),
+                    None => {
+                        ok = false;
+                        break;
+                    }
                 }
             }
-            let Some(chol) = nalgebra::Cholesky::new(lhs) else {
-                ws.lhs = DMatrix::zeros(nv, nv);
-                break;
-            };
-            chol.solve_mut(&mut acc);
-            ws.lhs = chol.unpack();
-            solved = true;
-            // The drives' efforts at the end of the step.
-            let mut again = false;
-            for (i, d) in drives.iter().enumerate() {
-                let c = 6 + d.dof;
-                let (q, qd) = (state.q[d.dof], state.nu[c]);
-                let qd_next = qd + h * acc[c];
-                let effort = d.stiffness * (d.target - q - h * qd_next) - d.damping * qd_next;
-                if !capped[i] && effort.abs() > d.effort_limit {
-                    capped[i] = true;
-                    again = true;
-                }
+            if let Some(f) = capped_factor.take() {
+                spare = nalgebra::Cholesky::unpack(f);
             }
-            if !again {
+            if !ok || !acc.iter().all(|a| a.is_finite()) {
+                ok = false;
                 break;
             }
-        }
-        let ok = solved && acc.iter().all(|a| a.is_finite());
-        if ok {
             state.nu.axpy(h, &acc, 1.0);
             for (d, q) in state.q.iter_mut().enumerate() {
                 *q += h * state.nu[6 + d];
@@ -547,11 +610,29 @@ impl ArticulatedBody {
             pose.translation.vector += pose.rotation * (v * h);
             pose.rotation *= UnitQuaternion::from_scaled_axis(w * h);
         }
+        ws.lhs = factor.map_or_else(|| DMatrix::zeros(nv, nv), nalgebra::Cholesky::unpack);
+        ws.lhs_capped = spare;
         ws.rhs = rhs;
         ws.m = m;
         ws.acc = acc;
         ws.capped = capped;
         ok
+    }
+
+    /// Every body's frame in the world (body order: the base, then one per movable joint in
+    /// the model's topological order), into `out`.
+    pub fn body_poses(
+        &self,
+        world_from_base: &Isometry3<f64>,
+        q: &[f64],
+        out: &mut Vec<Isometry3<f64>>,
+    ) {
+        out.clear();
+        out.push(*world_from_base);
+        for body in self.bodies.iter().skip(1) {
+            let parent = out[body.parent.unwrap_or(0)];
+            out.push(parent * body.parent_from_joint * body.motion.joint_from_body(q[body.dof]));
+        }
     }
 
     /// The tree's spatial momentum about the base origin in base axes: the first six rows of
@@ -779,7 +860,7 @@ mod tests {
         let zero = DVector::zeros(tree.nv());
         let mut s = start.clone();
         for _ in 0..120 {
-            assert!(tree.step(&mut s, &zero, &drives, 1.0 / 120.0, &mut ws));
+            assert!(tree.step(&mut s, &zero, &[], &drives, 1.0 / 120.0, &mut ws));
         }
         assert!(
             (s.q[dof] - target).abs() < 1e-6,
@@ -794,7 +875,7 @@ mod tests {
         };
         let h = 1.0 / 480.0;
         let mut s = start.clone();
-        assert!(tree.step(&mut s, &zero, &[capped], h, &mut ws));
+        assert!(tree.step(&mut s, &zero, &[], &[capped], h, &mut ws));
         let mut tau = DVector::zeros(tree.nv());
         tau[6 + dof] = 0.5;
         let mut acc = DVector::zeros(tree.nv());

@@ -3,7 +3,9 @@
 //! 0.8 m away), at each (physics substeps per 120 Hz tick, solver iterations per substep)
 //! pair of the study of docs/speed.md: 4x4 (the default), then the cheaper ones. rapier
 //! rebuilds the vehicle's mass matrix at every solver iteration of every substep, so the cost
-//! follows the product. A PID6 and the allocator close the loop outside the timed part.
+//! follows the product; last, the vehicle stepped by amstack's own articulated dynamics
+//! (`VehicleDynamics::Articulated`, 4 substeps). A PID6 and the allocator close the loop
+//! outside the timed part.
 //! Run: `cargo bench -p sim_twin --bench twin` (one pair: `... -- 2x2`).
 
 use std::time::{Duration, Instant};
@@ -13,15 +15,22 @@ use controllers::{BaseController, BodyParams, Pid6, Pid6Gains};
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Vector3};
 use platform::{ActuatorCommand, Vehicle};
-use sim_twin::{Disturbances, Twin, TwinConfig};
+use sim_twin::{Disturbances, Twin, TwinConfig, VehicleDynamics};
 
 fn twin_step(c: &mut Criterion) {
     for (substeps, iterations) in [(4, 4), (1, 4), (4, 1), (2, 2), (2, 1), (1, 2), (1, 1)] {
-        twin_step_at(c, substeps, iterations);
+        twin_step_at(c, substeps, iterations, VehicleDynamics::Rapier);
     }
+    // The vehicle stepped by amstack's own articulated dynamics, 4 substeps.
+    twin_step_at(c, 4, 4, VehicleDynamics::Articulated);
 }
 
-fn twin_step_at(c: &mut Criterion, physics_substeps: u32, solver_iterations: u32) {
+fn twin_step_at(
+    c: &mut Criterion,
+    physics_substeps: u32,
+    solver_iterations: u32,
+    vehicle_dynamics: VehicleDynamics,
+) {
     let Ok(vehicle) = Vehicle::builtin("fa-hexa") else {
         return;
     };
@@ -29,6 +38,7 @@ fn twin_step_at(c: &mut Criterion, physics_substeps: u32, solver_iterations: u32
         disturbances: Disturbances::all(),
         physics_substeps,
         solver_iterations,
+        vehicle_dynamics,
         ..TwinConfig::default()
     };
     let make = || -> Option<Twin> {
@@ -52,7 +62,9 @@ fn twin_step_at(c: &mut Criterion, physics_substeps: u32, solver_iterations: u32
     let dt = config.control_dt_s();
     let joints = vehicle.initial_configuration();
     // The default keeps its historical name, so criterion compares it with earlier runs.
-    let name = if (physics_substeps, solver_iterations) == (4, 4) {
+    let name = if vehicle_dynamics == VehicleDynamics::Articulated {
+        format!("twin_step/fa-hexa_hover_all_disturbances_articulated_{physics_substeps}")
+    } else if (physics_substeps, solver_iterations) == (4, 4) {
         "twin_step/fa-hexa_hover_all_disturbances".to_owned()
     } else {
         format!("twin_step/fa-hexa_hover_all_disturbances_{physics_substeps}x{solver_iterations}")

@@ -141,6 +141,29 @@ impl SaturatedAllocation {
     }
 }
 
+/// What steps the vehicle's own dynamics (its base, arm and gripper).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VehicleDynamics {
+    /// rapier's multibody: contacts and grasps act on the vehicle as on everything else.
+    #[default]
+    Rapier,
+    /// amstack's own articulated-body dynamics (`platform::ArticulatedBody`: CRBA, RNEA,
+    /// implicit joint drives, `solver_iterations` steps per physics substep, as many as
+    /// rapier's TGS takes) with the vehicle's bodies moved
+    /// kinematically in rapier. **Experimental, free flight only**: objects and grasped
+    /// objects feel the vehicle, but the vehicle feels neither contacts nor grasps, and its
+    /// joint limits are held only by the drives' clamped targets. Several times cheaper per
+    /// tick (docs/speed.md).
+    Articulated,
+}
+
+impl VehicleDynamics {
+    fn is_rapier(&self) -> bool {
+        *self == Self::Rapier
+    }
+}
+
 /// Along which direction a tilting rotor (Omni-Hexa) pushes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -205,6 +228,10 @@ pub struct TwinConfig {
     pub physics_substeps: u32,
     /// Constraint solver iterations per substep. Default 4.
     pub solver_iterations: u32,
+    /// What steps the vehicle's dynamics. Default: rapier's multibody (left out of a
+    /// written configuration when default, so files of earlier runs stay byte-identical).
+    #[serde(skip_serializing_if = "VehicleDynamics::is_rapier")]
+    pub vehicle_dynamics: VehicleDynamics,
     /// Which disturbances act.
     pub disturbances: Disturbances,
     /// Aerodynamic constants.
@@ -246,6 +273,7 @@ impl Default for TwinConfig {
             control_rate_hz: 120.0,
             physics_substeps: 4,
             solver_iterations: 4,
+            vehicle_dynamics: VehicleDynamics::default(),
             disturbances: Disturbances::default(),
             aero: AeroConfig::default(),
             motor: MotorConfig::default(),

@@ -42,6 +42,7 @@ mod tests;
 
 pub use config::{
     Disturbances, MotorConfig, NoiseConfig, SaturatedAllocation, TiltThrust, TwinConfig,
+    VehicleDynamics,
 };
 pub use error::TwinError;
 pub use observer::TwinObserver;

@@ -17,17 +17,17 @@
 //! measurement handed out; [`Twin::truth`] keeps the exact one.
 
 use allocation::{RotorActuator, RotorActuatorConfig};
-use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use nalgebra::{DVector, Isometry3, Point3, UnitQuaternion, Vector3, Vector6};
 use platform::{
-    ActuatorCommand, DisturbanceReport, Measurement, RandomStream, RigidBodyState, RotorReport,
-    Vehicle, Wrench,
+    ActuatorCommand, ArticulatedBody, DisturbanceReport, Drive, DynamicsWorkspace, Measurement,
+    RandomStream, RigidBodyState, RotorReport, TreeState, Vehicle, Wrench,
 };
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use rapier3d_f64::prelude::*;
 
 use crate::aero::{drag_force_in_body, near_wall_thrust, wall_fan_directions};
-use crate::config::{TiltThrust, TwinConfig};
+use crate::config::{TiltThrust, TwinConfig, VehicleDynamics};
 use crate::convert::{
     pose_from_rapier, pose_to_rapier, rotation_from_rapier, vector_from_rapier, vector_to_rapier,
 };
@@ -85,6 +85,22 @@ pub struct Twin {
     realised_n: Vec<f64>,
     diverged_at: Option<f64>,
     task: TaskState,
+    /// The vehicle's own dynamics (`VehicleDynamics::Articulated`); None: rapier's multibody.
+    articulated: Option<Box<Articulated>>,
+}
+
+/// The vehicle stepped by `platform::ArticulatedBody` (`VehicleDynamics::Articulated`): its
+/// bodies, in the tree's order, are `VehicleBody::bodies` (both segment the links alike).
+struct Articulated {
+    tree: ArticulatedBody,
+    ws: DynamicsWorkspace,
+    state: TreeState,
+    /// Buffers of a substep: no joint efforts, the forces on each body, the drives, the
+    /// bodies' world poses.
+    tau: DVector<f64>,
+    external: Vec<Vector6<f64>>,
+    drives: Vec<Drive>,
+    poses: Vec<Isometry3<f64>>,
 }
 
 /// The task scene and what the twin keeps for it.
@@ -149,6 +165,31 @@ impl Twin {
         }
         let (world, body) = Self::build_world(&vehicle, &config, &world_from_base, &q0)?;
         let rotors = Self::rotor_mounts(&vehicle, &body)?;
+        let articulated = if config.vehicle_dynamics == VehicleDynamics::Articulated {
+            let tree = ArticulatedBody::new(&vehicle.model);
+            if tree.body_count() != body.bodies.len() {
+                return Err(TwinError::Vehicle(format!(
+                    "the articulated dynamics has {} bodies, the world {}",
+                    tree.body_count(),
+                    body.bodies.len()
+                )));
+            }
+            Some(Box::new(Articulated {
+                ws: tree.workspace(),
+                state: TreeState {
+                    world_from_base,
+                    q: q0.clone(),
+                    nu: DVector::zeros(tree.nv()),
+                },
+                tau: DVector::zeros(tree.nv()),
+                external: vec![Vector6::zeros(); tree.body_count()],
+                drives: Vec::new(),
+                poses: Vec::new(),
+                tree,
+            }))
+        } else {
+            None
+        };
         let task = TaskState::new(&vehicle, &body, scene);
         let mut twin = Self {
             joint_targets: q0,
@@ -167,6 +208,7 @@ impl Twin {
             realised_n: Vec::new(),
             diverged_at: None,
             task,
+            articulated,
         };
         twin.sample_observation_bias();
         twin.truth = twin.measure(&[], DisturbanceReport::default());
@@ -211,7 +253,8 @@ impl Twin {
             .collision_groups(groups),
             Some(ground),
         );
-        let body = vehicle_body::build(vehicle, &mut world, world_from_base, q0)?;
+        let kinematic = config.vehicle_dynamics == VehicleDynamics::Articulated;
+        let body = vehicle_body::build(vehicle, &mut world, world_from_base, q0, kinematic)?;
         Ok((world, body))
     }
 
@@ -312,6 +355,12 @@ impl Twin {
 
     /// Sets the base's world velocity (initial conditions, tests).
     pub fn set_base_velocity(&mut self, velocity_in_world_mps: &Vector3<f64>) {
+        if let Some(a) = &mut self.articulated {
+            let v = a.state.world_from_base.rotation.inverse() * velocity_in_world_mps;
+            for i in 0..3 {
+                a.state.nu[i] = v[i];
+            }
+        }
         for h in &self.body.bodies {
             if let Some(rb) = self.world.bodies.get_mut(*h) {
                 rb.set_linvel(vector_to_rapier(velocity_in_world_mps), true);
@@ -391,8 +440,20 @@ impl Twin {
         }
         let substep = dt / f64::from(self.config.physics_substeps);
         for _ in 0..self.config.physics_substeps {
-            self.apply_forces();
-            self.advance_drives(substep);
+            if self.articulated.is_some() {
+                self.advance_drives(substep);
+                if !self.articulated_substep(substep) {
+                    self.diverged_at = Some(self.time_s);
+                    self.truth.rotors = reports;
+                    return Err(TwinError::Diverged(format!(
+                        "the vehicle's dynamics diverged at t = {:.3} s; reset the twin",
+                        self.time_s
+                    )));
+                }
+            } else {
+                self.apply_forces();
+                self.advance_drives(substep);
+            }
             self.world.step();
             // A non-finite body state would make rapier panic on the next step: stop here.
             if !self.bodies_are_physical() {
@@ -419,6 +480,26 @@ impl Twin {
         const MAX_POSITION_M: f64 = 1.0e4;
         const MAX_SPEED_MPS: f64 = 200.0;
         const MAX_ANGULAR_SPEED_RADPS: f64 = 2.0e3;
+        if let Some(a) = &self.articulated {
+            let s = &a.state;
+            let finite = s
+                .world_from_base
+                .translation
+                .vector
+                .iter()
+                .all(|x| x.is_finite())
+                && s.q.iter().all(|x| x.is_finite())
+                && s.nu.iter().all(|x| x.is_finite());
+            let v = Vector3::new(s.nu[0], s.nu[1], s.nu[2]);
+            let w = Vector3::new(s.nu[3], s.nu[4], s.nu[5]);
+            if !finite
+                || s.world_from_base.translation.vector.norm() >= MAX_POSITION_M
+                || v.norm() >= MAX_SPEED_MPS
+                || w.norm() >= MAX_ANGULAR_SPEED_RADPS
+            {
+                return false;
+            }
+        }
         self.world.bodies.iter().all(|(_, rb)| {
             if !rb.is_dynamic() {
                 return true;
@@ -589,6 +670,104 @@ impl Twin {
         self.base_force_in_body = disturbances.drag_n + disturbances.wind_n;
     }
 
+    /// One physics substep of the vehicle's own dynamics (`VehicleDynamics::Articulated`):
+    /// the forces of the tick at the bodies' current poses (as [`Self::apply_forces`] applies
+    /// them to rapier's bodies), the drives at their setpoints, `solver_iterations`
+    /// implicit-drive steps, and the kinematic bodies sent to the new poses for rapier's
+    /// step. False if a step failed.
+    fn articulated_substep(&mut self, h: f64) -> bool {
+        let Some(a) = self.articulated.as_deref_mut() else {
+            return true;
+        };
+        a.tree
+            .body_poses(&a.state.world_from_base, &a.state.q, &mut a.poses);
+        for f in &mut a.external {
+            *f = Vector6::zeros();
+        }
+        let bodies = &self.body.bodies;
+        let index = |h: RigidBodyHandle| bodies.iter().position(|b| *b == h);
+        // A world force through a world point on body i, plus a world torque.
+        let mut push =
+            |i: usize, force: &Vector3<f64>, point: &Vector3<f64>, torque: &Vector3<f64>| {
+                let pose = &a.poses[i];
+                let to_body = pose.rotation.inverse();
+                let f = to_body * force;
+                let n = to_body * ((point - pose.translation.vector).cross(force) + torque);
+                a.external[i] += Vector6::new(f.x, f.y, f.z, n.x, n.y, n.z);
+            };
+        let k_f = self.vehicle.rotors.reaction_torque_ratio_m;
+        for r in &self.rotors {
+            let Some(i) = index(r.body) else { continue };
+            let world_from_rotor = a.poses[i] * r.body_from_rotor;
+            let force = world_from_rotor.rotation * r.force_in_rotor;
+            push(
+                i,
+                &force,
+                &world_from_rotor.translation.vector,
+                &(force * (r.reaction_sign * k_f)),
+            );
+        }
+        let base = a.poses[0];
+        // Drag and wind act at the base body's centre of mass, as rapier's `add_force`.
+        let com = self
+            .world
+            .bodies
+            .get(self.body.base)
+            .map_or(base.translation.vector, |rb| {
+                base * vector_from_rapier(rb.mass_properties().local_mprops.local_com)
+            });
+        push(
+            0,
+            &(base.rotation * self.base_force_in_body),
+            &com,
+            &Vector3::zeros(),
+        );
+        if let Some(w) = self.direct_wrench {
+            push(
+                0,
+                &(base.rotation * w.force),
+                &base.translation.vector,
+                &(base.rotation * w.torque),
+            );
+        }
+        a.drives.clear();
+        for (dof, joint) in self.body.dofs.iter().enumerate() {
+            if let Some(d) = joint.drive {
+                a.drives.push(Drive {
+                    dof,
+                    stiffness: d.stiffness,
+                    damping: d.damping,
+                    target: joint.setpoint,
+                    effort_limit: d.effort_limit,
+                });
+            }
+        }
+        // `solver_iterations` steps of the dynamics per substep, the forces held in the
+        // bodies' axes and the mass matrix kept through them (rapier's TGS likewise splits
+        // each substep into its iterations).
+        let steps = self.config.solver_iterations;
+        let dt = h / f64::from(steps);
+        if !a.tree.steps(
+            &mut a.state,
+            &a.tau,
+            &a.external,
+            &a.drives,
+            dt,
+            steps,
+            &mut a.ws,
+        ) {
+            return false;
+        }
+        a.tree
+            .body_poses(&a.state.world_from_base, &a.state.q, &mut a.poses);
+        for (h, pose) in bodies.iter().zip(&a.poses) {
+            if let Some(rb) = self.world.bodies.get_mut(*h) {
+                rb.set_next_kinematic_position(pose_to_rapier(pose));
+            }
+        }
+        true
+    }
+
     /// Re-applies every force of the tick at the bodies' current poses.
     fn apply_forces(&mut self) {
         for h in &self.body.bodies {
@@ -683,6 +862,23 @@ impl Twin {
             &mut m.joint_positions,
             &mut m.joint_velocities,
         );
+        let base = match &self.articulated {
+            Some(a) => {
+                let s = &a.state;
+                let r = s.world_from_base.rotation;
+                m.joint_positions.clear();
+                m.joint_positions.extend_from_slice(&s.q);
+                m.joint_velocities.clear();
+                m.joint_velocities.extend(s.nu.iter().skip(6).copied());
+                RigidBodyState {
+                    position_in_world_m: s.world_from_base.translation.vector,
+                    world_from_body: r,
+                    velocity_in_world_mps: r * Vector3::new(s.nu[0], s.nu[1], s.nu[2]),
+                    angular_velocity_in_body_radps: Vector3::new(s.nu[3], s.nu[4], s.nu[5]),
+                }
+            }
+            None => base,
+        };
         let (ee_body, body_from_ee) = self.body.of_link(self.vehicle.ee_link);
         m.time_s = self.time_s;
         m.base = base;

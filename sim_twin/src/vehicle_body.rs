@@ -98,11 +98,16 @@ fn shape_fixup(shape: &Shape) -> Isometry3<f64> {
 
 /// Builds the vehicle into `world` with its base at `world_from_base` and its joints at
 /// their initial (drive) positions.
+///
+/// With `kinematic` (the twin's own articulated dynamics, `VehicleDynamics::Articulated`) the
+/// bodies are kinematic and no multibody joint is made: the twin places the bodies itself,
+/// and each joint's handle is invalid.
 pub(crate) fn build(
     vehicle: &Vehicle,
     world: &mut PhysicsWorld,
     world_from_base: &Isometry3<f64>,
     q0: &[f64],
+    kinematic: bool,
 ) -> Result<VehicleBody, TwinError> {
     let model = &vehicle.model;
     let root_from_link = model.forward_kinematics(q0);
@@ -150,7 +155,12 @@ pub(crate) fn build(
             )));
         }
         let pose = world_from_base * root_from_link[first_link];
-        let body = RigidBodyBuilder::dynamic()
+        let builder = if kinematic {
+            RigidBodyBuilder::kinematic_position_based()
+        } else {
+            RigidBodyBuilder::dynamic()
+        };
+        let body = builder
             .pose(pose_to_rapier(&pose))
             .additional_mass_properties(mass)
             .can_sleep(false)
@@ -203,6 +213,16 @@ pub(crate) fn build(
                 .motor_position(axis, setpoint, d.stiffness, d.damping)
                 .motor_max_force(axis, d.effort_limit);
         }
+        if kinematic {
+            dofs.push(DofJoint {
+                handle: MultibodyJointHandle::invalid(),
+                axis,
+                limits,
+                drive,
+                setpoint,
+            });
+            continue;
+        }
         let Some(handle) = world.multibody_joints.insert(
             bodies[parent_segment],
             bodies[child_segment],
@@ -223,7 +243,18 @@ pub(crate) fn build(
         });
     }
 
-    // The arm must not collide with the base it is mounted on; start at the initial joints.
+    // The arm must not collide with the base it is mounted on; start at the initial joints
+    // (kinematic bodies were built there and do not collide with each other).
+    if kinematic {
+        let link_body = segment.iter().map(|(s, f)| (bodies[*s], *f)).collect();
+        return Ok(VehicleBody {
+            link_body,
+            base: bodies[0],
+            bodies,
+            link_colliders,
+            dofs,
+        });
+    }
     if let Some(link) = world.multibody_joints.rigid_body_link(bodies[0]).copied()
         && let Some(mb) = world.multibody_joints.get_multibody_mut(link.multibody)
     {
