@@ -47,7 +47,110 @@ struct Body {
     parent_from_joint: Isometry3<f64>,
     motion: Motion,
     /// Spatial inertia about the body origin, body axes.
-    inertia: Matrix6<f64>,
+    inertia: Inertia,
+}
+
+/// A spatial inertia about a frame's origin as mass m, first moment h = m·c and rotational
+/// inertia I_o about the origin: the 6 × 6 matrix [[m·1, −[h]×], [[h]×, I_o]] in 10 numbers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Inertia {
+    m: f64,
+    h: Vector3<f64>,
+    i: Matrix3<f64>,
+}
+
+impl Inertia {
+    const ZERO: Self = Self {
+        m: 0.0,
+        h: Vector3::new(0.0, 0.0, 0.0),
+        i: Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    };
+
+    /// Mass `m` at `c` with rotational inertia `i_c` about the centre of mass (frame axes).
+    fn new(m: f64, c: &Vector3<f64>, i_c: &Matrix3<f64>) -> Self {
+        let cx = skew(c);
+        Self {
+            m,
+            h: c * m,
+            i: i_c - cx * cx * m,
+        }
+    }
+
+    /// I·v, a force.
+    fn apply(&self, v: &Vector6<f64>) -> Vector6<f64> {
+        let (vl, va) = (v.fixed_rows::<3>(0), v.fixed_rows::<3>(3));
+        let lin = vl * self.m - self.h.cross(&va);
+        let ang = self.h.cross(&vl) + self.i * va;
+        Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+    }
+
+    /// The same inertia in the parent frame (Xᵀ I X with X the motion transform child ←
+    /// parent): h' = R h + m p, I' = R I Rᵀ − m[p]×[p]× − [p]×[Rh]× − [Rh]×[p]×.
+    fn to_parent(&self, x: &Transform) -> Self {
+        let rh = x.r * self.h;
+        let (px, rhx) = (skew(&x.p), skew(&rh));
+        Self {
+            m: self.m,
+            h: rh + x.p * self.m,
+            i: x.r * self.i * x.r.transpose() - px * px * self.m - px * rhx - rhx * px,
+        }
+    }
+
+    fn add(&mut self, other: &Self) {
+        self.m += other.m;
+        self.h += other.h;
+        self.i += other.i;
+    }
+
+    fn matrix(&self) -> Matrix6<f64> {
+        let hx = skew(&self.h);
+        let mut out = Matrix6::zeros();
+        out.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&(Matrix3::identity() * self.m));
+        out.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-hx));
+        out.fixed_view_mut::<3, 3>(3, 0).copy_from(&hx);
+        out.fixed_view_mut::<3, 3>(3, 3).copy_from(&self.i);
+        out
+    }
+}
+
+/// A body's frame in its parent's, parent_from_child = (R, p); as a motion transform
+/// child ← parent it is X = [[Rᵀ, −Rᵀ[p]×], [0, Rᵀ]], applied without forming it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Transform {
+    r: Matrix3<f64>,
+    p: Vector3<f64>,
+}
+
+impl Transform {
+    const IDENTITY: Self = Self {
+        r: Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+        p: Vector3::new(0.0, 0.0, 0.0),
+    };
+
+    fn of(parent_from_child: &Isometry3<f64>) -> Self {
+        Self {
+            r: parent_from_child.rotation.to_rotation_matrix().into_inner(),
+            p: parent_from_child.translation.vector,
+        }
+    }
+
+    /// X·m: a motion of the parent in the child's frame, [Rᵀ(m_l − p × m_a); Rᵀ m_a].
+    fn motion_to_child(&self, m: &Vector6<f64>) -> Vector6<f64> {
+        let (ml, ma) = (m.fixed_rows::<3>(0), m.fixed_rows::<3>(3));
+        let rt = self.r.transpose();
+        let lin = rt * (ml - self.p.cross(&ma));
+        let ang = rt * ma;
+        Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+    }
+
+    /// Xᵀ·f: a force on the child in the parent's frame, [R f_l; R f_a + p × R f_l].
+    fn force_to_parent(&self, f: &Vector6<f64>) -> Vector6<f64> {
+        let (fl, fa) = (f.fixed_rows::<3>(0), f.fixed_rows::<3>(3));
+        let lin = self.r * fl;
+        let ang = self.r * fa + self.p.cross(&lin);
+        Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+    }
 }
 
 /// The floating-base tree of a [`KinematicModel`], ready for the recursive algorithms.
@@ -63,10 +166,10 @@ pub struct ArticulatedBody {
 /// Buffers of the recursions, sized for one [`ArticulatedBody`].
 #[derive(Debug, Clone)]
 pub struct Workspace {
-    /// Motion transform child ← parent of every body.
-    x: Vec<Matrix6<f64>>,
+    /// Every body's frame in its parent's.
+    x: Vec<Transform>,
     /// Composite inertias.
-    ic: Vec<Matrix6<f64>>,
+    ic: Vec<Inertia>,
     v: Vec<Vector6<f64>>,
     a: Vec<Vector6<f64>>,
     f: Vec<Vector6<f64>>,
@@ -114,36 +217,6 @@ pub struct TreeState {
 /// [·]×: the cross-product matrix.
 fn skew(p: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -p.z, p.y, p.z, 0.0, -p.x, -p.y, p.x, 0.0)
-}
-
-/// Spatial inertia about a frame's origin of mass `m` at `c` with rotational inertia `i_c`
-/// about the centre of mass (frame axes): [[m·1, −m[c]×], [m[c]×, I_c − m[c]×[c]×]].
-fn spatial_inertia(m: f64, c: &Vector3<f64>, i_c: &Matrix3<f64>) -> Matrix6<f64> {
-    let cx = skew(c);
-    let mut out = Matrix6::zeros();
-    out.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(Matrix3::identity() * m));
-    out.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-cx * m));
-    out.fixed_view_mut::<3, 3>(3, 0).copy_from(&(cx * m));
-    out.fixed_view_mut::<3, 3>(3, 3)
-        .copy_from(&(i_c - cx * cx * m));
-    out
-}
-
-/// The motion transform child ← parent for `parent_from_child` = (R, p):
-/// [[Rᵀ, −Rᵀ[p]×], [0, Rᵀ]]. Its transpose carries a force from the child to the parent.
-fn motion_transform(parent_from_child: &Isometry3<f64>) -> Matrix6<f64> {
-    let e = parent_from_child
-        .rotation
-        .to_rotation_matrix()
-        .into_inner()
-        .transpose();
-    let mut out = Matrix6::zeros();
-    out.fixed_view_mut::<3, 3>(0, 0).copy_from(&e);
-    out.fixed_view_mut::<3, 3>(0, 3)
-        .copy_from(&(-e * skew(&parent_from_child.translation.vector)));
-    out.fixed_view_mut::<3, 3>(3, 3).copy_from(&e);
-    out
 }
 
 /// v ×ₘ m, the spatial cross product of motions ([linear; angular]).
@@ -197,7 +270,7 @@ impl ArticulatedBody {
             dof: 0,
             parent_from_joint: Isometry3::identity(),
             motion: Motion::Revolute(Vector3::z()),
-            inertia: Matrix6::zeros(),
+            inertia: Inertia::ZERO,
         }];
         link_body[model.root] = (0, Isometry3::identity());
         for &j in &model.topological {
@@ -221,7 +294,7 @@ impl ArticulatedBody {
                         dof,
                         parent_from_joint: body_from_parent * joint.parent_from_joint,
                         motion,
-                        inertia: Matrix6::zeros(),
+                        inertia: Inertia::ZERO,
                     });
                     link_body[joint.child] = (bodies.len() - 1, Isometry3::identity());
                 }
@@ -234,11 +307,11 @@ impl ArticulatedBody {
                     .rotation
                     .to_rotation_matrix()
                     .into_inner();
-                bodies[body].inertia += spatial_inertia(
+                bodies[body].inertia.add(&Inertia::new(
                     i.mass_kg,
                     &body_from_inertial.translation.vector,
                     &(r * i.inertia_kgm2 * r.transpose()),
-                );
+                ));
             }
         }
         Self {
@@ -267,8 +340,8 @@ impl ArticulatedBody {
     pub fn workspace(&self) -> Workspace {
         let n = self.bodies.len();
         Workspace {
-            x: vec![Matrix6::identity(); n],
-            ic: vec![Matrix6::zeros(); n],
+            x: vec![Transform::IDENTITY; n],
+            ic: vec![Inertia::ZERO; n],
             v: vec![Vector6::zeros(); n],
             a: vec![Vector6::zeros(); n],
             f: vec![Vector6::zeros(); n],
@@ -292,7 +365,7 @@ impl ArticulatedBody {
         for (i, body) in self.bodies.iter().enumerate().skip(1) {
             let parent_from_body =
                 body.parent_from_joint * body.motion.joint_from_body(q[body.dof]);
-            ws.x[i] = motion_transform(&parent_from_body);
+            ws.x[i] = Transform::of(&parent_from_body);
             ws.s[i] = body.motion.subspace();
         }
     }
@@ -309,18 +382,19 @@ impl ArticulatedBody {
         }
         for i in (1..self.bodies.len()).rev() {
             let p = self.bodies[i].parent.unwrap_or(0);
-            let carried = ws.x[i].transpose() * ws.ic[i] * ws.x[i];
-            ws.ic[p] += carried;
+            let carried = ws.ic[i].to_parent(&ws.x[i]);
+            ws.ic[p].add(&carried);
         }
         out.fill(0.0);
-        out.fixed_view_mut::<6, 6>(0, 0).copy_from(&ws.ic[0]);
+        out.fixed_view_mut::<6, 6>(0, 0)
+            .copy_from(&ws.ic[0].matrix());
         for i in 1..self.bodies.len() {
             let col = self.bodies[i].column;
-            let mut f = ws.ic[i] * ws.s[i];
+            let mut f = ws.ic[i].apply(&ws.s[i]);
             out[(col, col)] = ws.s[i].dot(&f);
             let mut j = i;
             while let Some(p) = self.bodies[j].parent {
-                f = ws.x[j].transpose() * f;
+                f = ws.x[j].force_to_parent(&f);
                 j = p;
                 if j == 0 {
                     for r in 0..6 {
@@ -393,14 +467,16 @@ impl ArticulatedBody {
             let body = &self.bodies[i];
             let p = body.parent.unwrap_or(0);
             let vj = ws.s[i] * nu[body.column];
-            let v = ws.x[i] * ws.v[p] + vj;
-            ws.a[i] = ws.x[i] * ws.a[p] + ws.s[i] * acc(body.column) + cross_motion(&v, &vj);
+            let v = ws.x[i].motion_to_child(&ws.v[p]) + vj;
+            ws.a[i] = ws.x[i].motion_to_child(&ws.a[p])
+                + ws.s[i] * acc(body.column)
+                + cross_motion(&v, &vj);
             ws.v[i] = v;
         }
         for i in 0..self.bodies.len() {
             let inertia = &self.bodies[i].inertia;
-            let h = inertia * ws.v[i];
-            ws.f[i] = inertia * ws.a[i] + cross_force(&ws.v[i], &h);
+            let h = inertia.apply(&ws.v[i]);
+            ws.f[i] = inertia.apply(&ws.a[i]) + cross_force(&ws.v[i], &h);
             if let Some(fx) = external.get(i) {
                 ws.f[i] -= fx;
             }
@@ -409,7 +485,7 @@ impl ArticulatedBody {
             let body = &self.bodies[i];
             tau[body.column] = ws.s[i].dot(&ws.f[i]);
             let p = body.parent.unwrap_or(0);
-            let carried = ws.x[i].transpose() * ws.f[i];
+            let carried = ws.x[i].force_to_parent(&ws.f[i]);
             ws.f[p] += carried;
         }
         tau.fixed_rows_mut::<6>(0).copy_from(&ws.f[0]);
