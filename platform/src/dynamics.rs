@@ -86,7 +86,7 @@ impl Inertia {
 
     /// The same inertia in the parent frame (Xᵀ I X with X the motion transform child ←
     /// parent): h' = R h + m p, I' = R I Rᵀ − m[p]×[p]× − [p]×[Rh]× − [Rh]×[p]×.
-    fn to_parent(&self, x: &Transform) -> Self {
+    fn in_parent(&self, x: &Transform) -> Self {
         let rh = x.r * self.h;
         let (px, rhx) = (skew(&x.p), skew(&rh));
         Self {
@@ -382,7 +382,7 @@ impl ArticulatedBody {
         }
         for i in (1..self.bodies.len()).rev() {
             let p = self.bodies[i].parent.unwrap_or(0);
-            let carried = ws.ic[i].to_parent(&ws.x[i]);
+            let carried = ws.ic[i].in_parent(&ws.x[i]);
             ws.ic[p].add(&carried);
         }
         out.fill(0.0);
