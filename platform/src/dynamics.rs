@@ -863,7 +863,6 @@ mod tests {
                 let props = v.model.mass_properties(&q);
                 let force = up * props.mass_kg;
                 let torque = props.com_in_root_m.cross(&force);
-                let poses = v.model.forward_kinematics(&q);
                 let mut joints = DVector::zeros(v.model.dof());
                 for (id, link) in v.model.links.iter().enumerate() {
                     let Some(inertial) = link.inertial else {
@@ -872,7 +871,6 @@ mod tests {
                     let com_in_link = inertial.link_from_inertial.translation.vector;
                     let jac = v.model.jacobian(&q, id, &com_in_link);
                     joints += jac.fixed_rows::<3>(0).transpose() * (up * inertial.mass_kg);
-                    let _ = poses[id];
                 }
                 let gap = (b.fixed_rows::<3>(0) - force).amax()
                     + (b.fixed_rows::<3>(3) - torque).amax()
