@@ -144,6 +144,12 @@ impl TwinFlags {
         self.physics.apply(&mut twin)?;
         twin.validate()
             .map_err(|e| bad_input(format!("twin: {e}")))?;
+        if twin.vehicle_dynamics == VehicleDynamics::Articulated {
+            eprintln!(
+                "note: --vehicle-dynamics articulated is experimental and for free flight: the \
+                 vehicle feels no contact and no grasp (docs/speed.md)"
+            );
+        }
         Ok(twin)
     }
 }

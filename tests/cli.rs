@@ -182,6 +182,12 @@ fn track_flies_the_articulated_vehicle_dynamics_and_refuses_an_unknown_engine() 
     // 3 s flight is of the same size; docs/speed.md compares the two).
     let rmse = v["ee_pos_rmse_m"].as_f64().unwrap_or(f64::NAN);
     assert!(rmse > 0.01 && rmse < 0.2, "EE RMSE {rmse} m: {text}");
+    // The user is told what the engine leaves out.
+    let err = stderr(&out);
+    assert!(
+        err.contains("free flight") && err.contains("no contact"),
+        "{err}"
+    );
     let out = amstack(&["track", "--vehicle-dynamics", "mujoco"]);
     assert_bad_input(&out, &["--vehicle-dynamics", "mujoco"]);
 }
