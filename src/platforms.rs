@@ -78,41 +78,26 @@ struct VehicleDynamics {
 }
 
 fn dynamics(v: &Vehicle, samples: u32, seed: u64) -> VehicleDynamics {
-    use nalgebra::{DMatrix, DVector, UnitQuaternion};
-    use rand::{Rng, SeedableRng};
+    use nalgebra::{DMatrix, DVector};
+    use rand::SeedableRng;
     let tree = platform::ArticulatedBody::new(&v.model);
     let mut ws = tree.workspace();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let dof = v.model.dof();
-    let joints = (0..dof)
+    let joints = (0..v.model.dof())
         .map(|d| v.model.dof_joint(d).name.clone())
         .collect();
     let samples = (0..samples)
         .map(|_| {
-            let q: Vec<f64> = (0..dof)
-                .map(|d| {
-                    let (lo, hi) = v
-                        .model
-                        .dof_joint(d)
-                        .limits
-                        .map_or((-3.0, 3.0), |l| (l.lower, l.upper));
-                    rng.random_range(lo..=hi)
-                })
-                .collect();
-            let nu = DVector::from_fn(tree.nv(), |_, _| rng.random_range(-1.5..1.5));
-            let attitude = UnitQuaternion::from_euler_angles(
-                rng.random_range(-0.5..0.5),
-                rng.random_range(-0.5..0.5),
-                rng.random_range(-3.0..3.0),
-            );
+            let s = tree.sample_state(&v.model, &mut rng);
+            let attitude = s.world_from_base.rotation;
             let mut m = DMatrix::zeros(tree.nv(), tree.nv());
-            tree.mass_matrix(&q, &mut ws, &mut m);
+            tree.mass_matrix(&s.q, &mut ws, &mut m);
             let mut b = DVector::zeros(tree.nv());
-            tree.bias(&attitude, &q, &nu, &mut ws, &mut b);
+            tree.bias(&attitude, &s.q, &s.nu, &mut ws, &mut b);
             let w = attitude.quaternion();
             DynamicsSample {
-                q,
-                nu: nu.iter().copied().collect(),
+                nu: s.nu.iter().copied().collect(),
+                q: s.q,
                 attitude_wxyz: [w.w, w.i, w.j, w.k],
                 mass_matrix: m.row_iter().map(|r| r.iter().copied().collect()).collect(),
                 bias: b.iter().copied().collect(),

@@ -711,6 +711,33 @@ impl ArticulatedBody {
         }
     }
 
+    /// A state drawn from `rng` for checks against other dynamics code: joint positions
+    /// uniform within their limits (±3 for a joint without), every entry of ν uniform in
+    /// ±1.5, the base at the origin with roll and pitch uniform in ±0.5 rad and yaw in ±3 rad
+    /// (drawn in that order).
+    pub fn sample_state(&self, model: &KinematicModel, rng: &mut impl rand::Rng) -> TreeState {
+        let q = (0..model.dof())
+            .map(|d| {
+                let (lower, upper) = model
+                    .dof_joint(d)
+                    .limits
+                    .map_or((-3.0, 3.0), |l| (l.lower, l.upper));
+                rng.random_range(lower..=upper)
+            })
+            .collect();
+        let nu = DVector::from_fn(self.nv(), |_, _| rng.random_range(-1.5..1.5));
+        let attitude = UnitQuaternion::from_euler_angles(
+            rng.random_range(-0.5..0.5),
+            rng.random_range(-0.5..0.5),
+            rng.random_range(-3.0..3.0),
+        );
+        TreeState {
+            world_from_base: Isometry3::from_parts(nalgebra::Translation3::identity(), attitude),
+            q,
+            nu,
+        }
+    }
+
     /// The tree's spatial momentum about the base origin in base axes: the first six rows of
     /// M ν (linear momentum; angular momentum about the base origin).
     pub fn momentum(&self, q: &[f64], nu: &DVector<f64>, ws: &mut Workspace) -> Vector6<f64> {
@@ -752,23 +779,8 @@ mod tests {
         v: &Vehicle,
         rng: &mut ChaCha8Rng,
     ) -> (Vec<f64>, DVector<f64>, UnitQuaternion<f64>) {
-        let q = (0..v.model.dof())
-            .map(|d| {
-                let (lower, upper) = v
-                    .model
-                    .dof_joint(d)
-                    .limits
-                    .map_or((-3.0, 3.0), |l| (l.lower, l.upper));
-                rng.random_range(lower..=upper)
-            })
-            .collect();
-        let nu = DVector::from_fn(6 + v.model.dof(), |_, _| rng.random_range(-1.5..1.5));
-        let attitude = UnitQuaternion::from_euler_angles(
-            rng.random_range(-0.5..0.5),
-            rng.random_range(-0.5..0.5),
-            rng.random_range(-3.0..3.0),
-        );
-        (q, nu, attitude)
+        let s = ArticulatedBody::new(&v.model).sample_state(&v.model, rng);
+        (s.q, s.nu, s.world_from_base.rotation)
     }
 
     fn relative_gap(a: f64, b: f64) -> f64 {

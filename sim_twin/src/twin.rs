@@ -95,11 +95,15 @@ struct Articulated {
     tree: ArticulatedBody,
     ws: DynamicsWorkspace,
     state: TreeState,
-    /// Buffers of a substep: no joint efforts, the forces on each body, the drives, the
-    /// bodies' world poses.
+    /// The drives, one per driven joint (their targets follow the setpoints each substep).
+    drives: Vec<Drive>,
+    /// The base body's centre of mass in its frame (drag and wind act there, as rapier's
+    /// `add_force` applies them).
+    base_com_in_body: Vector3<f64>,
+    /// Buffers of a substep: no joint efforts, the forces on each body, the bodies' world
+    /// poses.
     tau: DVector<f64>,
     external: Vec<Vector6<f64>>,
-    drives: Vec<Drive>,
     poses: Vec<Isometry3<f64>>,
 }
 
@@ -174,6 +178,26 @@ impl Twin {
                     body.bodies.len()
                 )));
             }
+            let drives = body
+                .dofs
+                .iter()
+                .enumerate()
+                .filter_map(|(dof, joint)| {
+                    joint.drive.map(|d| Drive {
+                        dof,
+                        stiffness: d.stiffness,
+                        damping: d.damping,
+                        target: joint.setpoint,
+                        effort_limit: d.effort_limit,
+                    })
+                })
+                .collect();
+            let base_com_in_body = world
+                .bodies
+                .get(body.base)
+                .map_or_else(Vector3::zeros, |rb| {
+                    vector_from_rapier(rb.mass_properties().local_mprops.local_com)
+                });
             Some(Box::new(Articulated {
                 ws: tree.workspace(),
                 state: TreeState {
@@ -181,9 +205,10 @@ impl Twin {
                     q: q0.clone(),
                     nu: DVector::zeros(tree.nv()),
                 },
+                drives,
+                base_com_in_body,
                 tau: DVector::zeros(tree.nv()),
                 external: vec![Vector6::zeros(); tree.body_count()],
-                drives: Vec::new(),
                 poses: Vec::new(),
                 tree,
             }))
@@ -708,18 +733,10 @@ impl Twin {
             );
         }
         let base = a.poses[0];
-        // Drag and wind act at the base body's centre of mass, as rapier's `add_force`.
-        let com = self
-            .world
-            .bodies
-            .get(self.body.base)
-            .map_or(base.translation.vector, |rb| {
-                base * vector_from_rapier(rb.mass_properties().local_mprops.local_com)
-            });
         push(
             0,
             &(base.rotation * self.base_force_in_body),
-            &com,
+            &(base * Point3::from(a.base_com_in_body)).coords,
             &Vector3::zeros(),
         );
         if let Some(w) = self.direct_wrench {
@@ -730,17 +747,8 @@ impl Twin {
                 &(base.rotation * w.torque),
             );
         }
-        a.drives.clear();
-        for (dof, joint) in self.body.dofs.iter().enumerate() {
-            if let Some(d) = joint.drive {
-                a.drives.push(Drive {
-                    dof,
-                    stiffness: d.stiffness,
-                    damping: d.damping,
-                    target: joint.setpoint,
-                    effort_limit: d.effort_limit,
-                });
-            }
+        for d in &mut a.drives {
+            d.target = self.body.dofs[d.dof].setpoint;
         }
         // `solver_iterations` steps of the dynamics per substep, the forces held in the
         // bodies' axes and the mass matrix kept through them (rapier's TGS likewise splits
@@ -838,46 +846,44 @@ impl Twin {
         disturbances: DisturbanceReport,
         m: &mut Measurement,
     ) {
-        let base = self
-            .world
-            .bodies
-            .get(self.body.base)
-            .map(|rb| {
-                let pose = pose_from_rapier(rb.position());
-                let omega_world = vector_from_rapier(rb.angvel());
-                let com = vector_from_rapier(rb.center_of_mass());
-                let origin = pose.translation.vector;
-                RigidBodyState {
-                    position_in_world_m: origin,
-                    world_from_body: rotation_from_rapier(rb.position().rotation),
-                    velocity_in_world_mps: vector_from_rapier(rb.linvel())
-                        + omega_world.cross(&(origin - com)),
-                    angular_velocity_in_body_radps: pose.rotation.inverse() * omega_world,
-                }
-            })
-            .unwrap_or_default();
-        vehicle_body::joint_states(
-            &self.world,
-            &self.body.dofs,
-            &mut m.joint_positions,
-            &mut m.joint_velocities,
-        );
-        let base = match &self.articulated {
-            Some(a) => {
-                let s = &a.state;
-                let r = s.world_from_base.rotation;
-                m.joint_positions.clear();
-                m.joint_positions.extend_from_slice(&s.q);
-                m.joint_velocities.clear();
-                m.joint_velocities.extend(s.nu.iter().skip(6).copied());
-                RigidBodyState {
-                    position_in_world_m: s.world_from_base.translation.vector,
-                    world_from_body: r,
-                    velocity_in_world_mps: r * Vector3::new(s.nu[0], s.nu[1], s.nu[2]),
-                    angular_velocity_in_body_radps: Vector3::new(s.nu[3], s.nu[4], s.nu[5]),
-                }
+        let base = if let Some(a) = &self.articulated {
+            // The vehicle's own dynamics hold the state (rapier's bodies are kinematic).
+            let s = &a.state;
+            let r = s.world_from_base.rotation;
+            m.joint_positions.clear();
+            m.joint_positions.extend_from_slice(&s.q);
+            m.joint_velocities.clear();
+            m.joint_velocities.extend(s.nu.iter().skip(6).copied());
+            RigidBodyState {
+                position_in_world_m: s.world_from_base.translation.vector,
+                world_from_body: r,
+                velocity_in_world_mps: r * Vector3::new(s.nu[0], s.nu[1], s.nu[2]),
+                angular_velocity_in_body_radps: Vector3::new(s.nu[3], s.nu[4], s.nu[5]),
             }
-            None => base,
+        } else {
+            vehicle_body::joint_states(
+                &self.world,
+                &self.body.dofs,
+                &mut m.joint_positions,
+                &mut m.joint_velocities,
+            );
+            self.world
+                .bodies
+                .get(self.body.base)
+                .map(|rb| {
+                    let pose = pose_from_rapier(rb.position());
+                    let omega_world = vector_from_rapier(rb.angvel());
+                    let com = vector_from_rapier(rb.center_of_mass());
+                    let origin = pose.translation.vector;
+                    RigidBodyState {
+                        position_in_world_m: origin,
+                        world_from_body: rotation_from_rapier(rb.position().rotation),
+                        velocity_in_world_mps: vector_from_rapier(rb.linvel())
+                            + omega_world.cross(&(origin - com)),
+                        angular_velocity_in_body_radps: pose.rotation.inverse() * omega_world,
+                    }
+                })
+                .unwrap_or_default()
         };
         let (ee_body, body_from_ee) = self.body.of_link(self.vehicle.ee_link);
         m.time_s = self.time_s;

@@ -199,6 +199,16 @@ pub(crate) fn build(
         };
         let limits = joint.limits.map(|l| (l.lower, l.upper));
         let drive = vehicle.drives.iter().find(|d| d.joint == j).copied();
+        if kinematic {
+            dofs.push(DofJoint {
+                handle: MultibodyJointHandle::invalid(),
+                axis,
+                limits,
+                drive,
+                setpoint,
+            });
+            continue;
+        }
         let mut builder = GenericJointBuilder::new(mask)
             .local_frame1(pose_to_rapier(&frame1))
             .local_frame2(pose_to_rapier(&align));
@@ -212,16 +222,6 @@ pub(crate) fn build(
                 .motor_model(axis, MotorModel::ForceBased)
                 .motor_position(axis, setpoint, d.stiffness, d.damping)
                 .motor_max_force(axis, d.effort_limit);
-        }
-        if kinematic {
-            dofs.push(DofJoint {
-                handle: MultibodyJointHandle::invalid(),
-                axis,
-                limits,
-                drive,
-                setpoint,
-            });
-            continue;
         }
         let Some(handle) = world.multibody_joints.insert(
             bodies[parent_segment],
@@ -245,22 +245,14 @@ pub(crate) fn build(
 
     // The arm must not collide with the base it is mounted on; start at the initial joints
     // (kinematic bodies were built there and do not collide with each other).
-    if kinematic {
-        let link_body = segment.iter().map(|(s, f)| (bodies[*s], *f)).collect();
-        return Ok(VehicleBody {
-            link_body,
-            base: bodies[0],
-            bodies,
-            link_colliders,
-            dofs,
-        });
+    if !kinematic {
+        if let Some(link) = world.multibody_joints.rigid_body_link(bodies[0]).copied()
+            && let Some(mb) = world.multibody_joints.get_multibody_mut(link.multibody)
+        {
+            mb.set_self_contacts_enabled(false);
+        }
+        set_joint_positions(world, &dofs, q0);
     }
-    if let Some(link) = world.multibody_joints.rigid_body_link(bodies[0]).copied()
-        && let Some(mb) = world.multibody_joints.get_multibody_mut(link.multibody)
-    {
-        mb.set_self_contacts_enabled(false);
-    }
-    set_joint_positions(world, &dofs, q0);
 
     let link_body = segment.iter().map(|(s, f)| (bodies[*s], *f)).collect();
     Ok(VehicleBody {
