@@ -51,12 +51,11 @@ pub struct PhysicsFlags {
     /// rebuild of the vehicle's mass matrix). Default 4; see docs/speed.md.
     #[arg(long, value_name = "N")]
     pub solver_iterations: Option<u32>,
-    /// What steps the vehicle's dynamics: `rapier` (default: rapier's multibody) or
-    /// `articulated` — EXPERIMENTAL, free flight only: amstack's own rigid-body dynamics
-    /// (CRBA, RNEA, implicit joint drives, `--solver-iterations` steps per physics substep)
-    /// with the vehicle's bodies moved kinematically in rapier; objects feel the vehicle, but
-    /// the vehicle feels no contact and no grasp. Several times faster per tick
-    /// (docs/speed.md).
+    /// What steps the vehicle's dynamics: `articulated` (default): amstack's own rigid-body
+    /// dynamics (CRBA, RNEA, implicit joint drives, `--solver-iterations` steps per physics
+    /// substep) in free flight, handing the vehicle to rapier's multibody while anything it
+    /// can touch is within 0.1 m or it holds an object — several times faster per tick in
+    /// free flight; or `rapier`: rapier's multibody throughout (docs/speed.md).
     #[arg(long, value_name = "ENGINE")]
     pub vehicle_dynamics: Option<DynamicsEngine>,
 }
@@ -64,9 +63,9 @@ pub struct PhysicsFlags {
 /// `--vehicle-dynamics`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum DynamicsEngine {
-    /// rapier's multibody.
+    /// rapier's multibody throughout.
     Rapier,
-    /// amstack's own articulated-body dynamics (free flight only).
+    /// amstack's own articulated-body dynamics in free flight, rapier's near contact.
     Articulated,
 }
 
@@ -144,12 +143,6 @@ impl TwinFlags {
         self.physics.apply(&mut twin)?;
         twin.validate()
             .map_err(|e| bad_input(format!("twin: {e}")))?;
-        if twin.vehicle_dynamics == VehicleDynamics::Articulated {
-            eprintln!(
-                "note: --vehicle-dynamics articulated is experimental and for free flight: the \
-                 vehicle feels no contact and no grasp (docs/speed.md)"
-            );
-        }
         Ok(twin)
     }
 }

@@ -159,34 +159,45 @@ fn platforms_dynamics_writes_each_vehicles_mass_matrix_and_bias() {
 }
 
 #[test]
-fn track_flies_the_articulated_vehicle_dynamics_and_refuses_an_unknown_engine() {
+fn track_flies_both_vehicle_dynamics_alike_and_refuses_an_unknown_engine() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-    let json = dir.path().join("track.json");
-    let out = amstack(&[
-        "track",
-        "--platform",
-        "fa-hexa",
-        "--trajectory",
-        "step",
-        "--duration",
-        "3",
-        "--vehicle-dynamics",
-        "articulated",
-        "--json",
-        &json.to_string_lossy(),
-    ]);
-    assert!(out.status.success(), "{}", stderr(&out));
-    let text = std::fs::read_to_string(&json).unwrap_or_default();
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
-    // The 1 m x step flown: the base tracks it (the default engine's EE RMSE on this
-    // 3 s flight is of the same size; docs/speed.md compares the two).
-    let rmse = v["ee_pos_rmse_m"].as_f64().unwrap_or(f64::NAN);
-    assert!(rmse > 0.01 && rmse < 0.2, "EE RMSE {rmse} m: {text}");
-    // The user is told what the engine leaves out.
-    let err = stderr(&out);
+    let fly = |engine: Option<&str>| {
+        let json = dir
+            .path()
+            .join(format!("track-{}.json", engine.unwrap_or("default")));
+        let mut args = vec![
+            "track".to_owned(),
+            "--platform".to_owned(),
+            "fa-hexa".to_owned(),
+            "--trajectory".to_owned(),
+            "step".to_owned(),
+            "--duration".to_owned(),
+            "3".to_owned(),
+            "--json".to_owned(),
+            json.to_string_lossy().into_owned(),
+        ];
+        if let Some(e) = engine {
+            args.extend(["--vehicle-dynamics".to_owned(), e.to_owned()]);
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let out = amstack(&args);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let text = std::fs::read_to_string(&json).unwrap_or_default();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+        v["ee_pos_rmse_m"].as_f64().unwrap_or(f64::NAN)
+    };
+    // The 1 m x step in free flight: the vehicle's own dynamics (the default) and rapier's
+    // multibody fly it alike (docs/speed.md: within 0.2 %).
+    let (ours, explicit, rapier) = (fly(None), fly(Some("articulated")), fly(Some("rapier")));
+    assert!(ours > 0.01 && ours < 0.2, "EE RMSE {ours} m");
+    assert_eq!(
+        ours.to_bits(),
+        explicit.to_bits(),
+        "the default is not articulated"
+    );
     assert!(
-        err.contains("free flight") && err.contains("no contact"),
-        "{err}"
+        (ours - rapier).abs() < 0.01 * rapier,
+        "EE RMSE {ours} m (articulated) against {rapier} m (rapier)"
     );
     let out = amstack(&["track", "--vehicle-dynamics", "mujoco"]);
     assert_bad_input(&out, &["--vehicle-dynamics", "mujoco"]);

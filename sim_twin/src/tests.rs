@@ -353,40 +353,17 @@ fn a_reversed_ideal_rotor_reports_a_negative_applied_thrust() {
     assert!(m.rotors[1].applied_n > 0.0);
 }
 
-/// Linear momentum and angular momentum about the world origin of the vehicle's bodies:
-/// p = Σ m v_c, L = Σ (c × m v_c + R I_c Rᵀ ω), with v_c the velocity of each body's centre
-/// of mass (rapier's `linvel`).
-fn vehicle_momentum(t: &Twin) -> (Vector3<f64>, Vector3<f64>) {
-    use crate::convert::{rotation_from_rapier, vector_from_rapier};
-    let mut p = Vector3::zeros();
-    let mut l = Vector3::zeros();
-    for h in &t.body.bodies {
-        let rb = &t.world().bodies[*h];
-        let m = rb.mass();
-        let c = vector_from_rapier(rb.center_of_mass());
-        let v = vector_from_rapier(rb.linvel());
-        let w = vector_from_rapier(rb.angvel());
-        let r = rotation_from_rapier(rb.position().rotation).to_rotation_matrix();
-        let i = rb
-            .mass_properties()
-            .local_mprops
-            .reconstruct_inertia_matrix();
-        let i_local = nalgebra::Matrix3::from_fn(|row, col| i.col(col)[row]);
-        p += m * v;
-        l += c.cross(&(m * v)) + r * i_local * r.transpose() * w;
-    }
-    (p, l)
-}
-
 /// Gravity's force on the vehicle and its torque about the world origin at the current poses.
 fn gravity_wrench(t: &Twin) -> (Vector3<f64>, Vector3<f64>) {
-    use crate::convert::vector_from_rapier;
+    use crate::convert::{pose_from_rapier, vector_from_rapier};
     let g = Vector3::new(0.0, 0.0, -GRAVITY_MPS2);
     let mut f = Vector3::zeros();
     let mut tau = Vector3::zeros();
     for h in &t.body.bodies {
         let rb = &t.world().bodies[*h];
-        let c = vector_from_rapier(rb.center_of_mass());
+        // The centre of mass from the pose (a kinematic body's world copy is not kept).
+        let local = vector_from_rapier(rb.mass_properties().local_mprops.local_com);
+        let c = (pose_from_rapier(rb.position()) * nalgebra::Point3::from(local)).coords;
         f += rb.mass() * g;
         tau += c.cross(&(rb.mass() * g));
     }
@@ -400,14 +377,27 @@ fn gravity_wrench(t: &Twin) -> (Vector3<f64>, Vector3<f64>) {
 /// the rotor forces at the current poses each substep), so the residual is that quadrature's
 /// error plus the integrator's. The tolerance is 1e-4 of the gross impulse (the summed
 /// magnitudes of the gravity and rotor impulses, ≈ 2 m g T ≈ 1300 N s): 0.13 N s and
-/// 0.13 N m s, where the residuals measured are 0.042 N s and 0.051 N m s (4 substeps); a
-/// rotor's force lost for two ticks (≈ 0.18 N s) or a joint motor pushing on the world over
-/// the sweep exceeds it.
+/// 0.13 N m s, where the residuals measured are 0.042 N s and 0.051 N m s on rapier's
+/// multibody (4 substeps) and 0.0058 and 0.0059 on the vehicle's own dynamics (16 steps per
+/// tick; 0.131 and 0.151 when a substep's steps shared one mass matrix); a rotor's force
+/// lost for two ticks (≈ 0.18 N s) or a joint motor pushing on the world over the sweep
+/// exceeds it. Both engines, each momentum read from the engine holding the vehicle.
 #[test]
 fn momentum_change_equals_the_impulse_of_gravity_and_rotors_over_an_arm_sweep() {
+    momentum_balance_over_an_arm_sweep(crate::VehicleDynamics::Rapier);
+    momentum_balance_over_an_arm_sweep(crate::VehicleDynamics::Articulated);
+}
+
+fn momentum_balance_over_an_arm_sweep(vehicle_dynamics: crate::VehicleDynamics) {
     use controllers::{BaseController, BodyParams, Pid6, Pid6Gains};
     let v = vehicle("fa-hexa");
-    let mut t = twin("fa-hexa", TwinConfig::default());
+    let mut t = twin(
+        "fa-hexa",
+        TwinConfig {
+            vehicle_dynamics,
+            ..TwinConfig::default()
+        },
+    );
     // The rotor forces of a tick are only known once it ran: start from a tick at rest.
     let mut cmd = hover(&v);
     step(&mut t, &cmd);
@@ -419,7 +409,7 @@ fn momentum_change_equals_the_impulse_of_gravity_and_rotors_over_an_arm_sweep() 
     let dt = t.config().control_dt_s();
     let q0 = v.initial_configuration();
     let arm = v.arm_dofs();
-    let (p_start, l_start) = vehicle_momentum(&t);
+    let (p_start, l_start) = t.vehicle_momentum();
     let (mut impulse, mut angular_impulse) = (Vector3::zeros(), Vector3::zeros());
     let mut gross = 0.0;
     let ticks = (10.0 / dt).round() as usize;
@@ -458,12 +448,12 @@ fn momentum_change_equals_the_impulse_of_gravity_and_rotors_over_an_arm_sweep() 
         .map(|&d| (m.joint_positions[d] - q0[d]).abs())
         .fold(0.0, f64::max);
     assert!(gross > 1.5 * 9.0 * 10.0, "gross impulse {gross} N s");
-    let (p_end, l_end) = vehicle_momentum(&t);
+    let (p_end, l_end) = t.vehicle_momentum();
     let linear_residual = (p_end - p_start - impulse).norm();
     let angular_residual = (l_end - l_start - angular_impulse).norm();
     let tolerance = 1e-4 * gross;
     println!(
-        "arm swept up to {swept:.3} rad; gross impulse {gross:.1} N s; Δp {:.4} vs impulse {:.4} \
+        "{vehicle_dynamics:?}: arm swept up to {swept:.3} rad; gross impulse {gross:.1} N s; Δp {:.4} vs impulse {:.4} \
          (residual {linear_residual:.2e} N s); ΔL {:.4} vs angular impulse {:.4} (residual \
          {angular_residual:.2e} N m s); tolerance {tolerance:.2e}",
         (p_end - p_start).norm(),
@@ -657,10 +647,10 @@ fn flight_gap(
 /// (`platform::ArticulatedBody`, checked against Pinocchio by scripts/pinocchio-peer.sh) on the
 /// same closed-loop arm sweep, both against ours at 64 steps per tick (converged: its error
 /// falls with the step). Measured (RMS base mm / attitude mrad / arm joints mrad): ours at 1
-/// and 4 steps per tick 2.21 / 21.07 / 2.63 and 0.27 / 2.63 / 0.33; the twin at its default
-/// 4 substeps × 4 solver iterations 0.11 / 1.21 / 0.54, at 2 × 2 1.92 / 21.43 / 0.57, at
-/// 1 × 1 2.14 / 21.57 / 3.02, at 8 × 8 0.14 / 1.01 / 0.35. The bounds on the default keep it
-/// within ~2.5× of that (2 × 2 breaks the attitude's); `cargo test -p sim_twin --lib
+/// and 4 steps per tick 2.21 / 21.07 / 2.63 and 0.27 / 2.63 / 0.33; the rapier twin at its
+/// default 4 substeps × 4 solver iterations 0.11 / 1.21 / 0.54, at 2 × 2 1.92 / 21.43 / 0.57,
+/// at 1 × 1 2.14 / 21.57 / 3.02, at 8 × 8 0.14 / 1.01 / 0.35. The bounds on rapier's 4 × 4
+/// keep it within ~2.5× of that (2 × 2 breaks the attitude's); `cargo test -p sim_twin --lib
 /// rapier_multibody_against -- --nocapture` prints the table.
 #[test]
 fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
@@ -672,6 +662,7 @@ fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
             Some(&TwinConfig {
                 physics_substeps: p,
                 solver_iterations: i,
+                vehicle_dynamics: crate::VehicleDynamics::Rapier,
                 ..TwinConfig::default()
             }),
             0,
@@ -680,7 +671,7 @@ fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
     let rows = [
         ("ours, 1 step per tick", arm_sweep_flight(None, 1)),
         ("ours, 4 steps per tick", arm_sweep_flight(None, 4)),
-        ("twin 4 x 4 (default)", twin(4, 4)),
+        ("twin 4 x 4 (rapier)", twin(4, 4)),
         ("twin 2 x 2", twin(2, 2)),
         ("twin 1 x 1", twin(1, 1)),
         ("twin 8 x 8", twin(8, 8)),
@@ -719,10 +710,10 @@ fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
     let (p, r, q) = gaps[2];
     assert!(
         p < 0.3 && r < 3.0 && q < 1.5,
-        "the twin's default left our dynamics: {p} mm, {r} mrad, {q} mrad"
+        "the rapier twin at 4 x 4 left our dynamics: {p} mm, {r} mrad, {q} mrad"
     );
-    // The twin flying our dynamics (4 substeps × 4 steps, the mass matrix kept through a
-    // substep, the setpoints slewed per substep): measured 0.39 / 2.47 / 0.53.
+    // The twin flying our dynamics (the default; 4 substeps × 4 steps, the mass matrix kept
+    // through a substep, the setpoints slewed per substep): measured 0.39 / 2.47 / 0.53.
     let (p, r, q) = gaps[6];
     assert!(
         p < 1.0 && r < 5.0 && q < 1.5,
@@ -817,5 +808,154 @@ fn the_articulated_twin_feels_drag_and_wind_where_rapier_does() {
     assert!(
         (end_ours - end_rapier).norm() < 0.01,
         "end {end_ours:?} against {end_rapier:?}"
+    );
+}
+
+/// The articulated twin hands the vehicle to rapier's multibody and back without changing
+/// its state: mid-flight (base translating and turning, arm joints moving), the measurement
+/// read from the multibody right after the hand-over equals the one of the vehicle's own
+/// dynamics, and taking it back gives the same state again (to rounding).
+#[test]
+fn handing_the_vehicle_between_engines_keeps_its_state() {
+    let v = vehicle("fa-hexa");
+    let config = TwinConfig {
+        vehicle_dynamics: crate::VehicleDynamics::Articulated,
+        ..TwinConfig::default()
+    };
+    let mut t = twin("fa-hexa", config);
+    let mut cmd = hover(&v);
+    // Uneven thrusts turn and push the base; the arm swings.
+    cmd.rotor_thrusts_n[0] *= 1.2;
+    cmd.rotor_thrusts_n[3] *= 0.9;
+    let arm = v.arm_dofs();
+    t.set_base_velocity(&Vector3::new(0.4, -0.2, 0.1));
+    for k in 0..30u32 {
+        cmd.joint_targets[arm[0]] = 0.02 * f64::from(k);
+        cmd.joint_targets[arm[1]] = -0.01 * f64::from(k);
+        step(&mut t, &cmd);
+    }
+    assert!(
+        t.on_own_dynamics(),
+        "free flight runs on the vehicle's dynamics"
+    );
+    let ours = t.measure(&[], platform::DisturbanceReport::default());
+    assert!(
+        ours.base.angular_velocity_in_body_radps.norm() > 0.05
+            && ours.joint_velocities[arm[0]].abs() > 0.1,
+        "not a moving state: {:?}",
+        ours
+    );
+    let close = |a: &platform::Measurement, b: &platform::Measurement, what: &str| {
+        let gaps = [
+            (a.base.position_in_world_m - b.base.position_in_world_m).norm(),
+            a.base.world_from_body.angle_to(&b.base.world_from_body),
+            (a.base.velocity_in_world_mps - b.base.velocity_in_world_mps).norm(),
+            (a.base.angular_velocity_in_body_radps - b.base.angular_velocity_in_body_radps).norm(),
+            (a.world_from_ee.translation.vector - b.world_from_ee.translation.vector).norm(),
+        ];
+        let joints = a
+            .joint_positions
+            .iter()
+            .zip(&b.joint_positions)
+            .chain(a.joint_velocities.iter().zip(&b.joint_velocities))
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        assert!(
+            gaps.iter().all(|g| *g < 1e-12) && joints < 1e-12,
+            "{what}: base position, attitude, velocity, angular velocity, EE {gaps:?}, joints {joints:e}"
+        );
+    };
+    t.hand_to_rapier().unwrap_or_else(|e| panic!("{e}"));
+    assert!(!t.on_own_dynamics());
+    close(
+        &ours,
+        &t.measure(&[], platform::DisturbanceReport::default()),
+        "rapier's multibody",
+    );
+    t.take_from_rapier();
+    close(
+        &ours,
+        &t.measure(&[], platform::DisturbanceReport::default()),
+        "back on the vehicle's dynamics",
+    );
+}
+
+/// Flying into a wall, the articulated twin's vehicle is stopped by it as rapier's is: rapier's
+/// multibody takes the vehicle over within `CONTACT_MARGIN_M` (the vehicle's own dynamics
+/// feels no contact: before the hand-over existed its rotor arms passed through the wall),
+/// the two closed-loop flights (pressing 3 cm into the wall, then back to the start) agree
+/// as closely as rapier's own flight at 8 substeps does, and the vehicle's own dynamics takes
+/// over again once it has backed away.
+#[test]
+fn the_articulated_twin_is_stopped_by_a_wall_as_rapier_is() {
+    use controllers::{BaseController, BodyParams, Pid6, Pid6Gains};
+    let v = vehicle("fa-hexa");
+    // The wall's face at x = 0.8 m; the rotor arms reach to x ≈ 0.49 m at the start.
+    let face_x = 0.8;
+    let fly = |vehicle_dynamics, physics_substeps| {
+        let mut t = twin(
+            "fa-hexa",
+            TwinConfig {
+                vehicle_dynamics,
+                physics_substeps,
+                ..TwinConfig::default()
+            },
+        );
+        t.add_fixed_box(
+            &Isometry3::translation(face_x + 0.1, 0.0, 1.0),
+            &Vector3::new(0.1, 1.0, 1.0),
+        );
+        let mut allocator = Allocator::new(&v.rotors, v.actuation, AllocationMethod::PseudoInverse)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut pid = Pid6::new(Pid6Gains::am_bench(), BodyParams::from_vehicle(&v));
+        pid.reset(&t.truth().base);
+        let dt = t.config().control_dt_s();
+        let mut cmd = hover(&v);
+        let (mut own, mut path) = (Vec::new(), Vec::new());
+        for k in 0..480 {
+            let target = Isometry3::translation(if k < 240 { 0.33 } else { 0.0 }, 0.0, 1.0);
+            let wrench = pid.update(&t.truth().base, &target, dt);
+            cmd.rotor_thrusts_n = allocator
+                .allocate(&wrench, &[])
+                .map(|a| a.thrusts_n)
+                .unwrap_or_else(|e| panic!("{e}"));
+            step(&mut t, &cmd);
+            own.push(t.on_own_dynamics());
+            path.push(t.truth().base.position_in_world_m);
+        }
+        (own, path)
+    };
+    let (_, path_rapier) = fly(crate::VehicleDynamics::Rapier, 4);
+    let (own, path_ours) = fly(crate::VehicleDynamics::Articulated, 4);
+    let (_, path_fine) = fly(crate::VehicleDynamics::Rapier, 8);
+    let gap8 = path_rapier
+        .iter()
+        .zip(&path_fine)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    // Unstopped, the base would fly to x = 1 m.
+    let reach = |path: &[Vector3<f64>]| path.iter().map(|p| p.x).fold(f64::MIN, f64::max);
+    let (reach_rapier, reach_ours) = (reach(&path_rapier), reach(&path_ours));
+    assert!(
+        (0.25..0.4).contains(&reach_rapier) && (0.25..0.4).contains(&reach_ours),
+        "the base went to x = {reach_rapier} m (rapier), {reach_ours} m (articulated)"
+    );
+    let gap = path_rapier
+        .iter()
+        .zip(&path_ours)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    // Measured: 3.3 mm against 4.5 mm (the contact slides the vehicle ~10 cm down the wall).
+    assert!(
+        gap < gap8,
+        "the articulated twin parts from rapier's by {gap} m, rapier at 8 substeps by {gap8} m"
+    );
+    // Own dynamics in free flight, rapier's near the wall, own again after backing away.
+    let first_rapier = own.iter().position(|o| !o);
+    let back = own.iter().rposition(|o| !o);
+    assert!(own[0], "the flight started on rapier's multibody");
+    assert!(
+        first_rapier.is_some_and(|k| k > 5) && back.is_some_and(|k| k < 470) && own[479],
+        "engines along the flight: {own:?}"
     );
 }

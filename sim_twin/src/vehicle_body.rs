@@ -35,6 +35,10 @@ pub(crate) fn material(builder: ColliderBuilder) -> ColliderBuilder {
 #[derive(Debug, Clone)]
 pub(crate) struct DofJoint {
     pub handle: MultibodyJointHandle,
+    /// The bodies it joins and the joint as built (to re-insert it, [`attach`]).
+    pub parent: RigidBodyHandle,
+    pub child: RigidBodyHandle,
+    pub spec: GenericJoint,
     pub axis: JointAxis,
     pub limits: Option<(f64, f64)>,
     pub drive: Option<JointDrive>,
@@ -50,6 +54,9 @@ pub(crate) struct VehicleBody {
     pub link_body: Vec<(RigidBodyHandle, Isometry3<f64>)>,
     /// The base body (its frame is the base link frame).
     pub base: RigidBodyHandle,
+    /// The base body's centre of mass in its frame (rapier computes its own copy only in a
+    /// step).
+    pub base_com_in_body: Vector3<f64>,
     /// Every rigid body of the vehicle.
     pub bodies: Vec<RigidBodyHandle>,
     /// Colliders of each link (by link id).
@@ -97,17 +104,12 @@ fn shape_fixup(shape: &Shape) -> Isometry3<f64> {
 }
 
 /// Builds the vehicle into `world` with its base at `world_from_base` and its joints at
-/// their initial (drive) positions.
-///
-/// With `kinematic` (the twin's own articulated dynamics, `VehicleDynamics::Articulated`) the
-/// bodies are kinematic and no multibody joint is made: the twin places the bodies itself,
-/// and each joint's handle is invalid.
+/// their initial (drive) positions, as one rapier multibody.
 pub(crate) fn build(
     vehicle: &Vehicle,
     world: &mut PhysicsWorld,
     world_from_base: &Isometry3<f64>,
     q0: &[f64],
-    kinematic: bool,
 ) -> Result<VehicleBody, TwinError> {
     let model = &vehicle.model;
     let root_from_link = model.forward_kinematics(q0);
@@ -129,6 +131,7 @@ pub(crate) fn build(
 
     // One rigid body per segment, with the summed inertials of its links.
     let mut bodies = Vec::with_capacity(segment_root.len());
+    let mut base_com_in_body = Vector3::zeros();
     for (s, &first_link) in segment_root.iter().enumerate() {
         let mut mass = MassProperties::default();
         for (link, (seg, body_from_link)) in segment.iter().enumerate() {
@@ -154,13 +157,12 @@ pub(crate) fn build(
                 model.links[first_link].name
             )));
         }
+        if s == 0 {
+            let c = mass.local_com;
+            base_com_in_body = Vector3::new(c.x, c.y, c.z);
+        }
         let pose = world_from_base * root_from_link[first_link];
-        let builder = if kinematic {
-            RigidBodyBuilder::kinematic_position_based()
-        } else {
-            RigidBodyBuilder::dynamic()
-        };
-        let body = builder
+        let body = RigidBodyBuilder::dynamic()
             .pose(pose_to_rapier(&pose))
             .additional_mass_properties(mass)
             .can_sleep(false)
@@ -199,16 +201,6 @@ pub(crate) fn build(
         };
         let limits = joint.limits.map(|l| (l.lower, l.upper));
         let drive = vehicle.drives.iter().find(|d| d.joint == j).copied();
-        if kinematic {
-            dofs.push(DofJoint {
-                handle: MultibodyJointHandle::invalid(),
-                axis,
-                limits,
-                drive,
-                setpoint,
-            });
-            continue;
-        }
         let mut builder = GenericJointBuilder::new(mask)
             .local_frame1(pose_to_rapier(&frame1))
             .local_frame2(pose_to_rapier(&align));
@@ -223,12 +215,9 @@ pub(crate) fn build(
                 .motor_position(axis, setpoint, d.stiffness, d.damping)
                 .motor_max_force(axis, d.effort_limit);
         }
-        let Some(handle) = world.multibody_joints.insert(
-            bodies[parent_segment],
-            bodies[child_segment],
-            builder.build(),
-            true,
-        ) else {
+        let spec = builder.build();
+        let (parent, child) = (bodies[parent_segment], bodies[child_segment]);
+        let Some(handle) = world.multibody_joints.insert(parent, child, spec, true) else {
             return Err(TwinError::Vehicle(format!(
                 "joint '{}' closes a loop: a vehicle must be a tree",
                 joint.name
@@ -236,6 +225,9 @@ pub(crate) fn build(
         };
         dofs.push(DofJoint {
             handle,
+            parent,
+            child,
+            spec,
             axis,
             limits,
             drive,
@@ -243,21 +235,19 @@ pub(crate) fn build(
         });
     }
 
-    // The arm must not collide with the base it is mounted on; start at the initial joints
-    // (kinematic bodies were built there and do not collide with each other).
-    if !kinematic {
-        if let Some(link) = world.multibody_joints.rigid_body_link(bodies[0]).copied()
-            && let Some(mb) = world.multibody_joints.get_multibody_mut(link.multibody)
-        {
-            mb.set_self_contacts_enabled(false);
-        }
-        set_joint_positions(world, &dofs, q0);
+    // The arm must not collide with the base it is mounted on; start at the initial joints.
+    if let Some(link) = world.multibody_joints.rigid_body_link(bodies[0]).copied()
+        && let Some(mb) = world.multibody_joints.get_multibody_mut(link.multibody)
+    {
+        mb.set_self_contacts_enabled(false);
     }
+    set_joint_positions(world, &dofs, q0);
 
     let link_body = segment.iter().map(|(s, f)| (bodies[*s], *f)).collect();
     Ok(VehicleBody {
         link_body,
         base: bodies[0],
+        base_com_in_body,
         bodies,
         link_colliders,
         dofs,
@@ -318,5 +308,108 @@ pub(crate) fn joint_states(
             .unwrap_or((f64::NAN, f64::NAN));
         positions.push(q);
         velocities.push(qd);
+    }
+}
+
+/// Takes the vehicle out of rapier's dynamics (`VehicleDynamics::Articulated` in free
+/// flight): no multibody, every body kinematic where it is, for the twin's own dynamics to
+/// place. [`attach`] puts it back.
+pub(crate) fn detach(world: &mut PhysicsWorld, body: &VehicleBody) {
+    world
+        .multibody_joints
+        .remove_multibody_articulations(body.base, false);
+    for h in &body.bodies {
+        if let Some(rb) = world.bodies.get_mut(*h) {
+            rb.set_body_type(RigidBodyType::KinematicPositionBased, true);
+        }
+    }
+}
+
+/// The state [`attach`] hands to rapier's multibody: each body's world pose (`bodies`
+/// order), the joints, the base's centre-of-mass velocity and angular velocity in the world.
+pub(crate) struct HandOver<'a> {
+    pub poses: &'a [Isometry3<f64>],
+    pub q: &'a [f64],
+    pub qd: &'a [f64],
+    pub base_com_velocity_in_world: Vector3<f64>,
+    pub base_angular_velocity_in_world: Vector3<f64>,
+}
+
+/// Puts a [`detach`]ed vehicle back into rapier's dynamics as the multibody [`build`] made,
+/// in the state `s`.
+pub(crate) fn attach(
+    world: &mut PhysicsWorld,
+    body: &VehicleBody,
+    s: &HandOver<'_>,
+) -> Result<(), TwinError> {
+    for (h, pose) in body.bodies.iter().zip(s.poses) {
+        if let Some(rb) = world.bodies.get_mut(*h) {
+            rb.set_body_type(RigidBodyType::Dynamic, true);
+            rb.set_position(pose_to_rapier(pose), true);
+        }
+    }
+    // The base's velocity as the measurement reads it until the next step (which sets every
+    // body's from the multibody's generalized velocities).
+    if let Some(rb) = world.bodies.get_mut(body.base) {
+        rb.set_linvel(vector_to_rapier(&s.base_com_velocity_in_world), true);
+        rb.set_angvel(vector_to_rapier(&s.base_angular_velocity_in_world), true);
+    }
+    for d in &body.dofs {
+        let handle = world
+            .multibody_joints
+            .insert(d.parent, d.child, d.spec, true);
+        if handle != Some(d.handle) {
+            return Err(TwinError::Vehicle(
+                "re-inserting the vehicle's joints into rapier gave a different multibody"
+                    .to_owned(),
+            ));
+        }
+    }
+    let Some(link) = world.multibody_joints.rigid_body_link(body.base).copied() else {
+        return Ok(());
+    };
+    if let Some(mb) = world.multibody_joints.get_multibody_mut(link.multibody) {
+        mb.set_self_contacts_enabled(false);
+    }
+    set_joint_positions(world, &body.dofs, s.q);
+    let links: Vec<Option<usize>> = body
+        .dofs
+        .iter()
+        .map(|d| {
+            world
+                .multibody_joints
+                .rigid_body_link(d.child)
+                .map(|l| l.id)
+        })
+        .collect();
+    let Some(mb) = world.multibody_joints.get_multibody_mut(link.multibody) else {
+        return Ok(());
+    };
+    let mut v = vec![0.0; mb.ndofs()];
+    v[..3].copy_from_slice(s.base_com_velocity_in_world.as_slice());
+    v[3..6].copy_from_slice(s.base_angular_velocity_in_world.as_slice());
+    for (id, &rate) in links.iter().zip(s.qd) {
+        if let Some(l) = id.and_then(|id| mb.link(id)) {
+            v[l.assembly_id()] = rate;
+        }
+    }
+    mb.generalized_velocity_mut().copy_from_slice(&v);
+    Ok(())
+}
+
+/// Sets every body's linear velocity to `v` (world), the multibody's base included.
+pub(crate) fn set_linear_velocity(world: &mut PhysicsWorld, body: &VehicleBody, v: &Vector3<f64>) {
+    for h in &body.bodies {
+        if let Some(rb) = world.bodies.get_mut(*h) {
+            rb.set_linvel(vector_to_rapier(v), true);
+        }
+    }
+    if let Some(link) = world.multibody_joints.rigid_body_link(body.base).copied()
+        && let Some(mb) = world.multibody_joints.get_multibody_mut(link.multibody)
+        && mb.ndofs() >= 6
+    {
+        mb.generalized_velocity_mut()
+            .rows_mut(0, 3)
+            .copy_from_slice(v.as_slice());
     }
 }

@@ -306,8 +306,10 @@ fn a_live_viewer_receives_the_scene_at_the_tick_rate_and_changes_nothing() {
             "fa-hexa",
             "--trajectory",
             "step",
+            // Long enough (~1 s of CPU) for both viewers to connect while it flies: the
+            // flight never waits for them.
             "--duration",
-            "20",
+            "100",
             "--seed",
             "5",
             "--json",
