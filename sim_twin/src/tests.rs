@@ -57,6 +57,24 @@ fn hover(v: &Vehicle) -> ActuatorCommand {
     }
 }
 
+/// One closed-loop tick: the PID's wrench toward `target`, allocated to the rotors, flown.
+fn pid_tick(
+    t: &mut Twin,
+    pid: &mut controllers::Pid6,
+    allocator: &mut Allocator,
+    cmd: &mut ActuatorCommand,
+    target: &Isometry3<f64>,
+) {
+    use controllers::BaseController;
+    let dt = t.config().control_dt_s();
+    let wrench = pid.update(&t.truth().base, target, dt);
+    cmd.rotor_thrusts_n = allocator
+        .allocate(&wrench, &[])
+        .map(|a| a.thrusts_n)
+        .unwrap_or_else(|e| panic!("{e}"));
+    step(t, cmd);
+}
+
 #[test]
 fn an_idle_vehicle_falls_at_g() {
     let v = vehicle("fa-hexa");
@@ -783,16 +801,10 @@ fn the_articulated_twin_feels_drag_and_wind_where_rapier_does() {
         let mut pid = Pid6::new(Pid6Gains::am_bench(), BodyParams::from_vehicle(&v));
         pid.reset(&t.truth().base);
         let target = Isometry3::translation(1.0, 0.0, 1.0);
-        let dt = t.config().control_dt_s();
         let mut cmd = hover(&v);
         let mut max_tilt: f64 = 0.0;
         for _ in 0..360 {
-            let wrench = pid.update(&t.truth().base, &target, dt);
-            cmd.rotor_thrusts_n = allocator
-                .allocate(&wrench, &[])
-                .map(|a| a.thrusts_n)
-                .unwrap_or_else(|e| panic!("{e}"));
-            step(&mut t, &cmd);
+            pid_tick(&mut t, &mut pid, &mut allocator, &mut cmd, &target);
             let (roll, pitch, _) = t.truth().base.world_from_body.euler_angles();
             max_tilt = max_tilt.max(roll.hypot(pitch));
         }
@@ -909,17 +921,11 @@ fn the_articulated_twin_is_stopped_by_a_wall_as_rapier_is() {
             .unwrap_or_else(|e| panic!("{e}"));
         let mut pid = Pid6::new(Pid6Gains::am_bench(), BodyParams::from_vehicle(&v));
         pid.reset(&t.truth().base);
-        let dt = t.config().control_dt_s();
         let mut cmd = hover(&v);
         let (mut own, mut path) = (Vec::new(), Vec::new());
         for k in 0..480 {
             let target = Isometry3::translation(if k < 240 { 0.33 } else { 0.0 }, 0.0, 1.0);
-            let wrench = pid.update(&t.truth().base, &target, dt);
-            cmd.rotor_thrusts_n = allocator
-                .allocate(&wrench, &[])
-                .map(|a| a.thrusts_n)
-                .unwrap_or_else(|e| panic!("{e}"));
-            step(&mut t, &cmd);
+            pid_tick(&mut t, &mut pid, &mut allocator, &mut cmd, &target);
             own.push(t.on_own_dynamics());
             path.push(t.truth().base.position_in_world_m);
         }
