@@ -58,6 +58,10 @@ pub struct PhysicsFlags {
     /// free flight; or `rapier`: rapier's multibody throughout (docs/speed.md).
     #[arg(long, value_name = "ENGINE")]
     pub vehicle_dynamics: Option<DynamicsEngine>,
+    /// Steps of the vehicle's own dynamics per physics substep while it flies on them
+    /// (`--vehicle-dynamics articulated`, in free flight). Default: `--solver-iterations`.
+    #[arg(long, value_name = "N")]
+    pub own_dynamics_steps: Option<u32>,
 }
 
 /// `--vehicle-dynamics`.
@@ -80,6 +84,11 @@ impl PhysicsFlags {
                 "--solver-iterations: 0; at least 1 iteration per physics step",
             ));
         }
+        if self.own_dynamics_steps == Some(0) {
+            return Err(bad_input(
+                "--own-dynamics-steps: 0; at least 1 step per physics substep",
+            ));
+        }
         Ok(())
     }
 
@@ -91,6 +100,9 @@ impl PhysicsFlags {
         }
         if let Some(n) = self.solver_iterations {
             twin.solver_iterations = n;
+        }
+        if let Some(n) = self.own_dynamics_steps {
+            twin.own_dynamics_steps = Some(n);
         }
         if let Some(e) = self.vehicle_dynamics {
             twin.vehicle_dynamics = match e {
@@ -109,6 +121,9 @@ impl PhysicsFlags {
         }
         if let Some(n) = self.solver_iterations {
             f.extend(["--solver-iterations".to_owned(), n.to_string()]);
+        }
+        if let Some(n) = self.own_dynamics_steps {
+            f.extend(["--own-dynamics-steps".to_owned(), n.to_string()]);
         }
         if let Some(e) = self.vehicle_dynamics {
             let name = match e {

@@ -356,6 +356,16 @@ fn physics_counts_are_recorded_and_zero_is_bad_input() {
         &amstack(&["track", "--platform", "fa-hexa", "--solver-iterations", "0"]),
         &["--solver-iterations", "0"],
     );
+    assert_bad_input(
+        &amstack(&[
+            "track",
+            "--platform",
+            "fa-hexa",
+            "--own-dynamics-steps",
+            "0",
+        ]),
+        &["--own-dynamics-steps", "0"],
+    );
     // An experiment refuses it before it writes anything.
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let refused = dir.path().join("refused");
@@ -385,6 +395,8 @@ fn physics_counts_are_recorded_and_zero_is_bad_input() {
         "2",
         "--solver-iterations",
         "3",
+        "--own-dynamics-steps",
+        "2",
         "--out",
         &out_dir.to_string_lossy(),
     ]);
@@ -395,6 +407,7 @@ fn physics_counts_are_recorded_and_zero_is_bad_input() {
     .unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(config["twin"]["physics_substeps"], 2, "{config}");
     assert_eq!(config["twin"]["solver_iterations"], 3, "{config}");
+    assert_eq!(config["twin"]["own_dynamics_steps"], 2, "{config}");
 }
 
 #[test]

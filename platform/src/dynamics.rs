@@ -444,13 +444,26 @@ impl ArticulatedBody {
         ws: &mut Workspace,
         tau: &mut DVector<f64>,
     ) {
+        self.kinematics(q, ws);
+        self.rnea_at_kinematics(world_from_base, nu, nu_dot, external, ws, tau);
+    }
+
+    /// RNEA on the joint transforms and subspaces already in `ws` (`kinematics` at this q).
+    fn rnea_at_kinematics(
+        &self,
+        world_from_base: &UnitQuaternion<f64>,
+        nu: &DVector<f64>,
+        nu_dot: Option<&DVector<f64>>,
+        external: &[Vector6<f64>],
+        ws: &mut Workspace,
+        tau: &mut DVector<f64>,
+    ) {
         let nv = self.nv();
         assert!(nu.len() == nv && tau.len() == nv, "ν sizes");
         assert!(
             external.is_empty() || external.len() == self.bodies.len(),
             "one external force per body"
         );
-        self.kinematics(q, ws);
         let acc = |k: usize| nu_dot.map_or(0.0, |a| a[k]);
         // Gravity as an upward acceleration of the whole tree.
         let up = world_from_base.inverse() * Vector3::new(0.0, 0.0, GRAVITY_MPS2);
@@ -615,11 +628,16 @@ impl ArticulatedBody {
         let mut acc = std::mem::replace(&mut ws.acc, DVector::zeros(0));
         let mut spare = std::mem::replace(&mut ws.lhs_capped, DMatrix::zeros(0, 0));
         let mut ok = factor.is_some();
-        for _ in 0..n {
+        for k in 0..n {
             let Some(factor) = &factor else { break };
-            // τ − b + Σ Jᵀf_ext at this step's state.
+            // τ − b + Σ Jᵀf_ext at this step's state (the first step's joint transforms are
+            // the mass matrix's).
             let attitude = state.world_from_base.rotation;
-            self.rnea(&attitude, &state.q, &state.nu, None, external, ws, &mut rhs);
+            if k == 0 {
+                self.rnea_at_kinematics(&attitude, &state.nu, None, external, ws, &mut rhs);
+            } else {
+                self.rnea(&attitude, &state.q, &state.nu, None, external, ws, &mut rhs);
+            }
             rhs.neg_mut();
             rhs += tau;
             capped.fill(false);

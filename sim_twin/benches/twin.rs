@@ -21,8 +21,11 @@ fn twin_step(c: &mut Criterion) {
     for (substeps, iterations) in [(4, 4), (1, 4), (4, 1), (2, 2), (2, 1), (1, 2), (1, 1)] {
         twin_step_at(c, substeps, iterations, VehicleDynamics::Rapier);
     }
-    // The vehicle stepped by amstack's own articulated dynamics, 4 substeps.
-    twin_step_at(c, 4, 4, VehicleDynamics::Articulated);
+    // The vehicle stepped by amstack's own articulated dynamics, 4 substeps of 4 steps (the
+    // default), then 2 and 1 steps per substep (docs/speed.md: the fidelity each costs).
+    for own_steps in [4, 2, 1] {
+        twin_step_at(c, 4, own_steps, VehicleDynamics::Articulated);
+    }
 }
 
 fn twin_step_at(
@@ -34,10 +37,14 @@ fn twin_step_at(
     let Ok(vehicle) = Vehicle::builtin("fa-hexa") else {
         return;
     };
+    let articulated = vehicle_dynamics == VehicleDynamics::Articulated;
+    // On the vehicle's own dynamics the second count is its steps per substep; rapier keeps
+    // its default iterations there.
     let config = TwinConfig {
         disturbances: Disturbances::all(),
         physics_substeps,
-        solver_iterations,
+        solver_iterations: if articulated { 4 } else { solver_iterations },
+        own_dynamics_steps: articulated.then_some(solver_iterations),
         vehicle_dynamics,
         ..TwinConfig::default()
     };
@@ -62,8 +69,12 @@ fn twin_step_at(
     let dt = config.control_dt_s();
     let joints = vehicle.initial_configuration();
     // The default keeps its historical name, so criterion compares it with earlier runs.
-    let name = if vehicle_dynamics == VehicleDynamics::Articulated {
+    let name = if articulated && solver_iterations == 4 {
         format!("twin_step/fa-hexa_hover_all_disturbances_articulated_{physics_substeps}")
+    } else if articulated {
+        format!(
+            "twin_step/fa-hexa_hover_all_disturbances_articulated_{physics_substeps}x{solver_iterations}"
+        )
     } else if (physics_substeps, solver_iterations) == (4, 4) {
         "twin_step/fa-hexa_hover_all_disturbances".to_owned()
     } else {

@@ -228,6 +228,11 @@ pub struct TwinConfig {
     /// left out of a file) was flown on rapier's multibody throughout, and reads as `rapier`.
     #[serde(default = "dynamics_before_the_field")]
     pub vehicle_dynamics: VehicleDynamics,
+    /// Steps of the vehicle's own dynamics per physics substep while it flies on them
+    /// (`VehicleDynamics::Articulated` in free flight). None: `solver_iterations` steps,
+    /// as a config written before this field existed (or left out of a file) was flown.
+    #[serde(default = "own_steps_before_the_field")]
+    pub own_dynamics_steps: Option<u32>,
     /// Which disturbances act.
     pub disturbances: Disturbances,
     /// Aerodynamic constants.
@@ -259,6 +264,10 @@ fn dynamics_before_the_field() -> VehicleDynamics {
     VehicleDynamics::Rapier
 }
 
+fn own_steps_before_the_field() -> Option<u32> {
+    None
+}
+
 fn allocation_before_the_field() -> SaturatedAllocation {
     SaturatedAllocation::Clip
 }
@@ -274,6 +283,7 @@ impl Default for TwinConfig {
             physics_substeps: 4,
             solver_iterations: 4,
             vehicle_dynamics: VehicleDynamics::default(),
+            own_dynamics_steps: None,
             disturbances: Disturbances::default(),
             aero: AeroConfig::default(),
             motor: MotorConfig::default(),
@@ -305,6 +315,9 @@ impl TwinConfig {
         if self.physics_substeps == 0 || self.solver_iterations == 0 {
             return Err("physics_substeps and solver_iterations must be at least 1".to_owned());
         }
+        if self.own_dynamics_steps == Some(0) {
+            return Err("own_dynamics_steps must be at least 1".to_owned());
+        }
         self.aero.validate()?;
         for (name, v) in [
             ("motor.time_constant_s", self.motor.time_constant_s),
@@ -334,5 +347,46 @@ impl TwinConfig {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A config written before a field existed replays as it was flown: no
+    /// `vehicle_dynamics` reads as rapier's multibody, no `own_dynamics_steps` as
+    /// `solver_iterations` steps (None); a config written now carries both and reads back
+    /// equal.
+    #[test]
+    fn fields_missing_from_an_older_config_read_as_it_was_flown() {
+        let now = TwinConfig {
+            own_dynamics_steps: Some(2),
+            ..TwinConfig::default()
+        };
+        let text = serde_json::to_string(&now).unwrap_or_else(|e| panic!("{e}"));
+        let mut value: serde_json::Value =
+            serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(value["vehicle_dynamics"], "articulated", "{value}");
+        assert_eq!(value["own_dynamics_steps"], 2, "{value}");
+        let back: TwinConfig =
+            serde_json::from_value(value.clone()).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(back, now);
+        let Some(fields) = value.as_object_mut() else {
+            panic!("not an object: {value}");
+        };
+        fields.remove("vehicle_dynamics");
+        fields.remove("own_dynamics_steps");
+        let old: TwinConfig = serde_json::from_value(value).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(old.vehicle_dynamics, VehicleDynamics::Rapier);
+        assert_eq!(old.own_dynamics_steps, None);
+        let zero = TwinConfig {
+            own_dynamics_steps: Some(0),
+            ..TwinConfig::default()
+        };
+        assert!(
+            zero.validate()
+                .is_err_and(|e| e.contains("own_dynamics_steps"))
+        );
     }
 }

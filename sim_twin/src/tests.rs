@@ -402,17 +402,23 @@ fn gravity_wrench(t: &Twin) -> (Vector3<f64>, Vector3<f64>) {
 /// exceeds it. Both engines, each momentum read from the engine holding the vehicle.
 #[test]
 fn momentum_change_equals_the_impulse_of_gravity_and_rotors_over_an_arm_sweep() {
-    momentum_balance_over_an_arm_sweep(crate::VehicleDynamics::Rapier);
-    momentum_balance_over_an_arm_sweep(crate::VehicleDynamics::Articulated);
+    momentum_balance_over_an_arm_sweep(crate::VehicleDynamics::Rapier, None);
+    momentum_balance_over_an_arm_sweep(crate::VehicleDynamics::Articulated, None);
+    // One step of the vehicle's own dynamics per substep (its fastest setting).
+    momentum_balance_over_an_arm_sweep(crate::VehicleDynamics::Articulated, Some(1));
 }
 
-fn momentum_balance_over_an_arm_sweep(vehicle_dynamics: crate::VehicleDynamics) {
+fn momentum_balance_over_an_arm_sweep(
+    vehicle_dynamics: crate::VehicleDynamics,
+    own_dynamics_steps: Option<u32>,
+) {
     use controllers::{BaseController, BodyParams, Pid6, Pid6Gains};
     let v = vehicle("fa-hexa");
     let mut t = twin(
         "fa-hexa",
         TwinConfig {
             vehicle_dynamics,
+            own_dynamics_steps,
             ..TwinConfig::default()
         },
     );
@@ -471,7 +477,7 @@ fn momentum_balance_over_an_arm_sweep(vehicle_dynamics: crate::VehicleDynamics) 
     let angular_residual = (l_end - l_start - angular_impulse).norm();
     let tolerance = 1e-4 * gross;
     println!(
-        "{vehicle_dynamics:?}: arm swept up to {swept:.3} rad; gross impulse {gross:.1} N s; Δp {:.4} vs impulse {:.4} \
+        "{vehicle_dynamics:?} ({own_dynamics_steps:?} steps): arm swept up to {swept:.3} rad; gross impulse {gross:.1} N s; Δp {:.4} vs impulse {:.4} \
          (residual {linear_residual:.2e} N s); ΔL {:.4} vs angular impulse {:.4} (residual \
          {angular_residual:.2e} N m s); tolerance {tolerance:.2e}",
         (p_end - p_start).norm(),
@@ -668,8 +674,11 @@ fn flight_gap(
 /// and 4 steps per tick 2.21 / 21.07 / 2.63 and 0.27 / 2.63 / 0.33; the rapier twin at its
 /// default 4 substeps × 4 solver iterations 0.11 / 1.21 / 0.54, at 2 × 2 1.92 / 21.43 / 0.57,
 /// at 1 × 1 2.14 / 21.57 / 3.02, at 8 × 8 0.14 / 1.01 / 0.35. The bounds on rapier's 4 × 4
-/// keep it within ~2.5× of that (2 × 2 breaks the attitude's); `cargo test -p sim_twin --lib
-/// rapier_multibody_against -- --nocapture` prints the table.
+/// keep it within ~2.5× of that (2 × 2 breaks the attitude's). The twin on its own dynamics
+/// (the default, 4 steps per substep) 0.39 / 2.49 / 0.53, at 2 and 1 steps per substep
+/// (`own_dynamics_steps`) 0.22 / 1.23 / 0.31 and 0.27 / 2.63 / 0.33 — the last is ours at 4
+/// steps per tick to round-off. `cargo test -p sim_twin --lib rapier_multibody_against --
+/// --nocapture` prints the table.
 #[test]
 fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
     let v = vehicle("fa-hexa");
@@ -698,6 +707,29 @@ fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
             arm_sweep_flight(
                 Some(&TwinConfig {
                     vehicle_dynamics: crate::VehicleDynamics::Articulated,
+                    own_dynamics_steps: Some(4),
+                    ..TwinConfig::default()
+                }),
+                0,
+            ),
+        ),
+        (
+            "twin articulated, 2",
+            arm_sweep_flight(
+                Some(&TwinConfig {
+                    vehicle_dynamics: crate::VehicleDynamics::Articulated,
+                    own_dynamics_steps: Some(2),
+                    ..TwinConfig::default()
+                }),
+                0,
+            ),
+        ),
+        (
+            "twin articulated, 1",
+            arm_sweep_flight(
+                Some(&TwinConfig {
+                    vehicle_dynamics: crate::VehicleDynamics::Articulated,
+                    own_dynamics_steps: Some(1),
                     ..TwinConfig::default()
                 }),
                 0,
@@ -713,6 +745,15 @@ fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
             (p, r, q)
         })
         .collect();
+    // At one step per substep the twin is the stand-alone dynamics at 4 steps per tick: the
+    // same forces, drives and steps through the twin's rapier bodies and hand-over code
+    // (measured 5.7e-14 mm, 1.3e-14 mrad, 7e-18 mrad).
+    let (p, r, q) = flight_gap(&rows[8].1, &rows[1].1, &arm);
+    println!("twin articulated, 1 against ours at 4 steps per tick: {p:.2e} {r:.2e} {q:.2e}");
+    assert!(
+        p < 1e-9 && r < 1e-9 && q < 1e-9,
+        "the twin's own dynamics are not the platform's: {p} mm, {r} mrad, {q} mrad"
+    );
     // The arm swept: the comparison is of a moving tree.
     let swept = reference
         .iter()

@@ -660,17 +660,43 @@ impl Twin {
         }
     }
 
-    /// Casts a ray that ignores the robot; the distance to the first hit or the maximum.
-    fn cast(&self, origin: &Vector3<f64>, direction: &Vector3<f64>) -> Option<f64> {
-        let filter = QueryFilter::default().groups(InteractionGroups::new(
+    /// What the aerodynamic rays see: everything but the robot.
+    fn ray_filter() -> QueryFilter<'static> {
+        QueryFilter::default().groups(InteractionGroups::new(
             Group::ALL,
             Group::ALL.difference(ROBOT_GROUP),
             InteractionTestMode::And,
-        ));
+        ))
+    }
+
+    /// Casts a ray that ignores the robot; the distance to the first hit or the maximum.
+    fn cast(&self, origin: &Vector3<f64>, direction: &Vector3<f64>) -> Option<f64> {
         let ray = Ray::new(vector_to_rapier(origin), vector_to_rapier(direction));
         self.world
-            .cast_ray(&ray, self.config.aero.max_raycast_distance_m, true, filter)
+            .cast_ray(
+                &ray,
+                self.config.aero.max_raycast_distance_m,
+                true,
+                Self::ray_filter(),
+            )
             .map(|(_, toi)| toi)
+    }
+
+    /// Whether a ray inside `region` may hit anything: a ray cast walks the broad phase's
+    /// boxes and reaches a collider only through its box, so with no box of what the rays
+    /// see meeting `region` (a half-space by its plane) every ray inside it misses. Exact:
+    /// the same boxes, the same filter.
+    fn rays_may_hit_within(&self, region: &Aabb) -> bool {
+        self.world
+            .intersect_aabb_conservative(*region, Self::ray_filter())
+            .any(|(_, other)| match other.shape().as_halfspace() {
+                Some(hs) => {
+                    let pose = pose_from_rapier(other.position());
+                    let normal = pose.rotation * vector_from_rapier(hs.normal);
+                    box_height_over_plane(region, &normal, &pose.translation.vector) <= 0.0
+                }
+                None => true,
+            })
     }
 
     /// Per-rotor thrust vectors after the proximity effects, fixed in each rotor's frame for
@@ -689,6 +715,24 @@ impl Twin {
         let base_rotation = world_from_base.rotation;
         let mut disturbances = DisturbanceReport::default();
         reports.clear();
+        // The near-wall fans are horizontal rays of length `max` from the rotors: in free
+        // flight nothing is within their box and none of the 10 rays per rotor is cast.
+        let wall_rays_may_hit = d.near_wall && {
+            let mut lo = Vector3::repeat(f64::INFINITY);
+            let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+            for r in &self.rotors {
+                let p = (self.world_from(r.body) * r.body_from_rotor)
+                    .translation
+                    .vector;
+                lo = lo.inf(&p);
+                hi = hi.sup(&p);
+            }
+            let reach = Vector3::new(max, max, 0.0);
+            self.rays_may_hit_within(&Aabb::new(
+                vector_to_rapier(&(lo - reach)),
+                vector_to_rapier(&(hi + reach)),
+            ))
+        };
         for i in 0..self.rotors.len() {
             let mount = self.rotors[i];
             let world_from_rotor = self.world_from(mount.body) * mount.body_from_rotor;
@@ -725,6 +769,7 @@ impl Twin {
                 };
                 let nearest = wall_fan_directions(base_angle)
                     .into_iter()
+                    .filter(|_| wall_rays_may_hit)
                     .filter_map(|dir| self.cast(&position, &dir).map(|h| (h, dir)))
                     .min_by(|a, b| a.0.total_cmp(&b.0));
                 let (h, toward) = nearest.unwrap_or((max, Vector3::zeros()));
@@ -821,7 +866,10 @@ impl Twin {
         // matrix of each step its own: kept through a substep's steps (as rapier keeps its),
         // the momentum balance over a 10 s arm sweep missed by 0.13 N s, against 0.006 N s
         // with it fresh and rapier's 0.042 (test `momentum_change_equals_…`).
-        let steps = self.config.solver_iterations;
+        let steps = self
+            .config
+            .own_dynamics_steps
+            .unwrap_or(self.config.solver_iterations);
         let dt = h / f64::from(steps);
         for _ in 0..steps {
             if !a
