@@ -54,7 +54,8 @@ pub struct PhysicsFlags {
     /// What steps the vehicle's dynamics: `articulated` (default): amstack's own rigid-body
     /// dynamics (CRBA, RNEA, implicit joint drives, `--solver-iterations` steps per physics
     /// substep) in free flight, handing the vehicle to rapier's multibody while anything it
-    /// can touch is within 0.1 m or it holds an object — several times faster per tick in
+    /// can touch is within 0.1 m or it holds an object it cannot carry (a welded object clear of
+    /// everything rides along as a payload) — several times faster per tick in
     /// free flight; or `rapier`: rapier's multibody throughout (docs/speed.md).
     #[arg(long, value_name = "ENGINE")]
     pub vehicle_dynamics: Option<DynamicsEngine>,

@@ -152,7 +152,9 @@ pub enum VehicleDynamics {
     /// implicit joint drives, `solver_iterations` steps per physics substep, as many as
     /// rapier's TGS takes) in free flight, the vehicle's bodies moved kinematically in
     /// rapier; rapier's multibody while anything the vehicle can touch is within 0.1 m of it
-    /// or it holds an object (contacts and grasps act on it there), the state handed over
+    /// or it holds an object it cannot carry (contacts and grasps act on it there; an object
+    /// welded in the grasp, on no other joint and clear of everything, rides along as a
+    /// payload of the own dynamics), the state handed over
     /// exactly each way. Several times cheaper per tick in free flight, the benchmark's
     /// success tables unchanged (docs/speed.md). The default.
     #[default]

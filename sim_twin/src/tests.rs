@@ -1006,3 +1006,94 @@ fn the_articulated_twin_is_stopped_by_a_wall_as_rapier_is() {
         "engines along the flight: {own:?}"
     );
 }
+
+/// A held ball (Toss Ball's, welded in the grasp) rides on the vehicle's own dynamics as a
+/// payload in free flight — the vehicle carries it at 0.3 m/s, then opens the gripper — and
+/// the ball's path, its reported velocity while held and its flight after the release match
+/// rapier's multibody carrying it on the grasp's joint.
+#[test]
+fn a_held_ball_rides_on_the_vehicles_own_dynamics_and_leaves_the_hand_as_on_rapier() {
+    use crate::tasks::{TaskId, keys};
+    use controllers::{BaseController, BodyParams, Pid6, Pid6Gains};
+    let v = vehicle("fa-hexa");
+    let Some(gripper) = v.gripper.clone() else {
+        panic!("the FA-Hexa has a gripper");
+    };
+    let fly = |vehicle_dynamics| {
+        let mut t = twin(
+            "fa-hexa",
+            TwinConfig {
+                vehicle_dynamics,
+                task: Some(TaskId::TossBall),
+                ..TwinConfig::default()
+            },
+        );
+        let mut allocator = Allocator::new(&v.rotors, v.actuation, AllocationMethod::PseudoInverse)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut pid = Pid6::new(Pid6Gains::am_bench(), BodyParams::from_vehicle(&v));
+        pid.reset(&t.truth().base);
+        let mut cmd = hover(&v);
+        let start = t.truth().base.position_in_world_m;
+        let mut flight = Vec::new();
+        for k in 0..300u32 {
+            // Held 1 s, carried 0.3 m along x over 1 s, let go at 2 s.
+            let x = start.x + 0.3 * (f64::from(k.saturating_sub(120)) / 120.0).min(1.0);
+            if k == 240 {
+                for (j, open) in gripper.joints.iter().zip(&gripper.open) {
+                    if let Some(d) = v.model.joints[*j].dof {
+                        cmd.joint_targets[d] = *open;
+                    }
+                }
+            }
+            let target = Isometry3::translation(x, start.y, start.z);
+            pid_tick(&mut t, &mut pid, &mut allocator, &mut cmd, &target);
+            let obs = t.task_observation().unwrap_or_default();
+            let ball = obs
+                .vec3(keys::BALL_POS, 0)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let speed = obs
+                .vec3(keys::BALL_LIN_VEL, 0)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let holding = t.task_snapshot().is_some_and(|s| s.holding);
+            flight.push((ball, speed, holding, t.on_own_dynamics()));
+        }
+        flight
+    };
+    let rapier = fly(crate::VehicleDynamics::Rapier);
+    let ours = fly(crate::VehicleDynamics::Articulated);
+    let carried = ours.iter().filter(|s| s.2 && s.3).count();
+    assert!(
+        carried > 200,
+        "the held ball kept the vehicle on rapier: {carried} ticks carried"
+    );
+    assert!(
+        rapier.iter().take(240).all(|s| s.2),
+        "rapier dropped the ball"
+    );
+    let released = ours.iter().position(|s| !s.2).unwrap_or(ours.len());
+    assert!(
+        (240..250).contains(&released),
+        "released at tick {released}"
+    );
+    // Where the ball is, and how fast rapier says it moves, held and thrown.
+    let (mut path, mut speed) = (0.0_f64, 0.0_f64);
+    for (a, b) in rapier.iter().zip(&ours) {
+        path = path.max((a.0 - b.0).norm());
+        speed = speed.max((a.1 - b.1).norm());
+    }
+    let carried_speed = ours.iter().map(|s| s.1.x).fold(0.0, f64::max);
+    let fallen = ours[239].0.z - ours[299].0.z;
+    println!(
+        "ball: path gap {path:.2e} m, speed gap {speed:.2e} m/s, fastest {carried_speed:.3} m/s, \
+         fell {fallen:.3} m in 0.5 s; {carried} ticks carried"
+    );
+    assert!(
+        carried_speed > 0.25,
+        "the ball was not carried: {carried_speed} m/s"
+    );
+    assert!(fallen > 0.5, "the released ball did not fall: {fallen} m");
+    assert!(
+        path < 5e-4 && speed < 1e-2,
+        "the carried ball left rapier's: {path} m, {speed} m/s"
+    );
+}

@@ -119,6 +119,20 @@ struct Articulated {
     tau: DVector<f64>,
     external: Vec<Vector6<f64>>,
     poses: Vec<Isometry3<f64>>,
+    /// An object carried in the grasp, welded to a body of the tree.
+    payload: Option<Payload>,
+}
+
+/// A held object the vehicle's own dynamics carries (kinematic in rapier meanwhile).
+#[derive(Debug, Clone, Copy)]
+struct Payload {
+    object: RigidBodyHandle,
+    /// The tree's body holding it and the object's frame in that body's frame.
+    body: usize,
+    body_from_object: Isometry3<f64>,
+    com_in_body: Vector3<f64>,
+    /// Upward force that leaves the object rapier's gravity (its gravity scale), N.
+    lift_n: f64,
 }
 
 /// The task scene and what the twin keeps for it.
@@ -220,6 +234,7 @@ impl Twin {
                 tau: DVector::zeros(tree.nv()),
                 external: vec![Vector6::zeros(); tree.body_count()],
                 poses: Vec::new(),
+                payload: None,
                 tree,
             }))
         } else {
@@ -357,7 +372,8 @@ impl Twin {
 
     /// The vehicle's linear momentum (kg·m/s) and its angular momentum about the world origin
     /// (kg·m²/s), from the engine that holds it: p = Σ m v_c and L = Σ (c × m v_c + R I_c Rᵀ ω)
-    /// over rapier's bodies, or the first six rows of M ν of the vehicle's own dynamics.
+    /// over rapier's bodies, or the first six rows of M ν of the vehicle's own dynamics
+    /// (which count an object it carries as a payload; rapier's count the vehicle alone).
     pub fn vehicle_momentum(&self) -> (Vector3<f64>, Vector3<f64>) {
         if let Some(a) = self.articulated.as_deref().filter(|a| a.engaged) {
             let mut ws = a.tree.workspace();
@@ -858,6 +874,17 @@ impl Twin {
                 &(base.rotation * w.torque),
             );
         }
+        if let Some(p) = &a.payload
+            && p.lift_n != 0.0
+        {
+            let pose = a.poses[p.body];
+            push(
+                p.body,
+                &Vector3::new(0.0, 0.0, p.lift_n),
+                &(pose * Point3::from(p.com_in_body)).coords,
+                &Vector3::zeros(),
+            );
+        }
         for d in &mut a.drives {
             d.target = self.body.dofs[d.dof].setpoint;
         }
@@ -879,14 +906,23 @@ impl Twin {
                 return false;
             }
         }
-        if last {
+        if last || a.payload.is_some() {
             a.tree
                 .body_poses(&a.state.world_from_base, &a.state.q, &mut a.poses);
+        }
+        if last {
             for (h, pose) in bodies.iter().zip(&a.poses) {
                 if let Some(rb) = self.world.bodies.get_mut(*h) {
                     rb.set_next_kinematic_position(pose_to_rapier(pose));
                 }
             }
+        }
+        // A carried object moves every substep, so rapier's velocity of it (its motion
+        // over the substep) is the object's.
+        if let Some(p) = &a.payload
+            && let Some(rb) = self.world.bodies.get_mut(p.object)
+        {
+            rb.set_next_kinematic_position(pose_to_rapier(&(a.poses[p.body] * p.body_from_object)));
         }
         true
     }
@@ -1021,14 +1057,28 @@ impl Twin {
 
     /// Which engine steps the vehicle this tick (`VehicleDynamics::Articulated`): rapier's
     /// multibody while anything the vehicle can touch is within [`CONTACT_MARGIN_M`] of one
-    /// of its colliders or it holds an object (contacts and the grasp act on it there), its
+    /// of its colliders or it holds an object it cannot carry (contacts and the grasp act on it
+    /// there; [`Self::carried_object`] says which it can), its
     /// own dynamics once it has been clear for [`CLEAR_TICKS`] ticks. The state is handed
     /// over exactly (poses, joints, velocities).
     fn choose_vehicle_engine(&mut self) -> Result<(), TwinError> {
         let Some(engaged) = self.articulated.as_ref().map(|a| a.engaged) else {
             return Ok(());
         };
-        let near = self.task.grasp.held.is_some() || self.near_anything();
+        // An object held by a weld, free of any other joint and itself clear of everything,
+        // rides along as a payload of the vehicle's own dynamics; any other grasp keeps the
+        // vehicle on rapier's multibody.
+        let carried = self.carried_object();
+        let held = self.task.grasp.held.is_some();
+        let near = (held && carried.is_none()) || self.near_anything();
+        let payload = self
+            .articulated
+            .as_ref()
+            .and_then(|a| a.payload.as_ref().map(|p| p.object));
+        if engaged && !near && payload.is_some() && payload != carried.map(|c| c.0) {
+            // Released (or out of reach of the weld): the object is rapier's again.
+            self.release_payload();
+        }
         let Some(a) = self.articulated.as_deref_mut() else {
             return Ok(());
         };
@@ -1041,9 +1091,125 @@ impl Twin {
             a.clear_ticks = a.clear_ticks.saturating_add(1);
             if a.clear_ticks >= CLEAR_TICKS {
                 self.take_from_rapier();
+                if let Some((object, body)) = carried {
+                    self.carry(object, body);
+                }
             }
+        } else if let Some((object, body)) = carried
+            && a.payload.is_none()
+        {
+            self.carry(object, body);
         }
         Ok(())
+    }
+
+    /// The object the grasp holds, with the vehicle body (index) holding it, if the
+    /// vehicle's own dynamics can carry it as a payload: held by a weld (an object that
+    /// spins in the fingers is not), on no other joint, not driven by anything but gravity
+    /// (no damping, no applied force), and nothing it can touch within [`CONTACT_MARGIN_M`].
+    fn carried_object(&self) -> Option<(RigidBodyHandle, usize)> {
+        let (object, joint) = self.task.grasp.held?;
+        let joint = self.world.impulse_joints.get(joint)?;
+        if joint.data.locked_axes != JointAxesMask::LOCKED_FIXED_AXES || joint.body2() != object {
+            return None;
+        }
+        let body = self.body.bodies.iter().position(|b| *b == joint.body1())?;
+        let rb = self.world.bodies.get(object)?;
+        let payload = self
+            .articulated
+            .as_ref()
+            .and_then(|a| a.payload.as_ref())
+            .map(|p| p.object);
+        let free = (rb.is_dynamic() || payload == Some(object))
+            && self.world.impulse_joints.attached_joints(object).count() == 1
+            && self
+                .world
+                .multibody_joints
+                .rigid_body_link(object)
+                .is_none()
+            && rb.linear_damping() == 0.0
+            && rb.angular_damping() == 0.0
+            && rb.user_force() == Vector::ZERO
+            && rb.user_torque() == AngVector::ZERO;
+        if !free {
+            return None;
+        }
+        let groups = rb
+            .colliders()
+            .first()
+            .and_then(|c| self.world.colliders.get(*c))?
+            .collision_groups();
+        let filter = QueryFilter::default()
+            .exclude_sensors()
+            .exclude_rigid_body(object)
+            .groups(groups);
+        let colliders = || {
+            rb.colliders()
+                .iter()
+                .filter_map(|h| self.world.colliders.get(*h))
+        };
+        (!self.within_margin(colliders, filter)).then_some((object, body))
+    }
+
+    /// Welds `object` to the vehicle's body `body` in its own dynamics (engaged): its mass
+    /// joins the body's where it is now, and rapier moves it kinematically with the body.
+    fn carry(&mut self, object: RigidBodyHandle, body: usize) {
+        let Some(a) = self.articulated.as_deref_mut() else {
+            return;
+        };
+        let Some(rb) = self.world.bodies.get_mut(object) else {
+            return;
+        };
+        a.tree
+            .body_poses(&a.state.world_from_base, &a.state.q, &mut a.poses);
+        let Some(world_from_body) = a.poses.get(body).copied() else {
+            return;
+        };
+        let body_from_object = world_from_body.inverse() * pose_from_rapier(rb.position());
+        let mprops = rb.mass_properties().local_mprops;
+        let com_in_body = body_from_object * Point3::from(vector_from_rapier(mprops.local_com));
+        let i = mprops.reconstruct_inertia_matrix();
+        let i_object = nalgebra::Matrix3::from_fn(|row, col| i.col(col)[row]);
+        let r = body_from_object.rotation.to_rotation_matrix().into_inner();
+        a.tree.add_payload(
+            body,
+            mprops.mass(),
+            &com_in_body.coords,
+            &(r * i_object * r.transpose()),
+        );
+        // The tree pulls the payload down with g; rapier with its gravity scale.
+        let lift_n = (1.0 - rb.gravity_scale()) * mprops.mass() * platform::GRAVITY_MPS2;
+        rb.set_body_type(RigidBodyType::KinematicPositionBased, true);
+        a.payload = Some(Payload {
+            object,
+            body,
+            body_from_object,
+            com_in_body: com_in_body.coords,
+            lift_n,
+        });
+    }
+
+    /// Hands a carried object back to rapier: dynamic again, moving as the body carrying it
+    /// moves (its centre of mass's velocity and the body's angular velocity).
+    fn release_payload(&mut self) {
+        let Some(a) = self.articulated.as_deref_mut() else {
+            return;
+        };
+        let Some(p) = a.payload.take() else {
+            return;
+        };
+        let twist = a.tree.body_velocity(&a.state, p.body, &mut a.ws);
+        a.tree.clear_payloads();
+        a.tree
+            .body_poses(&a.state.world_from_base, &a.state.q, &mut a.poses);
+        let r = a.poses[p.body].rotation;
+        let v = Vector3::new(twist[0], twist[1], twist[2]);
+        let w = Vector3::new(twist[3], twist[4], twist[5]);
+        if let Some(rb) = self.world.bodies.get_mut(p.object) {
+            rb.set_body_type(RigidBodyType::Dynamic, true);
+            rb.set_linvel(vector_to_rapier(&(r * (v + w.cross(&p.com_in_body)))), true);
+            rb.set_angvel(vector_to_rapier(&(r * w)), true);
+        }
     }
 
     /// True if a collider the vehicle can touch (not a sensor, not an object it holds) is
@@ -1065,6 +1231,17 @@ impl Twin {
                 .flatten()
                 .filter_map(|h| self.world.colliders.get(*h))
         };
+        self.within_margin(vehicle, filter)
+    }
+
+    /// True if a collider `filter` passes is within [`CONTACT_MARGIN_M`] of one of
+    /// `colliders` (see [`Self::near_anything`]).
+    fn within_margin<'a, I: Iterator<Item = &'a Collider>>(
+        &'a self,
+        colliders: impl Fn() -> I,
+        filter: QueryFilter<'a>,
+    ) -> bool {
+        let vehicle = colliders;
         let Some(whole) = vehicle()
             .map(|c| c.compute_aabb())
             .reduce(|a, b| a.merged(&b))
@@ -1126,6 +1303,8 @@ impl Twin {
 
     /// The vehicle's own dynamics → rapier's multibody, in the dynamics' state.
     pub(crate) fn hand_to_rapier(&mut self) -> Result<(), TwinError> {
+        // A carried object first: it rides on the grasp's joint again.
+        self.release_payload();
         let Some(a) = self.articulated.as_deref_mut() else {
             return Ok(());
         };
