@@ -1700,3 +1700,36 @@ fn lever_load_reads_the_oracles_pull_from_the_logs() {
     assert_eq!(bad.status.code(), Some(2));
     assert_eq!(stderr(&bad).trim().lines().count(), 1, "{}", stderr(&bad));
 }
+
+/// A rollout log that cannot be written (the disk full: its file is /dev/full) stops the run
+/// with one line naming the file and the system's reason, once, and a non-zero exit.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_full_disk_is_named_once_and_fails_the_run() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let rollouts = dir.path().join("run").join("rollouts").join("toss-ball");
+    std::fs::create_dir_all(&rollouts).unwrap_or_else(|e| panic!("{e}"));
+    let log = rollouts.join("rollout-000.mcap");
+    std::os::unix::fs::symlink("/dev/full", &log).unwrap_or_else(|e| panic!("{e}"));
+    let out = amstack(&[
+        "bench",
+        "--platform",
+        "fa-hexa",
+        "--task",
+        "toss-ball",
+        "--rollouts",
+        "1",
+        "--out",
+        &dir.path().join("run").to_string_lossy(),
+    ]);
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("amstack: "))
+        .unwrap_or_else(|| panic!("no error line: {err}"));
+    assert!(
+        line.contains("rollout-000.mcap") && line.matches("No space left on device").count() == 1,
+        "{line}"
+    );
+}

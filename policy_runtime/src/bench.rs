@@ -405,15 +405,20 @@ pub fn run_rollout_with(
         )
     };
     let observed = link.task_observed();
+    // The log and the video are finished whether or not the flight ended well (what they
+    // hold survives it), but a failed flight's own error comes first: a log whose write
+    // failed mid-flight (a full disk) fails its finish too, and would only say that.
+    let log = log.map(|log| log.finish());
+    let video = video.map(|v| v.finish());
+    let flown = flown.map_err(|e| BenchError::of_flight(e, task))?;
     let mcap = match log {
-        Some(log) => Some(log.finish()?.path).filter(|_| log_path.is_some()),
+        Some(finished) => Some(finished?.path).filter(|_| log_path.is_some()),
         None => None,
     };
     let video = match video {
-        Some(v) => v.finish()?.map(|s| s.path),
+        Some(finished) => finished?.map(|s| s.path),
         None => None,
     };
-    let flown = flown.map_err(|e| BenchError::of_flight(e, task))?;
     let termination = match flown.end {
         End::Success => Termination::Success,
         End::Completed => Termination::Timeout,
