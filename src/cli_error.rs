@@ -35,37 +35,3 @@ pub fn one_line(e: &anyhow::Error) -> String {
     }
     text.split_whitespace().collect::<Vec<_>>().join(" ")
 }
-
-#[cfg(test)]
-mod tests {
-    use super::one_line;
-
-    /// An error whose message quotes its source, as thiserror's `"…: {source}"` variants do.
-    #[derive(Debug)]
-    struct Quoting(std::io::Error);
-
-    impl std::fmt::Display for Quoting {
-        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-            write!(f, "writing MCAP file x.mcap: {}", self.0)
-        }
-    }
-
-    impl std::error::Error for Quoting {
-        fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
-            Some(&self.0)
-        }
-    }
-
-    #[test]
-    fn a_cause_its_error_already_quotes_is_said_once() {
-        let full = std::io::Error::new(std::io::ErrorKind::StorageFull, "No space left on device");
-        let e = anyhow::Error::new(Quoting(full)).context("rollout 3 of press-button");
-        assert_eq!(
-            one_line(&e),
-            "rollout 3 of press-button: writing MCAP file x.mcap: No space left on device"
-        );
-        // A cause the message does not quote is kept, and the line is one line.
-        let plain = anyhow::anyhow!("inner").context("outer\n  line");
-        assert_eq!(one_line(&plain), "outer line: inner");
-    }
-}
