@@ -705,12 +705,8 @@ impl Twin {
     fn rays_may_hit_within(&self, region: &Aabb) -> bool {
         self.world
             .intersect_aabb_conservative(*region, Self::ray_filter())
-            .any(|(_, other)| match other.shape().as_halfspace() {
-                Some(hs) => {
-                    let pose = pose_from_rapier(other.position());
-                    let normal = pose.rotation * vector_from_rapier(hs.normal);
-                    box_height_over_plane(region, &normal, &pose.translation.vector) <= 0.0
-                }
+            .any(|(_, other)| match boundary_plane(other) {
+                Some((normal, point)) => box_height_over_plane(region, &normal, &point) <= 0.0,
                 None => true,
             })
     }
@@ -1241,8 +1237,7 @@ impl Twin {
         colliders: impl Fn() -> I,
         filter: QueryFilter<'a>,
     ) -> bool {
-        let vehicle = colliders;
-        let Some(whole) = vehicle()
+        let Some(whole) = colliders()
             .map(|c| c.compute_aabb())
             .reduce(|a, b| a.merged(&b))
         else {
@@ -1252,20 +1247,14 @@ impl Twin {
             .intersect_aabb_conservative(whole.loosened(CONTACT_MARGIN_M), filter)
             .any(|(_, other)| {
                 // A half-space (the ground) has an unbounded box: its boundary plane tells.
-                let plane = other.shape().as_halfspace().map(|hs| {
-                    let pose = pose_from_rapier(other.position());
-                    (
-                        pose.rotation * vector_from_rapier(hs.normal),
-                        pose.translation.vector,
-                    )
-                });
+                let plane = boundary_plane(other);
                 let other_box = other.compute_aabb();
                 let may_touch = |b: &Aabb| match &plane {
                     Some((n, p)) => box_height_over_plane(b, n, p) < CONTACT_MARGIN_M,
                     None => b.loosened(CONTACT_MARGIN_M).intersects(&other_box),
                 };
                 may_touch(&whole)
-                    && vehicle().any(|c| {
+                    && colliders().any(|c| {
                         may_touch(&c.compute_aabb())
                             && rapier3d_f64::parry::query::distance(
                                 c.position(),
@@ -1384,6 +1373,17 @@ impl Twin {
 
 /// How far the box `b` lies above the plane through `p` with normal `n` (its corner deepest
 /// along −n; negative once it crosses).
+/// A half-space collider's boundary plane in the world (outward normal, a point on it);
+/// None for any other shape.
+fn boundary_plane(c: &Collider) -> Option<(Vector3<f64>, Vector3<f64>)> {
+    let hs = c.shape().as_halfspace()?;
+    let pose = pose_from_rapier(c.position());
+    Some((
+        pose.rotation * vector_from_rapier(hs.normal),
+        pose.translation.vector,
+    ))
+}
+
 fn box_height_over_plane(b: &Aabb, n: &Vector3<f64>, p: &Vector3<f64>) -> f64 {
     let (lo, hi) = (vector_from_rapier(b.mins), vector_from_rapier(b.maxs));
     (0..3)
