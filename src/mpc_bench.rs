@@ -27,7 +27,7 @@ use controllers::ControllerConfig;
 use controllers::mpc::scenario::{self, WallStepScenario};
 use controllers::mpc::{
     MpcConfig, MpcMode, MpcProblem, QpPath, QpSettings, QpSolution, QpSolver, QpStatus, RiccatiIpm,
-    RowScreening, RtiReport, ScreeningReport, SqpRti, StructuredQp,
+    RowScreening, RtiReport, ScreeningReport, ShotOutcome, SqpRti, StructuredQp,
 };
 use platform::Vehicle;
 use policy_runtime::bench::{RolloutHooks, run_rollout_with};
@@ -174,6 +174,18 @@ struct PathFigures {
     /// `--row-screening check`: screened against unscreened solves of the same QPs.
     #[serde(skip_serializing_if = "Option::is_none")]
     screening_check: Option<ScreeningCheck>,
+    /// Riccati path: what the active-set shot did (`[qp] active_set_shot`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    active_set_shot: Option<ShotFigures>,
+}
+
+/// The Riccati path's active-set shot over a run.
+#[derive(Debug, Clone, Default, Serialize)]
+struct ShotFigures {
+    /// QPs whose solve tried the last solution's active set first.
+    tried: usize,
+    /// QPs it solved (no interior-point iteration).
+    accepted: usize,
 }
 
 /// The same QPs solved cold by a screened and an unscreened solver (`--row-screening check`).
@@ -293,7 +305,7 @@ impl ScreeningTwins {
 struct ScreeningFigures {
     /// One-sided rows of a QP (the largest seen).
     rows_per_qp: usize,
-    /// Rows left out of the first solve, mean over the QPs.
+    /// Rows left out of the first solve, mean over the QPs the interior point solved.
     screened_rows_mean: f64,
     /// QPs solved again with every row (a screened row violated at the reduced solution,
     /// or the reduced solve ended without one).
@@ -547,6 +559,8 @@ struct Samples {
     cost_last: f64,
     /// Riccati path: the row screening's reports.
     screening: Vec<ScreeningReport>,
+    /// Riccati path: the active-set shot's outcomes.
+    shots: Vec<ShotOutcome>,
 }
 
 impl Samples {
@@ -604,13 +618,31 @@ impl Samples {
             screening_check: None,
             screening: (!self.screening.is_empty()).then(|| ScreeningFigures {
                 rows_per_qp: self.screening.iter().map(|r| r.rows).max().unwrap_or(0),
-                screened_rows_mean: self
-                    .screening
-                    .iter()
-                    .map(|r| r.screened as f64)
-                    .sum::<f64>()
-                    / self.screening.len() as f64,
+                screened_rows_mean: {
+                    // Over the QPs the interior point solved (a QP the active-set shot
+                    // solved is not screened).
+                    let ipm: Vec<f64> = self
+                        .screening
+                        .iter()
+                        .zip(&self.shots)
+                        .filter(|(_, o)| **o != ShotOutcome::Accepted)
+                        .map(|(r, _)| r.screened as f64)
+                        .collect();
+                    ipm.iter().sum::<f64>() / ipm.len().max(1) as f64
+                },
                 resolved_qps: self.screening.iter().filter(|r| r.resolved).count(),
+            }),
+            active_set_shot: (!self.shots.is_empty()).then(|| ShotFigures {
+                tried: self
+                    .shots
+                    .iter()
+                    .filter(|o| **o != ShotOutcome::NotTried)
+                    .count(),
+                accepted: self
+                    .shots
+                    .iter()
+                    .filter(|o| **o == ShotOutcome::Accepted)
+                    .count(),
             }),
         }
     }
@@ -647,6 +679,7 @@ fn fly(
         samples.push(t0, t1, t2, &report);
         if path == QpPath::Riccati {
             samples.screening.push(run.rti().qp_screening_report());
+            samples.shots.push(run.rti().qp_shot_outcome());
         }
         if let Some(twins) = &mut twins {
             twins.push(run.rti().qp());
@@ -800,6 +833,7 @@ fn replay(
         samples.push(t0, t1, t2, &report);
         if path == QpPath::Riccati {
             samples.screening.push(rti.qp_screening_report());
+            samples.shots.push(rti.qp_shot_outcome());
         }
         if let Some(twins) = &mut twins {
             twins.push(rti.qp());
@@ -1053,8 +1087,14 @@ pub fn run(args: &Args) -> Result<()> {
         }
         if let Some(r) = &f.screening {
             println!(
-                "{name}: row screening {}: {:.0} of {} rows left out per QP (mean); {} of {} QPs solved again with every row",
+                "{name}: row screening {}: {:.0} of {} rows left out per interior-point QP (mean); {} of {} QPs solved again with every row",
                 args.row_screening, r.screened_rows_mean, r.rows_per_qp, r.resolved_qps, f.ticks
+            );
+        }
+        if let Some(r) = &f.active_set_shot {
+            println!(
+                "{name}: active-set shot: {} of {} QPs tried, {} solved by it (no interior-point iteration)",
+                r.tried, f.ticks, r.accepted
             );
         }
         if let Some(c) = &f.screening_check {

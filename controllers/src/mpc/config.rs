@@ -104,6 +104,12 @@ pub struct QpSettings {
     /// rows to remove the interior point's residual complementarity (exact active set, as
     /// OSQP's polish). Default false (the real-time path does not need it).
     pub polish: bool,
+    /// Riccati path only: a warm solve first tries the last solution's active set, shifted
+    /// (one factorisation: the equality-constrained QP of those rows), and takes it when it
+    /// passes the interior point's own convergence test (every row within the tolerance,
+    /// multipliers of the right sign, stationarity); otherwise the interior point runs as
+    /// without it. Default true.
+    pub active_set_shot: bool,
 }
 
 impl Default for QpSettings {
@@ -112,6 +118,7 @@ impl Default for QpSettings {
             max_iterations: 40,
             tolerance: 1e-7,
             polish: false,
+            active_set_shot: true,
         }
     }
 }

@@ -48,5 +48,5 @@ pub use qp::{
     InputVector, NU, NX, QpSolution, QpSolver, QpStatus, StageConstraints, StateVector,
     StructuredQp,
 };
-pub use riccati::{InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport};
+pub use riccati::{InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport, ShotOutcome};
 pub use rti::{MpcError, MpcReference, RtiReport, SqpRti, wrap_angle};

@@ -67,7 +67,9 @@ use crate::mpc::qp::{
     InputMatrix, InputStateMatrix, InputVector, NU, NX, QpSolution, QpSolver, QpStatus,
     StateInputMatrix, StateMatrix, StateVector, StructuredQp,
 };
-use crate::mpc::riccati::{InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport};
+use crate::mpc::riccati::{
+    InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport, ShotOutcome,
+};
 
 /// Bounded state entries: position, Euler angles, arm joints.
 const STATE_BOUND_INDICES: [usize; 10] = [
@@ -371,6 +373,12 @@ impl SqpRti {
     /// What the Riccati path's row screening did in the last solve.
     pub fn qp_screening_report(&self) -> ScreeningReport {
         self.riccati.screening_report()
+    }
+
+    /// What the Riccati path's active-set shot did in the last solve
+    /// ([`crate::mpc::QpSettings::active_set_shot`]).
+    pub fn qp_shot_outcome(&self) -> ShotOutcome {
+        self.riccati.shot_outcome()
     }
 
     /// The joint of the object the hand holds from the next preparation on (None: nothing

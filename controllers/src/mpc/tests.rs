@@ -137,17 +137,20 @@ fn qp_paths_agree_on_recorded_closed_loop_qps() {
         max_iterations: 200,
         tolerance: RICCATI_TIGHT,
         polish: true,
+        ..QpSettings::default()
     });
     // clarabel at its tightest tolerance that it reports as solved (1e-13, else 1e-12).
     let mut clarabel_tight = ClarabelQp::new(QpSettings {
         max_iterations: 200,
         tolerance: CLARABEL_TIGHT,
         polish: false,
+        ..QpSettings::default()
     });
     let mut clarabel_loose = ClarabelQp::new(QpSettings {
         max_iterations: 200,
         tolerance: 10.0 * CLARABEL_TIGHT,
         polish: false,
+        ..QpSettings::default()
     });
     let mut active_somewhere = false;
     for (i, qp) in recorded.iter().enumerate() {
@@ -530,6 +533,7 @@ fn soft_state_rows_make_an_infeasible_qp_solvable_with_slack_on_the_violated_row
         max_iterations: 200,
         tolerance: SOFT_TIGHT,
         polish: false,
+        ..QpSettings::default()
     });
     let mut reference = QpSolution::zeros(qp.intervals);
     assert_eq!(clarabel.solve(&qp, &mut reference), QpStatus::Solved);
@@ -537,6 +541,7 @@ fn soft_state_rows_make_an_infeasible_qp_solvable_with_slack_on_the_violated_row
         max_iterations: 200,
         tolerance: SOFT_TIGHT,
         polish: false,
+        ..QpSettings::default()
     });
     assert_eq!(tight.solve(&qp, &mut sol), QpStatus::Solved);
     // The L1 penalty leaves flat directions (violations traded between rows at the same
@@ -570,6 +575,7 @@ fn soft_state_rows_leave_a_feasible_qp_unchanged() {
         max_iterations: 200,
         tolerance: RICCATI_TIGHT,
         polish: true,
+        ..QpSettings::default()
     };
     let mut riccati = RiccatiIpm::new(settings);
     for (i, qp) in recorded.iter().enumerate() {

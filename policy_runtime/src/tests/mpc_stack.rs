@@ -197,11 +197,13 @@ fn mpc_settles_a_30cm_ee_step_in_the_twin() {
         max_iterations: 200,
         tolerance: 1e-14,
         polish: true,
+        ..QpSettings::default()
     });
     let mut clarabel = ClarabelQp::new(QpSettings {
         max_iterations: 200,
         tolerance: 1e-12,
         polish: false,
+        ..QpSettings::default()
     });
     assert_eq!(recorded.len(), 7);
     for (i, qp) in recorded.iter().enumerate() {
@@ -214,6 +216,7 @@ fn mpc_settles_a_30cm_ee_step_in_the_twin() {
                 max_iterations: 200,
                 tolerance: 1e-10,
                 polish: false,
+                ..QpSettings::default()
             });
             assert_eq!(c.solve(qp, &mut b), QpStatus::Solved, "clarabel, QP 0");
             assert!(qp.objective(&a.x, &a.u) <= qp.objective(&b.x, &b.u) + 1e-12);
