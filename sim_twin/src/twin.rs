@@ -1371,8 +1371,6 @@ impl Twin {
     }
 }
 
-/// How far the box `b` lies above the plane through `p` with normal `n` (its corner deepest
-/// along −n; negative once it crosses).
 /// A half-space collider's boundary plane in the world (outward normal, a point on it);
 /// None for any other shape.
 fn boundary_plane(c: &Collider) -> Option<(Vector3<f64>, Vector3<f64>)> {
@@ -1384,6 +1382,8 @@ fn boundary_plane(c: &Collider) -> Option<(Vector3<f64>, Vector3<f64>)> {
     ))
 }
 
+/// How far the box `b` lies above the plane through `p` with normal `n` (its corner deepest
+/// along −n; negative once it crosses).
 fn box_height_over_plane(b: &Aabb, n: &Vector3<f64>, p: &Vector3<f64>) -> f64 {
     let (lo, hi) = (vector_from_rapier(b.mins), vector_from_rapier(b.maxs));
     (0..3)

@@ -2609,7 +2609,7 @@ mod tests {
             WallStepScenario::new(&vehicle, MpcConfig::default()).unwrap_or_else(|e| panic!("{e}"));
         let (mut accepted, mut warm_ticks) = (0, 0);
         // Objective gaps to the tight solution: the shot's point and the interior point's
-        // (the same QP solved without the shot, warm as the controller would be cold).
+        // (the same QP solved cold by the interior point alone, at the same tolerance).
         let (mut gap_shot, mut gap_ipm): (f64, f64) = (0.0, 0.0);
         for tick in 0..240 {
             run.prepare();
