@@ -55,7 +55,8 @@
 //! # Active-set shot
 //!
 //! A warm solve ([`QpSettings::active_set_shot`]) first takes the last solution's active rows
-//! (multiplier above slack), shifted by the RTI's shift to the nearest stage, as equalities
+//! (multiplier, relative to the cost's gradient scale, above `SHOT_ACTIVE_RATIO` times the
+//! slack), shifted by the RTI's shift to the nearest stage, as equalities
 //! and drops the others: one factorisation with a penalty ρ on those rows, and a few
 //! method-of-multipliers steps (`λ ← λ + ρ (G_A z − h_A)`, as the polish's) that drive
 //! their residuals to round-off (one step, nearly always). The point is taken when it
@@ -108,6 +109,17 @@ const SHOT_ATTEMPTS: usize = 16;
 /// Active sets tried by the shot after a solve it did not solve (the active set is changing
 /// faster than the updates follow: the interior point's turn, at little extra cost).
 const SHOT_ATTEMPTS_AFTER_REJECTION: usize = 2;
+/// A row of the last solution is in the shot's guess when its multiplier over the cost's
+/// gradient scale exceeds this times its slack. An interior-point solution ends with every
+/// product λ·s near μ, so rows barely off their bound (slack 1e-4, multiplier 3e-3) read
+/// as active under the plain λ > s; near the start of the horizon, consecutive stages of a
+/// position or tilt bound taken as equalities pin the states the first inputs barely move
+/// and come out with huge multipliers of alternating sign, and the shot failed the same way
+/// tick after tick (`amstack mpc-bench --scenario push-slider --seed 1`: 661 of 1376 QPs
+/// solved by the shot with λ > s; λ > 1, 3, 10, 30 × scale × s: 661, 1310, 1364, 1369; the
+/// Wipe Window replay, seeds 0–3: 2216, 2578, 1783, 1069 with λ > s against 2379, 2529,
+/// 1814, 1101 at 3 and 2297, 2535, 1783, 933 at 10).
+const SHOT_ACTIVE_RATIO: f64 = 3.0;
 /// Most method-of-multipliers steps of the active-set shot.
 const SHOT_STEPS: usize = 4;
 /// The shot's steps stop once every active row's residual is below this fraction of the
@@ -320,7 +332,8 @@ pub struct RiccatiIpm {
     prev_t: Vec<f64>,
     prev_start: Vec<usize>,
     /// Per row of the full layout: whether the last solved QP had it active (multiplier
-    /// above slack); the active-set shot's guess.
+    /// over the gradient scale above `SHOT_ACTIVE_RATIO` × slack); the active-set shot's
+    /// guess.
     prev_active: Vec<bool>,
     /// What the active-set shot did in the last solve.
     shot: ShotOutcome,
@@ -1104,6 +1117,11 @@ impl RiccatiIpm {
         // term, then the upper row's (the same sums as row by row).
         for idx in (self.start[k]..self.start[k + 1]).step_by(2) {
             let (w0, w1) = (self.w[idx], self.w[idx + 1]);
+            // A pair without weight adds nothing (the shot's dropped rows; the interior
+            // point's weights λ/s are positive).
+            if w0 == 0.0 && w1 == 0.0 {
+                continue;
+            }
             match self.rows[idx].kind {
                 RowKind::State(i) => {
                     q[(i, i)] += w0;
@@ -2073,10 +2091,11 @@ impl QpSolver for RiccatiIpm {
             self.prev_t.resize(m_all, 0.0);
             self.prev_active.clear();
             self.prev_active.resize(m_all, false);
+            let active_ratio = SHOT_ACTIVE_RATIO * Self::gradient_scale(qp);
             for (i, &f) in self.full_of.iter().enumerate() {
                 self.prev_lambda[f] = self.lambda[i];
                 self.prev_t[f] = self.t[i];
-                self.prev_active[f] = self.lambda[i] > self.s[i];
+                self.prev_active[f] = self.lambda[i] > active_ratio * self.s[i];
             }
             self.prev_start.clone_from(&self.all_start);
         }
