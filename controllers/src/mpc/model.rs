@@ -71,6 +71,17 @@ pub struct EeKinematics {
     pub rpy_jacobian: SMatrix<f64, 3, NX>,
 }
 
+/// [`MpcModel::ee`]'s forward kinematics before the Jacobians.
+struct EeFrame {
+    /// The base's rotation.
+    r_b: Rotation3<f64>,
+    /// Base origin to EE, world frame, m.
+    lever: Vector3<f64>,
+    position: Vector3<f64>,
+    rotation: Rotation3<f64>,
+    rpy: Vector3<f64>,
+}
+
 /// The prediction model (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct MpcModel {
@@ -204,8 +215,16 @@ impl MpcModel {
         (next, a, b)
     }
 
-    /// The end effector at state x, with Jacobians.
-    pub fn ee(&mut self, x: &StateVector) -> EeKinematics {
+    /// The end effector's position and roll, pitch, yaw at state x: [`Self::ee`]'s, without
+    /// the Jacobians (the same arithmetic, so the same bits).
+    pub fn ee_pose(&mut self, x: &StateVector) -> (Vector3<f64>, Vector3<f64>) {
+        let frame = self.ee_frame(x);
+        (frame.position, frame.rpy)
+    }
+
+    /// Forward kinematics at x: the base rotation, the lever (world frame), the EE position,
+    /// rotation and roll, pitch, yaw.
+    fn ee_frame(&mut self, x: &StateVector) -> EeFrame {
         let arm = [x[IX_Q], x[IX_Q + 1], x[IX_Q + 2], x[IX_Q + 3]];
         self.chain.evaluate(&arm, &mut self.poses);
         let (roll, pitch, yaw) = (x[IX_ETA], x[IX_ETA + 1], x[IX_ETA + 2]);
@@ -215,7 +234,27 @@ impl MpcModel {
         let position = Vector3::new(x[IX_P], x[IX_P + 1], x[IX_P + 2]) + lever;
         let rotation = r_b * self.poses.base_from_ee.rotation.to_rotation_matrix();
         let (er, ep, ey) = rotation.euler_angles();
-        let rpy = Vector3::new(er, ep, ey);
+        EeFrame {
+            r_b,
+            lever,
+            position,
+            rotation,
+            rpy: Vector3::new(er, ep, ey),
+        }
+    }
+
+    /// The end effector at state x, with Jacobians.
+    pub fn ee(&mut self, x: &StateVector) -> EeKinematics {
+        let EeFrame {
+            r_b,
+            lever,
+            position,
+            rotation,
+            rpy,
+        } = self.ee_frame(x);
+        let (pitch, yaw) = (x[IX_ETA + 1], x[IX_ETA + 2]);
+        let (ep, ey) = (rpy[1], rpy[2]);
+        let p_be = self.poses.base_from_ee.translation.vector;
         let (sp, cp) = pitch.sin_cos();
         let (sy, cy) = yaw.sin_cos();
         let axes = [

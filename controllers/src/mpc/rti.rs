@@ -686,7 +686,13 @@ impl SqpRti {
         for k in 0..=n {
             let x = self.xs[k];
             let target = self.stage_target(&reference, k);
-            let (y, _, height, _) = self.ee_residual(&x, &target, &ref_rpy);
+            let (position, rpy) = self.model.ee_pose(&x);
+            let mut y = SMatrix::<f64, 6, 1>::zeros();
+            for i in 0..3 {
+                y[i] = position[i] - target[i];
+                y[3 + i] = wrap_angle(rpy[i] - ref_rpy[i]);
+            }
+            let height = position.z - x[IX_P + 2];
             let r_state = self.state_residual(&x, ry);
             let mut stage = 0.0;
             for i in 0..6 {
