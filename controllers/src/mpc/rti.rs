@@ -556,12 +556,8 @@ impl SqpRti {
         ref_rpy: &Vector3<f64>,
     ) -> (SMatrix<f64, 6, 1>, SMatrix<f64, 6, NX>, f64, StateVector) {
         let ee = self.model.ee(x);
-        let mut y = SMatrix::<f64, 6, 1>::zeros();
+        let y = pose_residual(&ee.position, &ee.rpy, target, ref_rpy);
         let mut jac = SMatrix::<f64, 6, NX>::zeros();
-        for i in 0..3 {
-            y[i] = ee.position[i] - target[i];
-            y[3 + i] = wrap_angle(ee.rpy[i] - ref_rpy[i]);
-        }
         jac.fixed_rows_mut::<3>(0).copy_from(&ee.position_jacobian);
         jac.fixed_rows_mut::<3>(3).copy_from(&ee.rpy_jacobian);
         let height = ee.position.z - x[IX_P + 2];
@@ -687,11 +683,7 @@ impl SqpRti {
             let x = self.xs[k];
             let target = self.stage_target(&reference, k);
             let (position, rpy) = self.model.ee_pose(&x);
-            let mut y = SMatrix::<f64, 6, 1>::zeros();
-            for i in 0..3 {
-                y[i] = position[i] - target[i];
-                y[3 + i] = wrap_angle(rpy[i] - ref_rpy[i]);
-            }
+            let y = pose_residual(&position, &rpy, &target, &ref_rpy);
             let height = position.z - x[IX_P + 2];
             let r_state = self.state_residual(&x, ry);
             let mut stage = 0.0;
@@ -807,6 +799,21 @@ impl SqpRti {
         self.prepare(x_hat, reference, limits, elapsed_s);
         self.feedback(path)
     }
+}
+
+/// The EE residual: position against `target`, roll, pitch, yaw against `ref_rpy` (wrapped).
+fn pose_residual(
+    position: &Vector3<f64>,
+    rpy: &Vector3<f64>,
+    target: &Vector3<f64>,
+    ref_rpy: &Vector3<f64>,
+) -> SMatrix<f64, 6, 1> {
+    let mut y = SMatrix::<f64, 6, 1>::zeros();
+    for i in 0..3 {
+        y[i] = position[i] - target[i];
+        y[3 + i] = wrap_angle(rpy[i] - ref_rpy[i]);
+    }
+    y
 }
 
 /// The rotor rows of a stage (`lower ≤ eᵀu ≤ upper`): the force's share of each rotor's

@@ -79,6 +79,9 @@ fn ee_kinematics_follow_the_description_with_exact_jacobians() {
     let base_from_ee = vehicle.model.root_from_link(&q, vehicle.ee_link);
     let expected = Vector3::new(0.2, -0.1, 1.1) + r_b * (base_from_ee * Point3::origin()).coords;
     assert!((ee.position - expected).amax() < 1e-12);
+    // The pose alone (the MPC's cost report) is the same computation, bit for bit.
+    let (position, rpy) = model.ee_pose(&x);
+    assert_eq!((position, rpy), (ee.position, ee.rpy));
     let eps = 1e-7;
     for j in 0..NX {
         let mut xp = x;
