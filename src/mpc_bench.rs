@@ -621,14 +621,15 @@ impl Samples {
                 screened_rows_mean: {
                     // Over the QPs the interior point solved (a QP the active-set shot
                     // solved is not screened).
-                    let ipm: Vec<f64> = self
+                    let (sum, count) = self
                         .screening
                         .iter()
                         .zip(&self.shots)
                         .filter(|(_, o)| **o != ShotOutcome::Accepted)
-                        .map(|(r, _)| r.screened as f64)
-                        .collect();
-                    ipm.iter().sum::<f64>() / ipm.len().max(1) as f64
+                        .fold((0.0, 0usize), |(s, c), (r, _)| {
+                            (s + r.screened as f64, c + 1)
+                        });
+                    sum / count.max(1) as f64
                 },
                 resolved_qps: self.screening.iter().filter(|r| r.resolved).count(),
             }),
