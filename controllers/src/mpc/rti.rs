@@ -176,6 +176,8 @@ pub struct SqpRti {
     ee_weights: SMatrix<f64, 6, 1>,
     xs: Vec<StateVector>,
     us: Vec<InputVector>,
+    /// The last inputs while they are shifted into `us` (kept: no allocation per tick).
+    us_last: Vec<InputVector>,
     bounds: Vec<StageBounds>,
     reference: Option<MpcReference>,
     qp: StructuredQp,
@@ -274,6 +276,7 @@ impl SqpRti {
             ee_weights,
             xs: vec![StateVector::zeros(); n + 1],
             us: vec![InputVector::zeros(); n],
+            us_last: Vec::with_capacity(n),
             bounds: vec![empty; n + 1],
             reference: None,
             qp,
@@ -448,7 +451,8 @@ impl SqpRti {
             if self.qp_warm_start {
                 self.riccati.warm_start_next(shift);
             }
-            let old = self.us.clone();
+            self.us_last.clone_from(&self.us);
+            let old = &self.us_last;
             for k in 0..n {
                 let t = k as f64 + shift;
                 let i = t.floor() as usize;
@@ -596,7 +600,6 @@ impl SqpRti {
         let ref_rpy = Vector3::new(rr, rp, ry);
         let u_ref = self.input_reference();
         let r_diag = self.input_weights + self.rate_weights;
-        let w_ee = SMatrix::<f64, 6, 6>::from_diagonal(&self.ee_weights);
         self.rotor_rows.clear();
         self.rotor_rows
             .extend(rotor_rows(&self.envelope, &self.config, &self.xs[0]));
@@ -606,7 +609,11 @@ impl SqpRti {
             let target = self.stage_target(reference, k);
             let (y, jac, height, height_gradient) = self.ee_residual(&x, &target, &ref_rpy);
             let r_state = self.state_residual(&x, ry);
-            let wj = w_ee * jac;
+            // W J with W diagonal: each row of J scaled by its weight.
+            let mut wj = jac;
+            for (mut row, w) in wj.row_iter_mut().zip(self.ee_weights.iter()) {
+                row *= *w;
+            }
             let mut q = jac.transpose() * wj;
             let mut qv = wj.transpose() * y;
             for i in 0..NX {
