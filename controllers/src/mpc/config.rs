@@ -282,6 +282,15 @@ pub struct MpcConfig {
     /// a direction the joint blocks; the EE offset of `ee_offset_rate_per_s` integrates only
     /// the error along the joint's motion. Default true. False: the target as given.
     pub grasp_reference: bool,
+    /// With `grasp_reference`, while the hand holds an object on a revolute joint (a valve's
+    /// shaft, a lever's pivot), the EE orientation target handed to the QP is the measured EE
+    /// orientation turned about the joint's axis by the angle from the measured EE to the
+    /// position target on the joint's circle: the orientation the hand, welded to the object,
+    /// has there. The script's fixed orientation is one the held object does not let the hand
+    /// take; the model, which has no contact, pitched the vehicle ~50° fighting it. Default
+    /// true (FA-Hexa MPC, 30 rollouts: Pull Lever 23 → 30, tilt use 52.9° → 26.0°; Rotate
+    /// Valve 28 → 30; `docs/mpc-contact.md` §10). False: the target's orientation as given.
+    pub grasp_orientation: bool,
     /// Wall-time budget of one RTI step, s: a step that takes longer (by the caller's clock)
     /// counts as failed and starts the fallback. Default None: the iteration budget
     /// `qp.max_iterations` alone, so a flight does not depend on the machine's speed.
@@ -321,6 +330,7 @@ impl Default for MpcConfig {
             target_extrapolation_s: 0.2,
             grasp_band_m: None,
             grasp_reference: true,
+            grasp_orientation: true,
             solve_budget_s: None,
         }
     }

@@ -12,7 +12,10 @@
 //!   position target handed to the QP is the point of the joint's motion through p(x̂)
 //!   nearest the target (prismatic, axis a: p(x̂) + a·aᵀ(p_target − p(x̂)); revolute, axis a
 //!   through c: the point of p(x̂)'s circle about the axis in the target's direction), and
-//!   the EE offset integrates only the error along the motion;
+//!   the EE offset integrates only the error along the motion; on a revolute joint
+//!   (`MpcConfig::grasp_orientation`, on by default) the orientation target is the measured
+//!   EE orientation turned about the axis by the angle from p(x̂) to that point
+//!   ([`AnchoredGrasp::turn_to`]): the hand, welded to the object, turns with it;
 //! - **grasp rows** (`MpcConfig::grasp_band_m`, off by default): on every state stage
 //!   k = 1..N, two rows on the EE position p(x_k) (linearised with
 //!   [`crate::mpc::EeKinematics::position_jacobian`] at the stage's iterate), each held within
@@ -25,7 +28,7 @@
 //! Measured in the twin (docs/mpc-contact.md §5) the target alone does what the rows do, and
 //! the rows cost successes (their QPs need slacks the model's slow arm servo cannot avoid).
 
-use nalgebra::Vector3;
+use nalgebra::{Unit, UnitQuaternion, Vector3};
 
 use crate::mpc::model::EeKinematics;
 use crate::mpc::qp::StateVector;
@@ -159,6 +162,24 @@ impl AnchoredGrasp {
                     .or_else(|| radial(&axis, &(self.anchor - point)).try_normalize(1e-9))
                     .unwrap_or(self.normals[0]);
                 centre + direction * self.radius
+            }
+        }
+    }
+
+    /// The turn a revolute joint gives the held object (and the hand welded to it) as the EE
+    /// goes from the anchor to `to`: the rotation about its axis by the angle between their
+    /// radii. None for a prismatic joint (the object slides without turning).
+    pub(crate) fn turn_to(&self, to: &Vector3<f64>) -> Option<UnitQuaternion<f64>> {
+        match self.joint {
+            GraspJoint::Prismatic { .. } => None,
+            GraspJoint::Revolute { axis, point } => {
+                let r0 = radial(&axis, &(self.anchor - point));
+                let r1 = radial(&axis, &(to - point));
+                // atan2(0, 0) = 0: a point on the axis turns nothing.
+                let angle = axis.dot(&r0.cross(&r1)).atan2(r0.dot(&r1));
+                angle
+                    .is_finite()
+                    .then(|| UnitQuaternion::from_axis_angle(&Unit::new_unchecked(axis), angle))
             }
         }
     }

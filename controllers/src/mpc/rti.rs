@@ -490,7 +490,16 @@ impl SqpRti {
             && let Some(g) = &self.anchored_grasp
         {
             let offset = reference.ee_offset_m;
-            reference.ee_position_m = g.project(&(reference.ee_position_m - offset)) + offset;
+            let on_motion = g.project(&(reference.ee_position_m - offset));
+            reference.ee_position_m = on_motion + offset;
+            // The hand is welded to the object: where a revolute joint takes the EE, it turns
+            // the hand with it.
+            if self.config.grasp_orientation
+                && let Some(turn) = g.turn_to(&on_motion)
+            {
+                let measured = UnitQuaternion::from_rotation_matrix(&self.model.ee(x_hat).rotation);
+                reference.ee_rotation = turn * measured;
+            }
         }
         self.reference = Some(reference);
         self.set_bounds(x_hat, limits);

@@ -1101,6 +1101,66 @@ fn a_grasp_engaging_keeps_the_offset_along_the_blocked_directions() {
     );
 }
 
+/// Flies the controller on its own model from hover for 2 s toward a target 20° on along
+/// the circle of a lever pivoting about world y 0.2 m below the hand, the target keeping the
+/// hand's start orientation (as the scripts' do), the hand holding the lever; returns the
+/// angle the EE travelled about the pivot and the angle its orientation turned about y.
+fn held_on_a_lever(config: MpcConfig) -> (f64, f64) {
+    let (vehicle, mut mpc, state, q, start) = ideal_rotors_at_hover(config);
+    let point = start.translation.vector - Vector3::new(0.0, 0.0, 0.2);
+    let swing = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 20f64.to_radians());
+    let target = nalgebra::Isometry3::from_parts(
+        (point + swing * (start.translation.vector - point)).into(),
+        start.rotation,
+    );
+    let lever = GraspJoint::Revolute {
+        axis: Vector3::y(),
+        point,
+    };
+    let limits = BaseLimits::in_front_of_face_x(1.15, 0.85);
+    let arm_dofs = vehicle.arm_dofs();
+    let mut x = mpc.state_vector(&state, &q);
+    let mut configuration = q.clone();
+    for tick in 0..240 {
+        let measured = measured_from_model(&x, &arm_dofs, &mut configuration);
+        mpc.set_held_joint(Some(lever));
+        let c = mpc.update(&measured, &configuration, &target, &limits, DT, None);
+        assert_eq!(c.status.mode, MpcMode::Mpc, "tick {tick}");
+        let u = mpc
+            .last_input()
+            .unwrap_or_else(|| panic!("tick {tick}: no input"));
+        x = mpc.rti().model().rk4(&x, &u, DT).0;
+    }
+    let end = mpc.rti_mut().ee_kinematics(&x);
+    let (r0, r1) = (start.translation.vector - point, end.position - point);
+    let travelled = Vector3::y().dot(&r0.cross(&r1)).atan2(r0.dot(&r1));
+    let turn = UnitQuaternion::from_rotation_matrix(&end.rotation) * start.rotation.inverse();
+    (travelled, turn.scaled_axis().y)
+}
+
+#[test]
+fn a_hand_held_on_a_lever_turns_with_it() {
+    // The hand is welded to the lever: where the lever takes it, it turns with it. The grasp
+    // model's orientation target is the measured one turned by the angle to the target on
+    // the circle, so the plan carries the hand round with the turn the lever gives it.
+    let (travelled, turned) = held_on_a_lever(MpcConfig::default());
+    assert!(travelled > 18f64.to_radians(), "travelled {travelled} rad");
+    assert!(
+        (turned - travelled).abs() < 1f64.to_radians(),
+        "the hand turned {turned} rad as it travelled {travelled} rad round the pivot"
+    );
+    // Without it the plan keeps the script's orientation: the hand goes round without
+    // turning, which the welded lever does not allow (on the vehicle the MPC, fighting the
+    // lever, pitched the base ~50°: docs/mpc-contact.md §7).
+    let fixed = MpcConfig {
+        grasp_orientation: false,
+        ..MpcConfig::default()
+    };
+    let (travelled, turned) = held_on_a_lever(fixed);
+    assert!(travelled > 18f64.to_radians(), "travelled {travelled} rad");
+    assert!(turned.abs() < 1f64.to_radians(), "turned {turned} rad");
+}
+
 #[test]
 fn grasp_rows_of_a_revolute_joint_vanish_on_its_circle_and_match_their_gradient() {
     let vehicle = fa_hexa();
@@ -1122,6 +1182,17 @@ fn grasp_rows_of_a_revolute_joint_vanish_on_its_circle_and_match_their_gradient(
     // The circle's point a quarter turn on: on the joint's motion, its rows vanish.
     let turned = point + Vector3::new(0.0, 0.12, 0.0);
     assert!((anchored.project(&(turned + Vector3::new(0.03, 0.0, 0.0))) - turned).norm() < 1e-12);
+    // The turn the joint gives the hand there carries the anchor onto that point (a quarter
+    // turn about the axis); a rail turns nothing.
+    let turn = anchored
+        .turn_to(&turned)
+        .unwrap_or_else(|| panic!("a revolute joint turns"));
+    assert!((turn.angle() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+    assert!((point + turn * (ee.position - point) - turned).norm() < 1e-12);
+    let rail = GraspJoint::Prismatic { axis: Vector3::y() }
+        .anchored(ee.position)
+        .unwrap_or_else(|| panic!("a valid joint"));
+    assert!(rail.turn_to(&turned).is_none());
     // Gradients against finite differences.
     let eps = 1e-7;
     let rows = anchored.rows(&ee);
