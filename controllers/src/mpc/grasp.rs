@@ -15,7 +15,7 @@
 //!   the EE offset integrates only the error along the motion; on a revolute joint
 //!   (`MpcConfig::grasp_orientation`, on by default) the orientation target is the measured
 //!   EE orientation turned about the axis by the angle from p(x̂) to that point
-//!   ([`AnchoredGrasp::turn_to`]): the hand, welded to the object, turns with it;
+//!   (`AnchoredGrasp::turn_to`): the hand, welded to the object, turns with it;
 //! - **grasp rows** (`MpcConfig::grasp_band_m`, off by default): on every state stage
 //!   k = 1..N, two rows on the EE position p(x_k) (linearised with
 //!   [`crate::mpc::EeKinematics::position_jacobian`] at the stage's iterate), each held within
