@@ -282,6 +282,9 @@ pub struct RiccatiIpm {
     /// Vᵀ per stage, V = L⁻¹S̄ (the gain is K = −L⁻ᵀV).
     gain: Vec<StateInputMatrix>,
     chol: Vec<InputMatrix>,
+    /// 1 / L's diagonal per stage: the sweeps' substitutions multiply by it (a division is a
+    /// long-latency step on their serial chain).
+    chol_inv: Vec<InputVector>,
     q_aug: Vec<StateMatrix>,
     r_aug: Vec<InputMatrix>,
     res_x: Vec<StateVector>,
@@ -477,6 +480,7 @@ impl RiccatiIpm {
             p_vec: Vec::new(),
             gain: Vec::new(),
             chol: Vec::new(),
+            chol_inv: Vec::new(),
             q_aug: Vec::new(),
             r_aug: Vec::new(),
             res_x: Vec::new(),
@@ -689,6 +693,7 @@ impl RiccatiIpm {
         self.p_mat.resize(n + 1, StateMatrix::zeros());
         self.gain.resize(n, StateInputMatrix::zeros());
         self.chol.resize(n, InputMatrix::zeros());
+        self.chol_inv.resize(n, InputVector::zeros());
         self.q_aug.resize(n + 1, StateMatrix::zeros());
         self.r_aug.resize(n, InputMatrix::zeros());
         resize_x(&mut self.res_x, n + 1);
@@ -1071,6 +1076,7 @@ impl RiccatiIpm {
                         }
                     }
                     let inv = 1.0 / l[(i, i)];
+                    self.chol_inv[k][i] = inv;
                     for d in col.iter_mut() {
                         *d *= inv;
                     }
@@ -1231,7 +1237,7 @@ impl RiccatiIpm {
             r_bar += self.rhs_u[k];
             self.a.transpose_vector(&self.p_vec[k + 1], &mut q_bar);
             q_bar += self.rhs_x[k];
-            forward_substitute(&self.chol[k], &mut r_bar);
+            forward_substitute(&self.chol[k], &self.chol_inv[k], &mut r_bar);
             self.du[k] = r_bar;
             let mut p = q_bar;
             p.gemv(-1.0, &self.gain[k], &r_bar, 1.0);
@@ -1242,7 +1248,7 @@ impl RiccatiIpm {
             // du = K dx + k = −L⁻ᵀ(V dx + w).
             let mut t = self.du[k];
             t.gemv_tr(1.0, &self.gain[k], &self.dx[k], 1.0);
-            backward_substitute(&self.chol[k], &mut t);
+            backward_substitute(&self.chol[k], &self.chol_inv[k], &mut t);
             let du = -t;
             self.du[k] = du;
             let mut next = StateVector::zeros();
@@ -2163,14 +2169,12 @@ fn cholesky(m: &InputMatrix) -> Option<InputMatrix> {
         .then_some(l)
 }
 
-/// v ← L⁻¹v: column by column over the fixed-size factor (nalgebra's generic solve walks
-/// dynamic-length views; this is the same arithmetic in the same order, on fixed sizes).
-fn forward_substitute(l: &InputMatrix, v: &mut InputVector) {
-    // L comes from `cholesky`: its diagonal is positive and finite.
+/// v ← L⁻¹v, column by column over the fixed-size factor, `inv` its diagonal's reciprocals.
+fn forward_substitute(l: &InputMatrix, inv: &InputVector, v: &mut InputVector) {
     let l = l.as_slice();
     let v = v.as_mut_slice();
     for i in 0..NU {
-        let coeff = v[i] / l[i * NU + i];
+        let coeff = v[i] * inv[i];
         v[i] = coeff;
         let col = &l[i * NU + i + 1..(i + 1) * NU];
         for (b, c) in v[i + 1..].iter_mut().zip(col) {
@@ -2179,20 +2183,20 @@ fn forward_substitute(l: &InputMatrix, v: &mut InputVector) {
     }
 }
 
-/// v ← L⁻ᵀv (row i of Lᵀ is column i of L, contiguous).
-fn backward_substitute(l: &InputMatrix, v: &mut InputVector) {
+/// v ← L⁻ᵀv (row i of Lᵀ is column i of L, contiguous), `inv` L's diagonal's reciprocals.
+fn backward_substitute(l: &InputMatrix, inv: &InputVector, v: &mut InputVector) {
     let l = l.as_slice();
     let v = v.as_mut_slice();
     for i in (0..NU).rev() {
         let col = &l[i * NU + i + 1..(i + 1) * NU];
         let dot = dot(col, &v[i + 1..]);
-        v[i] = (v[i] - dot) / l[i * NU + i];
+        v[i] = (v[i] - dot) * inv[i];
     }
 }
 
 /// a · b summed in nalgebra's order for a dynamic-length view (`Matrix::dot`): eight
 /// interleaved partial sums while eight entries remain, folded pairwise, then the rest in
-/// order — so the substitutions above are bit-identical to nalgebra's triangular solves.
+/// order.
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut res = 0.0;
     let mut i = 0;
