@@ -637,7 +637,9 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     // Seed 1's push ends with the base against its position bound and tilted to its limit:
     // the interior point's solutions there leave rows barely off their bounds (slack 1e-4,
     // multiplier 3e-3) that a plain λ > s would take as active, and the shot failed on
-    // every other tick (661 of 1376 solved by it); read against the gradient scale, 1310.
+    // every other tick (661 of 1376 solved by it); read against the gradient scale, 1310;
+    // with more guesses after a rejection while they converge, 1367 (the position bound's
+    // active stages move along the horizon: 2 guesses left 3-5 rows violated).
     let v = push_slider_replay(&["--seed", "1"], &json_arg);
     let p = &v["paths"]["riccati"];
     assert_eq!(p["statuses"]["solved"], p["ticks"], "{p}");
@@ -646,7 +648,7 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
         shot["tried"].as_u64().unwrap_or(0),
         shot["accepted"].as_u64().unwrap_or(0),
     );
-    assert!(tried > 1000 && accepted * 10 >= tried * 9, "{shot}");
+    assert!(tried > 1000 && accepted * 100 >= tried * 98, "{shot}");
     // A bad settings file: one line naming it.
     assert_bad_input(
         &amstack(&["mpc-bench", "--mpc-config", "/nonexistent/mpc.toml"]),
