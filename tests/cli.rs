@@ -605,13 +605,16 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
         p["qp_iterations_max"].as_u64().is_some_and(|i| i < 40),
         "{p}"
     );
-    // The row screening (on, as the controller flies) left the far state rows out.
+    // The row screening (on, as the controller flies) left the far state rows out of the
+    // QPs the interior point solved. (Their mean depends on which QPs the active-set shot
+    // leaves it: 168 rows while the shot stopped after two guesses on a rejection, 93 since
+    // it goes on while its guesses converge and keeps the QPs nearest the bounds.)
     let screening = &p["screening"];
     assert_eq!(screening["rows_per_qp"].as_u64(), Some(1344), "{screening}");
     assert!(
         screening["screened_rows_mean"]
             .as_f64()
-            .is_some_and(|m| m > 100.0),
+            .is_some_and(|m| m > 50.0),
         "{screening}"
     );
     // The early infeasibility exit against the same QPs solved to convergence: the same
