@@ -36,6 +36,9 @@ pub(crate) fn rollout_json(r: &RolloutResult) -> Value {
         "saturation_rate": s.saturation_rate,
         "mcap": r.mcap,
     });
+    if let (Some(why), Some(object)) = (&r.divergence, value.as_object_mut()) {
+        object.insert("divergence".to_owned(), json!(why));
+    }
     if let (Some(e), Some(object)) = (&r.estimator, value.as_object_mut()) {
         object.insert("estimator".to_owned(), json!(e));
     }

@@ -121,6 +121,9 @@ pub struct RolloutResult {
     pub task_observed: bool,
     /// Why it ended.
     pub termination: Termination,
+    /// What the twin saw when the rollout ended `diverged` (which state, at what time).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub divergence: Option<String>,
     /// Env steps executed.
     pub executed_steps: u64,
     /// Each criterion, latched "ever true", by name.
@@ -419,6 +422,10 @@ pub fn run_rollout_with(
         Some(finished) => finished?.map(|s| s.path),
         None => None,
     };
+    let divergence = match &flown.end {
+        End::Diverged(why) => Some(why.clone()),
+        _ => None,
+    };
     let termination = match flown.end {
         End::Success => Termination::Success,
         End::Completed => Termination::Timeout,
@@ -437,6 +444,7 @@ pub fn run_rollout_with(
         success,
         task_observed: observed,
         termination,
+        divergence,
         executed_steps: flown.ticks,
         criteria: criteria_names
             .iter()

@@ -328,6 +328,30 @@ fn commands_of_the_wrong_size_or_not_finite_are_refused() {
 }
 
 #[test]
+fn a_state_past_the_physical_bounds_ends_the_flight_saying_what_and_when() {
+    // A vehicle thrown at 300 m/s (past the 200 m/s no flight reaches): the twin stops with
+    // the body and the speed named, at the step's time, and refuses further steps.
+    let v = vehicle("fa-hexa");
+    let mut t = twin("fa-hexa", TwinConfig::default());
+    for _ in 0..3 {
+        step(&mut t, &hover(&v));
+    }
+    t.set_base_velocity(&Vector3::new(300.0, 0.0, 0.0));
+    let first = t.step(&hover(&v));
+    let Err(TwinError::Diverged(why)) = first else {
+        panic!("{first:?}");
+    };
+    assert!(why.contains("at t = 0.025 s"), "{why}");
+    assert!(
+        why.contains("the vehicle's base moves at 300 m/s")
+            || why.contains("a vehicle link moves at 300 m/s"),
+        "{why}"
+    );
+    let again = t.step(&hover(&v));
+    assert!(matches!(again, Err(TwinError::Diverged(_))), "{again:?}");
+}
+
+#[test]
 fn invalid_configs_are_refused() {
     let motor_without_limits = TwinConfig {
         motor: crate::MotorConfig {

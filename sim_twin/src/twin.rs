@@ -560,11 +560,11 @@ impl Twin {
                 self.world.step();
             }
             // A non-finite body state would make rapier panic on the next step: stop here.
-            if !self.bodies_are_physical() {
+            if let Some(why) = self.unphysical_body() {
                 self.diverged_at = Some(self.time_s);
                 self.truth.rotors = reports;
                 return Err(TwinError::Diverged(format!(
-                    "the simulation diverged at t = {:.3} s (a body state is not finite); reset the twin",
+                    "the simulation diverged at t = {:.3} s ({why}); reset the twin",
                     self.time_s
                 )));
             }
@@ -577,13 +577,28 @@ impl Twin {
         Ok(self.observe())
     }
 
-    /// True when every free body (vehicle and scene) is finite and within physical bounds:
-    /// a jammed multibody blows up over a few steps before its state turns NaN (and rapier
-    /// panics on NaN), so speeds and positions no flight reaches count as divergence too.
-    fn bodies_are_physical(&self) -> bool {
+    /// The first free body (vehicle or scene) whose state is not finite or past physical
+    /// bounds (position 1e4 m, speed 200 m/s, angular speed 2e3 rad/s), said in words; None
+    /// when every body is within them. A jammed multibody blows up over a few steps before
+    /// its state turns NaN (and rapier panics on NaN), so speeds and positions no flight
+    /// reaches count as divergence too.
+    fn unphysical_body(&self) -> Option<String> {
         const MAX_POSITION_M: f64 = 1.0e4;
         const MAX_SPEED_MPS: f64 = 200.0;
         const MAX_ANGULAR_SPEED_RADPS: f64 = 2.0e3;
+        let judge = |what: &str, position: f64, speed: f64, spin: f64, finite: bool| {
+            if !finite {
+                Some(format!("{what}'s state is not finite"))
+            } else if position >= MAX_POSITION_M {
+                Some(format!("{what} is {position:.0} m from the origin"))
+            } else if speed >= MAX_SPEED_MPS {
+                Some(format!("{what} moves at {speed:.0} m/s"))
+            } else if spin >= MAX_ANGULAR_SPEED_RADPS {
+                Some(format!("{what} spins at {spin:.0} rad/s"))
+            } else {
+                None
+            }
+        };
         if let Some(a) = self.articulated.as_deref().filter(|a| a.engaged) {
             let s = &a.state;
             let finite = s
@@ -596,27 +611,32 @@ impl Twin {
                 && s.nu.iter().all(|x| x.is_finite());
             let v = Vector3::new(s.nu[0], s.nu[1], s.nu[2]);
             let w = Vector3::new(s.nu[3], s.nu[4], s.nu[5]);
-            if !finite
-                || s.world_from_base.translation.vector.norm() >= MAX_POSITION_M
-                || v.norm() >= MAX_SPEED_MPS
-                || w.norm() >= MAX_ANGULAR_SPEED_RADPS
-            {
-                return false;
+            let position = s.world_from_base.translation.vector.norm();
+            if let Some(why) = judge("the vehicle's base", position, v.norm(), w.norm(), finite) {
+                return Some(why);
             }
         }
-        self.world.bodies.iter().all(|(_, rb)| {
+        self.world.bodies.iter().find_map(|(handle, rb)| {
             if !rb.is_dynamic() {
-                return true;
+                return None;
             }
             let p = rb.position();
             let finite = |v: Vector| v.x.is_finite() && v.y.is_finite() && v.z.is_finite();
-            finite(p.translation)
-                && p.rotation.is_finite()
-                && finite(rb.linvel())
-                && finite(rb.angvel())
-                && p.translation.length() < MAX_POSITION_M
-                && rb.linvel().length() < MAX_SPEED_MPS
-                && rb.angvel().length() < MAX_ANGULAR_SPEED_RADPS
+            let what = if self.body.bodies.contains(&handle) {
+                "a vehicle link"
+            } else {
+                "a scene object"
+            };
+            judge(
+                what,
+                p.translation.length(),
+                rb.linvel().length(),
+                rb.angvel().length(),
+                finite(p.translation)
+                    && p.rotation.is_finite()
+                    && finite(rb.linvel())
+                    && finite(rb.angvel()),
+            )
         })
     }
 
