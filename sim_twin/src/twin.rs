@@ -586,15 +586,17 @@ impl Twin {
         const MAX_POSITION_M: f64 = 1.0e4;
         const MAX_SPEED_MPS: f64 = 200.0;
         const MAX_ANGULAR_SPEED_RADPS: f64 = 2.0e3;
-        let judge = |what: &str, position: f64, speed: f64, spin: f64, finite: bool| {
+        // The bound a body's state passes, if any (said after the body's name, which is
+        // looked up only then: this runs every substep).
+        let passed = |position: f64, speed: f64, spin: f64, finite: bool| {
             if !finite {
-                Some(format!("{what}'s state is not finite"))
+                Some("has a state that is not finite".to_owned())
             } else if position >= MAX_POSITION_M {
-                Some(format!("{what} is {position:.0} m from the origin"))
+                Some(format!("is {position:.0} m from the origin"))
             } else if speed >= MAX_SPEED_MPS {
-                Some(format!("{what} moves at {speed:.0} m/s"))
+                Some(format!("moves at {speed:.0} m/s"))
             } else if spin >= MAX_ANGULAR_SPEED_RADPS {
-                Some(format!("{what} spins at {spin:.0} rad/s"))
+                Some(format!("spins at {spin:.0} rad/s"))
             } else {
                 None
             }
@@ -612,8 +614,8 @@ impl Twin {
             let v = Vector3::new(s.nu[0], s.nu[1], s.nu[2]);
             let w = Vector3::new(s.nu[3], s.nu[4], s.nu[5]);
             let position = s.world_from_base.translation.vector.norm();
-            if let Some(why) = judge("the vehicle's base", position, v.norm(), w.norm(), finite) {
-                return Some(why);
+            if let Some(why) = passed(position, v.norm(), w.norm(), finite) {
+                return Some(format!("the vehicle's base {why}"));
             }
         }
         self.world.bodies.iter().find_map(|(handle, rb)| {
@@ -622,13 +624,7 @@ impl Twin {
             }
             let p = rb.position();
             let finite = |v: Vector| v.x.is_finite() && v.y.is_finite() && v.z.is_finite();
-            let what = if self.body.bodies.contains(&handle) {
-                "a vehicle link"
-            } else {
-                "a scene object"
-            };
-            judge(
-                what,
+            let why = passed(
                 p.translation.length(),
                 rb.linvel().length(),
                 rb.angvel().length(),
@@ -636,7 +632,13 @@ impl Twin {
                     && p.rotation.is_finite()
                     && finite(rb.linvel())
                     && finite(rb.angvel()),
-            )
+            )?;
+            let what = if self.body.bodies.contains(&handle) {
+                "a vehicle link"
+            } else {
+                "a scene object"
+            };
+            Some(format!("{what} {why}"))
         })
     }
 

@@ -474,10 +474,14 @@ impl SqpRti {
         for k in 0..n {
             self.xs[k + 1] = self.a * self.xs[k] + self.b * self.us[k];
         }
-        self.anchored_grasp = self
+        // The measured EE, while something is held (the grasp's anchor and turn).
+        let held_ee = self
             .grasp
             .filter(|_| self.config.grasp_band_m.is_some() || self.config.grasp_reference)
-            .and_then(|joint| joint.anchored(self.model.ee(x_hat).position));
+            .map(|joint| (joint, self.model.ee(x_hat)));
+        self.anchored_grasp = held_ee
+            .as_ref()
+            .and_then(|(joint, ee)| joint.anchored(ee.position));
         // Holding: the EE target moved onto the joint's motion through the measured EE (what
         // the hand can reach without leaving it), the offset added back: it makes up for the
         // arm regularisation's steady-state shortfall, which does not vanish along the
@@ -487,7 +491,7 @@ impl SqpRti {
         // measured in Push Slider, 0.13 m/s into the wall bound on that tick.)
         let mut reference = *reference;
         if self.config.grasp_reference
-            && let Some(g) = &self.anchored_grasp
+            && let (Some(g), Some((_, ee))) = (&self.anchored_grasp, &held_ee)
         {
             let offset = reference.ee_offset_m;
             let on_motion = g.project(&(reference.ee_position_m - offset));
@@ -497,8 +501,7 @@ impl SqpRti {
             if self.config.grasp_orientation
                 && let Some(turn) = g.turn_to(&on_motion)
             {
-                let measured = UnitQuaternion::from_rotation_matrix(&self.model.ee(x_hat).rotation);
-                reference.ee_rotation = turn * measured;
+                reference.ee_rotation = turn * UnitQuaternion::from_rotation_matrix(&ee.rotation);
             }
         }
         self.reference = Some(reference);

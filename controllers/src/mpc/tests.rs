@@ -1151,7 +1151,7 @@ fn a_hand_held_on_a_lever_turns_with_it() {
     );
     // Without it the plan keeps the script's orientation: the hand goes round without
     // turning, which the welded lever does not allow (on the vehicle the MPC, fighting the
-    // lever, pitched the base ~50°: docs/mpc-contact.md §7).
+    // lever, pitched the base ~50°: docs/mpc-contact.md §10).
     let fixed = MpcConfig {
         grasp_orientation: false,
         ..MpcConfig::default()
