@@ -163,6 +163,9 @@ pub struct ArticulatedBody {
     dof: usize,
     /// Every body's inertia from its links alone (a payload adds to `Body::inertia`).
     link_inertia: Vec<Inertia>,
+    /// Each joint's position limits (lower, upper), configuration order; None for a joint
+    /// without (a continuous one): [`Self::step`] holds them.
+    limits: Vec<Option<(f64, f64)>>,
 }
 
 /// Buffers of the recursions, sized for one [`ArticulatedBody`].
@@ -180,11 +183,18 @@ pub struct Workspace {
     /// The mass matrix and its factor.
     m: DMatrix<f64>,
     rhs: DVector<f64>,
-    /// The stepper's accelerations, its matrix and which drives push at their limit.
+    /// The stepper's accelerations, its matrix and the effort of each drive pushing at its
+    /// limit (None: the drive acts implicitly).
     acc: DVector<f64>,
     lhs: DMatrix<f64>,
     lhs_capped: DMatrix<f64>,
-    capped: Vec<bool>,
+    capped: Vec<Option<f64>>,
+    /// The joint limits a step holds: (ν column, the acceleration that lands the joint on
+    /// its bound, +1 for an upper bound / −1 for a lower one); the accelerations before them,
+    /// and M̃⁻¹ times each one's unit column.
+    limit_rows: Vec<(usize, f64, f64)>,
+    free_acc: DVector<f64>,
+    limit_cols: Vec<DVector<f64>>,
 }
 
 /// A position drive of [`ArticulatedBody::step`] on one joint: the effort
@@ -203,6 +213,10 @@ pub struct Drive {
     /// Largest effort, N·m or N.
     pub effort_limit: f64,
 }
+
+/// Solves of a step's drive efforts at most (see [`ArticulatedBody::steps`]): the implicit
+/// law, then the drives at their limits, then any freed or newly capped.
+const DRIVE_PASSES: usize = 4;
 
 /// The state [`ArticulatedBody::step`] advances: the base's pose in the world, the joint
 /// positions and ν.
@@ -316,11 +330,22 @@ impl ArticulatedBody {
                 ));
             }
         }
+        // The twin's rapier multibody limits the same joints (not a continuous one).
+        let limits = (0..model.dof())
+            .map(|d| {
+                let joint = model.dof_joint(d);
+                joint
+                    .limits
+                    .filter(|_| joint.kind != JointKind::Continuous)
+                    .map(|l| (l.lower, l.upper))
+            })
+            .collect();
         Self {
             link_inertia: bodies.iter().map(|b| b.inertia).collect(),
             bodies,
             link_body,
             dof: model.dof(),
+            limits,
         }
     }
 
@@ -403,6 +428,9 @@ impl ArticulatedBody {
             lhs: DMatrix::zeros(self.nv(), self.nv()),
             lhs_capped: DMatrix::zeros(self.nv(), self.nv()),
             capped: Vec::new(),
+            limit_rows: Vec::new(),
+            free_acc: DVector::zeros(self.nv()),
+            limit_cols: Vec::new(),
         }
     }
 
@@ -611,9 +639,11 @@ impl ArticulatedBody {
     /// drives implicit, (M + h·(h·K + D)) a = τ − b + K(r − q − h·q̇) − D·q̇ on the driven
     /// rows, ν⁺ = ν + h·a, then q⁺ = q + h·q̇⁺ and the base pose moved by h·ν⁺ (the
     /// rotation by the exponential map). A drive whose effort at the end of the step would
-    /// pass its limit pushes with the limit instead (one re-solve). Joint limits are not
-    /// enforced. False (the state untouched) if M is not positive definite or the step is
-    /// not finite.
+    /// pass its limit pushes with the limit instead (an active set of at most
+    /// [`DRIVE_PASSES`] solves). A joint whose step would
+    /// carry it past a position limit lands on it instead (a unilateral constraint, no
+    /// bounce: [`Self::hold_limits`]). False (the state untouched) if M is not positive
+    /// definite or the step is not finite.
     ///
     /// # Panics
     /// On wrong sizes (a caller bug).
@@ -659,10 +689,10 @@ impl ArticulatedBody {
         // (0 × 0 placeholders do not allocate.)
         let mut m = std::mem::replace(&mut ws.m, DMatrix::zeros(0, 0));
         self.mass_matrix(&state.q, ws, &mut m);
-        let augment = |lhs: &mut DMatrix<f64>, capped: &[bool]| {
+        let augment = |lhs: &mut DMatrix<f64>, capped: &[Option<f64>]| {
             lhs.copy_from(&m);
-            for (d, &c) in drives.iter().zip(capped) {
-                if !c {
+            for (d, c) in drives.iter().zip(capped) {
+                if c.is_none() {
                     let col = 6 + d.dof;
                     lhs[(col, col)] += h * (h * d.stiffness + d.damping);
                 }
@@ -670,7 +700,7 @@ impl ArticulatedBody {
         };
         let mut capped = std::mem::take(&mut ws.capped);
         capped.clear();
-        capped.resize(drives.len(), false);
+        capped.resize(drives.len(), None);
         // The factor of M + h(hK + D) with every drive implicit, kept for the n steps.
         let mut lhs = std::mem::replace(&mut ws.lhs, DMatrix::zeros(0, 0));
         augment(&mut lhs, &capped);
@@ -691,43 +721,60 @@ impl ArticulatedBody {
             }
             rhs.neg_mut();
             rhs += tau;
-            capped.fill(false);
+            capped.fill(None);
             let mut capped_factor = None;
-            for _pass in 0..2 {
+            // The drives' efforts are a box-constrained implicit law: each is its spring and
+            // damper at the end of the step, K(r − q − h·q̇⁺) − D·q̇⁺, unless that passes its
+            // limit, where it pushes with the limit in that law's direction. An active set:
+            // solve, cap the drives whose law passes the limit, free the capped ones whose law
+            // no longer reaches it at the new q̇⁺ (a coupled joint's cap can reverse it), solve
+            // again — as a constraint solver clamps a motor's impulse (rapier's PGS, PhysX's
+            // drives), and not with the sign of the law at the start of the step, whose stiff
+            // damper (D·h/I ≫ 1 on a light wrist) then flips a saturated drive between ±limit
+            // from one step to the next.
+            for pass in 0..DRIVE_PASSES {
                 acc.copy_from(&rhs);
-                for (d, &c) in drives.iter().zip(&capped) {
+                for (d, c) in drives.iter().zip(&capped) {
                     let col = 6 + d.dof;
                     let (q, qd) = (state.q[d.dof], state.nu[col]);
-                    let predicted = d.stiffness * (d.target - q - h * qd) - d.damping * qd;
-                    acc[col] += if c {
-                        predicted.clamp(-d.effort_limit, d.effort_limit)
-                    } else {
-                        predicted
-                    };
+                    acc[col] += c.unwrap_or(d.stiffness * (d.target - q - h * qd) - d.damping * qd);
                 }
                 match &capped_factor {
                     None => factor.solve_mut(&mut acc),
                     Some(f) => nalgebra::Cholesky::solve_mut(f, &mut acc),
                 }
-                // The drives' efforts at the end of the step.
+                if pass + 1 == DRIVE_PASSES {
+                    break;
+                }
+                // The law at the end of the step.
                 let mut again = false;
                 for (d, c) in drives.iter().zip(capped.iter_mut()) {
                     let col = 6 + d.dof;
                     let (q, qd) = (state.q[d.dof], state.nu[col]);
                     let qd_next = qd + h * acc[col];
-                    let effort = d.stiffness * (d.target - q - h * qd_next) - d.damping * qd_next;
-                    if !*c && effort.abs() > d.effort_limit {
-                        *c = true;
-                        again = true;
+                    let law = d.stiffness * (d.target - q - h * qd_next) - d.damping * qd_next;
+                    match *c {
+                        None if law.abs() > d.effort_limit => {
+                            *c = Some(d.effort_limit.copysign(law));
+                            again = true;
+                        }
+                        Some(e) if law * e.signum() < d.effort_limit => {
+                            *c = None;
+                            again = true;
+                        }
+                        _ => {}
                     }
                 }
                 if !again {
                     break;
                 }
-                // A drive at its limit pushes with it: this step's own factor.
                 if let Some(f) = capped_factor.take() {
                     spare = nalgebra::Cholesky::unpack(f);
                 }
+                if capped.iter().all(Option::is_none) {
+                    continue;
+                }
+                // Drives at their limit: this step's own factor.
                 let mut other = std::mem::replace(&mut spare, DMatrix::zeros(0, 0));
                 if other.shape() != (nv, nv) {
                     other = DMatrix::zeros(nv, nv);
@@ -740,6 +787,10 @@ impl ArticulatedBody {
                         break;
                     }
                 }
+            }
+            if ok {
+                let f = capped_factor.as_ref().unwrap_or(factor);
+                self.hold_limits(state, h, f, &mut acc, ws);
             }
             if let Some(f) = capped_factor.take() {
                 spare = nalgebra::Cholesky::unpack(f);
@@ -765,6 +816,100 @@ impl ArticulatedBody {
         ws.acc = acc;
         ws.capped = capped;
         ok
+    }
+
+    /// Holds the joint limits on a step's accelerations `acc` (solved with `factor`, the
+    /// drive-augmented M̃ = M + h(hK + D)): a joint that `acc` would carry past a bound
+    /// (q + h(q̇ + h·a) beyond it) lands on it — a joint already past one (a hand-over from
+    /// another engine) goes no further out, and is not pulled back. The constraint forces λ
+    /// act on the joints' own columns (an internal torque between a joint's two bodies, so
+    /// the tree's momentum is untouched), solve (E ᵀM̃⁻¹E) λ = a_bound − a, and may only push
+    /// away from a bound; one with the wrong sign is let go and the rest solved again, and
+    /// a joint the corrected step carries past a bound joins (at most one pass per joint).
+    /// Rapier's multibody holds the same limits with its own (stiff, slightly soft)
+    /// constraint rows.
+    fn hold_limits(
+        &self,
+        state: &TreeState,
+        h: f64,
+        factor: &nalgebra::Cholesky<f64, nalgebra::Dyn>,
+        acc: &mut DVector<f64>,
+        ws: &mut Workspace,
+    ) {
+        // Landing on the bound to the last 1e-12 needs no force.
+        const SLACK: f64 = 1e-12;
+        let past = |col: usize, a: f64| {
+            let d = col - 6;
+            let (lo, hi) = self.limits[d]?;
+            let (q, qd) = (state.q[d], state.nu[col]);
+            let next = q + h * (qd + h * a);
+            let land = |bound: f64| ((bound - q) / h - qd) / h;
+            if next > hi.max(q) + SLACK {
+                Some((land(hi.max(q)), 1.0))
+            } else if next < lo.min(q) - SLACK {
+                Some((land(lo.min(q)), -1.0))
+            } else {
+                None
+            }
+        };
+        let rows = &mut ws.limit_rows;
+        rows.clear();
+        for d in 0..self.dof {
+            if let Some((target, side)) = past(6 + d, acc[6 + d]) {
+                rows.push((6 + d, target, side));
+            }
+        }
+        if rows.is_empty() {
+            return;
+        }
+        ws.free_acc.copy_from(acc);
+        let nv = self.nv();
+        for _pass in 0..=self.dof {
+            // M̃⁻¹ e for each held joint.
+            while ws.limit_cols.len() < rows.len() {
+                ws.limit_cols.push(DVector::zeros(nv));
+            }
+            for (col, &(c, _, _)) in ws.limit_cols.iter_mut().zip(rows.iter()) {
+                col.fill(0.0);
+                col[c] = 1.0;
+                factor.solve_mut(col);
+            }
+            let k = rows.len();
+            let s = DMatrix::from_fn(k, k, |i, j| ws.limit_cols[j][rows[i].0]);
+            let r = DVector::from_fn(k, |i, _| rows[i].1 - ws.free_acc[rows[i].0]);
+            let Some(lambda) = nalgebra::Cholesky::new(s).map(|f| f.solve(&r)) else {
+                return;
+            };
+            acc.copy_from(&ws.free_acc);
+            for (l, col) in lambda.iter().zip(&ws.limit_cols) {
+                acc.axpy(*l, col, 1.0);
+            }
+            // A bound only pushes the joint back (λ ≤ 0 at an upper bound, ≥ 0 at a lower).
+            let before = rows.len();
+            let mut i = 0;
+            rows.retain(|&(_, _, side)| {
+                let keep = lambda[i] * side <= 0.0;
+                i += 1;
+                keep
+            });
+            let mut joined = false;
+            for d in 0..self.dof {
+                let c = 6 + d;
+                if rows.iter().all(|r| r.0 != c)
+                    && let Some((target, side)) = past(c, acc[c])
+                {
+                    rows.push((c, target, side));
+                    joined = true;
+                }
+            }
+            if rows.len() == before && !joined {
+                return;
+            }
+            if rows.is_empty() {
+                acc.copy_from(&ws.free_acc);
+                return;
+            }
+        }
     }
 
     /// Every body's frame in the world (body order: the base, then one per movable joint in
@@ -1132,6 +1277,172 @@ mod tests {
         assert!(
             gap < 1e-12,
             "capped step differs from forward dynamics by {gap:e}"
+        );
+    }
+
+    /// Every joint mid-way between its bounds (the initial configuration rests the shoulder
+    /// and the fingers on theirs, where the limits would hold them too).
+    fn mid_range(v: &Vehicle) -> Vec<f64> {
+        (0..v.model.dof())
+            .map(|d| {
+                v.model
+                    .dof_joint(d)
+                    .limits
+                    .map_or(0.0, |l| 0.5 * (l.lower + l.upper))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_saturated_drive_resists_the_load_that_saturates_it() {
+        use super::{Drive, TreeState};
+        let v = Vehicle::builtin("ua-hexa").unwrap_or_else(|e| panic!("{e}"));
+        let tree = ArticulatedBody::new(&v.model);
+        let mut ws = tree.workspace();
+        // The wrist (the reference's 1e5 N·m/rad, 1e3 N·m·s/rad drive, 20 N·m) on its target,
+        // turning at +0.1 rad/s, under a load of −200 N·m: at the start of the step the law
+        // says −D·q̇ = −100 N·m, but the load turns the joint backwards within the step, and
+        // at its end the law says a large positive effort. The drive resists the load with
+        // its +20 N·m: the step's velocity change is forward dynamics under −200 + 20 N·m
+        // (pushing with −20, the law's sign at the start, gives −220).
+        let dof = v.arm_dofs()[2];
+        let mut q = mid_range(&v);
+        q[dof] = 0.2;
+        let mut nu = DVector::zeros(tree.nv());
+        nu[6 + dof] = 0.1;
+        let start = TreeState {
+            world_from_base: nalgebra::Isometry3::translation(0.0, 0.0, 100.0),
+            q,
+            nu,
+        };
+        let drive = Drive {
+            dof,
+            stiffness: 1e5,
+            damping: 1e3,
+            target: 0.2,
+            effort_limit: 20.0,
+        };
+        let mut load = DVector::zeros(tree.nv());
+        load[6 + dof] = -200.0;
+        let h = 1.0 / 1920.0;
+        let mut s = start.clone();
+        assert!(tree.step(&mut s, &load, &[], &[drive], h, &mut ws));
+        let mut tau = load.clone();
+        tau[6 + dof] += 20.0;
+        let mut acc = DVector::zeros(tree.nv());
+        assert!(tree.forward_dynamics(
+            &start.world_from_base.rotation,
+            &start.q,
+            &start.nu,
+            &tau,
+            &[],
+            &mut ws,
+            &mut acc
+        ));
+        let gap = (&s.nu - &start.nu - &acc * h).amax();
+        assert!(
+            gap < 1e-12,
+            "the saturated drive's step differs from +20 N·m by {gap:e}"
+        );
+    }
+
+    #[test]
+    fn a_joint_driven_into_its_limit_lands_on_it_and_the_tree_keeps_its_momentum() {
+        use super::TreeState;
+        let v = Vehicle::builtin("fa-hexa").unwrap_or_else(|e| panic!("{e}"));
+        let tree = ArticulatedBody::new(&v.model);
+        let mut ws = tree.workspace();
+        // The elbow (arm_link2, limits [0, 2.268928] rad) turning at 2 rad/s toward its upper
+        // bound, 0.069 rad away, pushed on by 5 N·m; the vehicle in free fall (gravity loads
+        // no joint).
+        let dof = v.arm_dofs()[1];
+        let upper = 2.268928;
+        let mut q = mid_range(&v);
+        q[dof] = 2.2;
+        let mut nu = DVector::zeros(tree.nv());
+        nu[6 + dof] = 2.0;
+        let start = TreeState {
+            world_from_base: nalgebra::Isometry3::translation(0.0, 0.0, 100.0),
+            q,
+            nu,
+        };
+        // Angular momentum about the centre of mass, world axes: gravity leaves it alone and
+        // the limit's torque acts between the joint's two bodies.
+        let about_com = |s: &TreeState, ws: &mut super::Workspace| {
+            let props = v.model.mass_properties(&s.q);
+            let h = tree.momentum(&s.q, &s.nu, ws);
+            let (lin, ang) = (h.fixed_rows::<3>(0), h.fixed_rows::<3>(3));
+            s.world_from_base.rotation * (ang - props.com_in_root_m.cross(&lin))
+        };
+        let mut tau = DVector::zeros(tree.nv());
+        tau[6 + dof] = 5.0;
+        let h = 1.0 / 1920.0;
+        let fly = |tau: &DVector<f64>, steps: usize, ws: &mut super::Workspace| {
+            let mut s = start.clone();
+            let mut highest = f64::MIN;
+            for _ in 0..steps {
+                assert!(tree.step(&mut s, tau, &[], &[], h, ws));
+                highest = highest.max(s.q[dof]);
+            }
+            (s, highest)
+        };
+        let l0 = about_com(&start, &mut ws);
+        // 0.25 s: free, the joint would be ~0.6 rad past the bound.
+        let (end, highest) = fly(&tau, 480, &mut ws);
+        assert!(
+            highest <= upper + 1e-12,
+            "the joint passed its bound: {highest} > {upper}"
+        );
+        assert!(
+            (end.q[dof] - upper).abs() < 1e-12 && end.nu[6 + dof].abs() < 1e-9,
+            "held at {} rad, {} rad/s",
+            end.q[dof],
+            end.nu[6 + dof]
+        );
+        // The bound stopped ~2 rad/s of a 0.1 kg·m² link (~0.2 N·m·s of impulse); the tree's
+        // momentum about its centre of mass moves only by the stepper's own error, as with the
+        // joint turning at 2 rad/s clear of its bounds (measured: 3.1e-5 at the bound, 6.4e-5
+        // clear; a limit torque acting on one body alone would move it by ~0.2).
+        let drift = (about_com(&end, &mut ws) - l0).norm();
+        let mut away = start.clone();
+        away.q[dof] = 0.5;
+        let clear = {
+            let mut s = away.clone();
+            for _ in 0..480 {
+                assert!(tree.step(&mut s, &DVector::zeros(tree.nv()), &[], &[], h, &mut ws));
+            }
+            assert!(s.q[dof] < upper, "the clear flight reached the bound");
+            (about_com(&s, &mut ws) - about_com(&away, &mut ws)).norm()
+        };
+        assert!(
+            drift < 1e-3 && drift < 10.0 * clear.max(1e-6),
+            "momentum about the CoM moved by {drift:e} N·m·s at the bound, {clear:e} clear of it"
+        );
+        // A bound holds only one way: pulled away from it the joint leaves at once, as forward
+        // dynamics says.
+        let mut at = start.clone();
+        at.q[dof] = upper;
+        at.nu[6 + dof] = 0.0;
+        let mut pull = DVector::zeros(tree.nv());
+        pull[6 + dof] = -5.0;
+        let mut acc = DVector::zeros(tree.nv());
+        assert!(tree.forward_dynamics(
+            &at.world_from_base.rotation,
+            &at.q,
+            &at.nu,
+            &pull,
+            &[],
+            &mut ws,
+            &mut acc
+        ));
+        let mut s = at.clone();
+        assert!(tree.step(&mut s, &pull, &[], &[], h, &mut ws));
+        assert!(acc[6 + dof] < 0.0);
+        assert!(
+            (s.nu[6 + dof] - h * acc[6 + dof]).abs() < 1e-12,
+            "pulled off its bound: {} rad/s, forward dynamics {}",
+            s.nu[6 + dof],
+            h * acc[6 + dof]
         );
     }
 
