@@ -194,7 +194,11 @@ pub struct Workspace {
     /// and M̃⁻¹ times each one's unit column.
     limit_rows: Vec<(usize, f64, f64)>,
     free_acc: DVector<f64>,
-    limit_cols: Vec<DVector<f64>>,
+    limit_cols: DMatrix<f64>,
+    limit_force: Vec<f64>,
+    /// The joints the last step held on a bound ((ν column, +1 upper / −1 lower)): the next
+    /// step's factor holds them from the start.
+    locked: Vec<(usize, f64)>,
 }
 
 /// A position drive of [`ArticulatedBody::step`] on one joint: the effort
@@ -213,6 +217,16 @@ pub struct Drive {
     /// Largest effort, N·m or N.
     pub effort_limit: f64,
 }
+
+/// The weight on the diagonal of M̃ that holds a joint on its bound (see
+/// [`ArticulatedBody::steps`]): against M̃'s entries of 1e-3…10 and generalised forces under
+/// ~1e3, it leaves the joint's acceleration within ~1e-9 of the landing one, 3e-16 rad at
+/// the twin's 1/1920 s steps.
+const LOCK_WEIGHT: f64 = 1e12;
+
+/// How near its bound a joint held on the last step must start the next to be held from
+/// the start, rad or m.
+const LOCK_REACH: f64 = 1e-9;
 
 /// Solves of a step's drive efforts at most (see [`ArticulatedBody::steps`]): the implicit
 /// law, then the drives at their limits, then any freed or newly capped.
@@ -428,9 +442,11 @@ impl ArticulatedBody {
             lhs: DMatrix::zeros(self.nv(), self.nv()),
             lhs_capped: DMatrix::zeros(self.nv(), self.nv()),
             capped: Vec::new(),
-            limit_rows: Vec::new(),
+            limit_rows: Vec::with_capacity(self.dof),
             free_acc: DVector::zeros(self.nv()),
-            limit_cols: Vec::new(),
+            limit_cols: DMatrix::zeros(self.nv(), self.dof),
+            limit_force: Vec::with_capacity(self.dof),
+            locked: Vec::with_capacity(self.dof),
         }
     }
 
@@ -689,7 +705,7 @@ impl ArticulatedBody {
         // (0 × 0 placeholders do not allocate.)
         let mut m = std::mem::replace(&mut ws.m, DMatrix::zeros(0, 0));
         self.mass_matrix(&state.q, ws, &mut m);
-        let augment = |lhs: &mut DMatrix<f64>, capped: &[Option<f64>]| {
+        let augment = |lhs: &mut DMatrix<f64>, capped: &[Option<f64>], locks: &[(usize, f64)]| {
             lhs.copy_from(&m);
             for (d, c) in drives.iter().zip(capped) {
                 if c.is_none() {
@@ -697,20 +713,33 @@ impl ArticulatedBody {
                     lhs[(col, col)] += h * (h * d.stiffness + d.damping);
                 }
             }
+            for &(col, _) in locks {
+                lhs[(col, col)] += LOCK_WEIGHT;
+            }
         };
+        // A joint the last step left on a bound is held there from the start (a joint resting
+        // on its bound, as a folded arm under gravity does at every step), by a weight on its
+        // diagonal that the factor absorbs: no solve of its own, unless the bound turns out to
+        // pull (then this step's factor is made again without it).
+        let mut locks = std::mem::take(&mut ws.locked);
+        locks.retain(|&(col, side)| {
+            self.limits[col - 6].is_some_and(|(lo, hi)| {
+                let bound = if side > 0.0 { hi } else { lo };
+                (state.q[col - 6] - bound).abs() <= LOCK_REACH
+            })
+        });
         let mut capped = std::mem::take(&mut ws.capped);
         capped.clear();
         capped.resize(drives.len(), None);
         // The factor of M + h(hK + D) with every drive implicit, kept for the n steps.
         let mut lhs = std::mem::replace(&mut ws.lhs, DMatrix::zeros(0, 0));
-        augment(&mut lhs, &capped);
-        let factor = nalgebra::Cholesky::new(lhs);
+        augment(&mut lhs, &capped, &locks);
+        let mut factor = nalgebra::Cholesky::new(lhs);
         let mut rhs = std::mem::replace(&mut ws.rhs, DVector::zeros(0));
         let mut acc = std::mem::replace(&mut ws.acc, DVector::zeros(0));
         let mut spare = std::mem::replace(&mut ws.lhs_capped, DMatrix::zeros(0, 0));
         let mut ok = factor.is_some();
         for k in 0..n {
-            let Some(factor) = &factor else { break };
             // τ − b + Σ Jᵀf_ext at this step's state (the first step's joint transforms are
             // the mass matrix's).
             let attitude = state.world_from_base.rotation;
@@ -721,76 +750,125 @@ impl ArticulatedBody {
             }
             rhs.neg_mut();
             rhs += tau;
-            capped.fill(None);
             let mut capped_factor = None;
-            // The drives' efforts are a box-constrained implicit law: each is its spring and
-            // damper at the end of the step, K(r − q − h·q̇⁺) − D·q̇⁺, unless that passes its
-            // limit, where it pushes with the limit in that law's direction. An active set:
-            // solve, cap the drives whose law passes the limit, free the capped ones whose law
-            // no longer reaches it at the new q̇⁺ (a coupled joint's cap can reverse it), solve
-            // again — as a constraint solver clamps a motor's impulse (rapier's PGS, PhysX's
-            // drives), and not with the sign of the law at the start of the step, whose stiff
-            // damper (D·h/I ≫ 1 on a light wrist) then flips a saturated drive between ±limit
-            // from one step to the next.
-            for pass in 0..DRIVE_PASSES {
-                acc.copy_from(&rhs);
-                for (d, c) in drives.iter().zip(&capped) {
-                    let col = 6 + d.dof;
-                    let (q, qd) = (state.q[d.dof], state.nu[col]);
-                    acc[col] += c.unwrap_or(d.stiffness * (d.target - q - h * qd) - d.damping * qd);
-                }
-                match &capped_factor {
-                    None => factor.solve_mut(&mut acc),
-                    Some(f) => nalgebra::Cholesky::solve_mut(f, &mut acc),
-                }
-                if pass + 1 == DRIVE_PASSES {
+            for round in 0..2 {
+                let Some(f0) = &factor else {
+                    ok = false;
                     break;
-                }
-                // The law at the end of the step.
-                let mut again = false;
-                for (d, c) in drives.iter().zip(capped.iter_mut()) {
-                    let col = 6 + d.dof;
-                    let (q, qd) = (state.q[d.dof], state.nu[col]);
-                    let qd_next = qd + h * acc[col];
-                    let law = d.stiffness * (d.target - q - h * qd_next) - d.damping * qd_next;
-                    match *c {
-                        None if law.abs() > d.effort_limit => {
-                            *c = Some(d.effort_limit.copysign(law));
-                            again = true;
+                };
+                capped.fill(None);
+                // The drives' efforts are a box-constrained implicit law: each is its spring and
+                // damper at the end of the step, K(r − q − h·q̇⁺) − D·q̇⁺, unless that passes its
+                // limit, where it pushes with the limit in that law's direction. An active set:
+                // solve, cap the drives whose law passes the limit, free the capped ones whose law
+                // no longer reaches it at the new q̇⁺ (a coupled joint's cap can reverse it), solve
+                // again — as a constraint solver clamps a motor's impulse (rapier's PGS, PhysX's
+                // drives), and not with the sign of the law at the start of the step, whose stiff
+                // damper (D·h/I ≫ 1 on a light wrist) then flips a saturated drive between ±limit
+                // from one step to the next.
+                for pass in 0..DRIVE_PASSES {
+                    acc.copy_from(&rhs);
+                    for (d, c) in drives.iter().zip(&capped) {
+                        let col = 6 + d.dof;
+                        let (q, qd) = (state.q[d.dof], state.nu[col]);
+                        acc[col] +=
+                            c.unwrap_or(d.stiffness * (d.target - q - h * qd) - d.damping * qd);
+                    }
+                    // The held joints: the weight times the landing acceleration (the
+                    // right-hand side without it kept, for the bounds' forces below).
+                    ws.free_acc.copy_from(&acc);
+                    for &(col, side) in &locks {
+                        acc[col] += LOCK_WEIGHT * self.landing(state, h, col, side);
+                    }
+                    match &capped_factor {
+                        None => f0.solve_mut(&mut acc),
+                        Some(f) => nalgebra::Cholesky::solve_mut(f, &mut acc),
+                    }
+                    if pass + 1 == DRIVE_PASSES {
+                        break;
+                    }
+                    // The law at the end of the step.
+                    let mut again = false;
+                    for (d, c) in drives.iter().zip(capped.iter_mut()) {
+                        let col = 6 + d.dof;
+                        let (q, qd) = (state.q[d.dof], state.nu[col]);
+                        let qd_next = qd + h * acc[col];
+                        let law = d.stiffness * (d.target - q - h * qd_next) - d.damping * qd_next;
+                        match *c {
+                            None if law.abs() > d.effort_limit => {
+                                *c = Some(d.effort_limit.copysign(law));
+                                again = true;
+                            }
+                            Some(e) if law * e.signum() < d.effort_limit => {
+                                *c = None;
+                                again = true;
+                            }
+                            _ => {}
                         }
-                        Some(e) if law * e.signum() < d.effort_limit => {
-                            *c = None;
-                            again = true;
+                    }
+                    if !again {
+                        break;
+                    }
+                    if let Some(f) = capped_factor.take() {
+                        spare = nalgebra::Cholesky::unpack(f);
+                    }
+                    if capped.iter().all(Option::is_none) {
+                        continue;
+                    }
+                    // Drives at their limit: this step's own factor.
+                    let mut other = std::mem::replace(&mut spare, DMatrix::zeros(0, 0));
+                    if other.shape() != (nv, nv) {
+                        other = DMatrix::zeros(nv, nv);
+                    }
+                    augment(&mut other, &capped, &locks);
+                    match nalgebra::Cholesky::new(other) {
+                        Some(f) => capped_factor = Some(f),
+                        None => {
+                            ok = false;
+                            break;
                         }
-                        _ => {}
                     }
                 }
-                if !again {
+                // A held joint whose bound would pull it (its force toward the bound's
+                // outside) is let go: the step again, without the weights.
+                let pulled = locks.iter().any(|&(col, side)| {
+                    // The bound's force: row `col` of M̃·a (M̃ without the weight) less the
+                    // right-hand side, to the precision of a, not of a − a_bound ~ 1/weight.
+                    let implicit = drives
+                        .iter()
+                        .zip(&capped)
+                        .filter(|(d, c)| 6 + d.dof == col && c.is_none())
+                        .map(|(d, _)| h * (h * d.stiffness + d.damping))
+                        .sum::<f64>();
+                    let force =
+                        m.row(col).dot(&acc.transpose()) + implicit * acc[col] - ws.free_acc[col];
+                    force * side > 0.0
+                });
+                if !pulled || round == 1 || !ok {
                     break;
                 }
+                locks.clear();
                 if let Some(f) = capped_factor.take() {
                     spare = nalgebra::Cholesky::unpack(f);
                 }
-                if capped.iter().all(Option::is_none) {
-                    continue;
-                }
-                // Drives at their limit: this step's own factor.
-                let mut other = std::mem::replace(&mut spare, DMatrix::zeros(0, 0));
-                if other.shape() != (nv, nv) {
-                    other = DMatrix::zeros(nv, nv);
-                }
-                augment(&mut other, &capped);
-                match nalgebra::Cholesky::new(other) {
-                    Some(f) => capped_factor = Some(f),
-                    None => {
-                        ok = false;
-                        break;
+                let mut lhs = factor
+                    .take()
+                    .map_or_else(|| DMatrix::zeros(nv, nv), nalgebra::Cholesky::unpack);
+                capped.fill(None);
+                augment(&mut lhs, &capped, &locks);
+                factor = nalgebra::Cholesky::new(lhs);
+            }
+            if ok && let Some(f) = capped_factor.as_ref().or(factor.as_ref()) {
+                self.hold_limits(state, h, f, &mut acc, ws);
+                // Held on this step: the weighted joints still on their bounds, and those
+                // the limits caught.
+                ws.locked.clear();
+                ws.locked.extend(locks.iter().copied());
+                for &(col, _, side) in &ws.limit_rows {
+                    if ws.locked.iter().all(|l| l.0 != col) {
+                        ws.locked.push((col, side));
                     }
                 }
-            }
-            if ok {
-                let f = capped_factor.as_ref().unwrap_or(factor);
-                self.hold_limits(state, h, f, &mut acc, ws);
             }
             if let Some(f) = capped_factor.take() {
                 spare = nalgebra::Cholesky::unpack(f);
@@ -843,11 +921,10 @@ impl ArticulatedBody {
             let (lo, hi) = self.limits[d]?;
             let (q, qd) = (state.q[d], state.nu[col]);
             let next = q + h * (qd + h * a);
-            let land = |bound: f64| ((bound - q) / h - qd) / h;
             if next > hi.max(q) + SLACK {
-                Some((land(hi.max(q)), 1.0))
+                Some((self.landing(state, h, col, 1.0), 1.0))
             } else if next < lo.min(q) - SLACK {
-                Some((land(lo.min(q)), -1.0))
+                Some((self.landing(state, h, col, -1.0), -1.0))
             } else {
                 None
             }
@@ -863,26 +940,38 @@ impl ArticulatedBody {
             return;
         }
         ws.free_acc.copy_from(acc);
-        let nv = self.nv();
         for _pass in 0..=self.dof {
-            // M̃⁻¹ e for each held joint.
-            while ws.limit_cols.len() < rows.len() {
-                ws.limit_cols.push(DVector::zeros(nv));
-            }
-            for (col, &(c, _, _)) in ws.limit_cols.iter_mut().zip(rows.iter()) {
-                col.fill(0.0);
-                col[c] = 1.0;
-                factor.solve_mut(col);
-            }
+            // M̃⁻¹ e for each held joint, all in one solve.
             let k = rows.len();
-            let s = DMatrix::from_fn(k, k, |i, j| ws.limit_cols[j][rows[i].0]);
-            let r = DVector::from_fn(k, |i, _| rows[i].1 - ws.free_acc[rows[i].0]);
-            let Some(lambda) = nalgebra::Cholesky::new(s).map(|f| f.solve(&r)) else {
-                return;
-            };
+            let mut cols = ws.limit_cols.columns_mut(0, k);
+            cols.fill(0.0);
+            for (j, &(c, _, _)) in rows.iter().enumerate() {
+                cols[(c, j)] = 1.0;
+            }
+            factor.solve_mut(&mut cols);
+            let cols = ws.limit_cols.columns(0, k);
+            let s = |i: usize, j: usize| cols[(rows[i].0, j)];
+            let r = |i: usize| rows[i].1 - ws.free_acc[rows[i].0];
+            // (E ᵀM̃⁻¹E) λ = r, SPD: one or two joints (the common cases: an arm resting on
+            // its bounds) without a heap matrix.
+            let lambda = &mut ws.limit_force;
+            lambda.clear();
+            match k {
+                1 => lambda.push(r(0) / s(0, 0)),
+                2 => {
+                    let m = nalgebra::Matrix2::new(s(0, 0), s(0, 1), s(1, 0), s(1, 1));
+                    let Some(f) = m.cholesky() else { return };
+                    lambda.extend(f.solve(&nalgebra::Vector2::new(r(0), r(1))).iter());
+                }
+                _ => {
+                    let m = DMatrix::from_fn(k, k, s);
+                    let Some(f) = m.cholesky() else { return };
+                    lambda.extend(f.solve(&DVector::from_fn(k, |i, _| r(i))).iter());
+                }
+            }
             acc.copy_from(&ws.free_acc);
-            for (l, col) in lambda.iter().zip(&ws.limit_cols) {
-                acc.axpy(*l, col, 1.0);
+            for (j, l) in lambda.iter().enumerate() {
+                acc.axpy(*l, &cols.column(j), 1.0);
             }
             // A bound only pushes the joint back (λ ≤ 0 at an upper bound, ≥ 0 at a lower).
             let before = rows.len();
@@ -910,6 +999,19 @@ impl ArticulatedBody {
                 return;
             }
         }
+    }
+
+    /// The acceleration of ν column `col` that lands its joint on its upper (`side` > 0) or
+    /// lower bound at the end of a step of `h`: on the bound, or where it is if already past
+    /// it (no pull back). Zero for a joint without limits (never asked).
+    fn landing(&self, state: &TreeState, h: f64, col: usize, side: f64) -> f64 {
+        let d = col - 6;
+        let Some((lo, hi)) = self.limits[d] else {
+            return 0.0;
+        };
+        let (q, qd) = (state.q[d], state.nu[col]);
+        let bound = if side > 0.0 { hi.max(q) } else { lo.min(q) };
+        ((bound - q) / h - qd) / h
     }
 
     /// Every body's frame in the world (body order: the base, then one per movable joint in
@@ -1418,11 +1520,22 @@ mod tests {
             drift < 1e-3 && drift < 10.0 * clear.max(1e-6),
             "momentum about the CoM moved by {drift:e} N·m·s at the bound, {clear:e} clear of it"
         );
-        // A bound holds only one way: pulled away from it the joint leaves at once, as forward
+        // A bound holds only one way: resting on it under the push (held from the start of
+        // each step by `LOCK_WEIGHT`), then pulled away, the joint leaves at once, as forward
         // dynamics says.
-        let mut at = start.clone();
-        at.q[dof] = upper;
-        at.nu[6 + dof] = 0.0;
+        let mut s = start.clone();
+        s.q[dof] = upper;
+        s.nu[6 + dof] = 0.0;
+        for _ in 0..10 {
+            assert!(tree.step(&mut s, &tau, &[], &[], h, &mut ws));
+        }
+        assert!(
+            (s.q[dof] - upper).abs() < 1e-12 && s.nu[6 + dof].abs() < 1e-9,
+            "resting at {} rad, {} rad/s",
+            s.q[dof],
+            s.nu[6 + dof]
+        );
+        let at = s.clone();
         let mut pull = DVector::zeros(tree.nv());
         pull[6 + dof] = -5.0;
         let mut acc = DVector::zeros(tree.nv());
@@ -1435,14 +1548,12 @@ mod tests {
             &mut ws,
             &mut acc
         ));
-        let mut s = at.clone();
         assert!(tree.step(&mut s, &pull, &[], &[], h, &mut ws));
         assert!(acc[6 + dof] < 0.0);
+        let gap = (&s.nu - &at.nu - &acc * h).amax();
         assert!(
-            (s.nu[6 + dof] - h * acc[6 + dof]).abs() < 1e-12,
-            "pulled off its bound: {} rad/s, forward dynamics {}",
-            s.nu[6 + dof],
-            h * acc[6 + dof]
+            gap < 1e-12,
+            "pulled off its bound: ν differs from forward dynamics by {gap:e}"
         );
     }
 
