@@ -1364,22 +1364,34 @@ mod tests {
         assert!(tree.step(&mut s, &zero, &[], &[capped], h, &mut ws));
         let mut tau = DVector::zeros(tree.nv());
         tau[6 + dof] = 0.5;
-        let mut acc = DVector::zeros(tree.nv());
-        let attitude = start.world_from_base.rotation;
-        assert!(tree.forward_dynamics(
-            &attitude,
-            &start.q,
-            &start.nu,
-            &tau,
-            &[],
-            &mut ws,
-            &mut acc
-        ));
-        let gap = (&s.nu - &start.nu - &acc * h).amax();
+        let gap = gap_to_forward_dynamics(&tree, &mut ws, (&start, &s), &tau, h);
         assert!(
             gap < 1e-12,
             "capped step differs from forward dynamics by {gap:e}"
         );
+    }
+
+    /// The largest gap between the velocity change of a step (`before`, `after`) and
+    /// forward dynamics' over `h` under the generalised force `tau` (what the drives and
+    /// bounds should have come to), no external forces.
+    fn gap_to_forward_dynamics(
+        tree: &ArticulatedBody,
+        ws: &mut super::Workspace,
+        (before, after): (&super::TreeState, &super::TreeState),
+        tau: &DVector<f64>,
+        h: f64,
+    ) -> f64 {
+        let mut acc = DVector::zeros(tree.nv());
+        assert!(tree.forward_dynamics(
+            &before.world_from_base.rotation,
+            &before.q,
+            &before.nu,
+            tau,
+            &[],
+            ws,
+            &mut acc
+        ));
+        (&after.nu - &before.nu - &acc * h).amax()
     }
 
     /// Every joint mid-way between its bounds (the initial configuration rests the shoulder
@@ -1431,17 +1443,7 @@ mod tests {
         assert!(tree.step(&mut s, &load, &[], &[drive], h, &mut ws));
         let mut tau = load.clone();
         tau[6 + dof] += 20.0;
-        let mut acc = DVector::zeros(tree.nv());
-        assert!(tree.forward_dynamics(
-            &start.world_from_base.rotation,
-            &start.q,
-            &start.nu,
-            &tau,
-            &[],
-            &mut ws,
-            &mut acc
-        ));
-        let gap = (&s.nu - &start.nu - &acc * h).amax();
+        let gap = gap_to_forward_dynamics(&tree, &mut ws, (&start, &s), &tau, h);
         assert!(
             gap < 1e-12,
             "the saturated drive's step differs from +20 N·m by {gap:e}"
@@ -1538,19 +1540,9 @@ mod tests {
         let at = s.clone();
         let mut pull = DVector::zeros(tree.nv());
         pull[6 + dof] = -5.0;
-        let mut acc = DVector::zeros(tree.nv());
-        assert!(tree.forward_dynamics(
-            &at.world_from_base.rotation,
-            &at.q,
-            &at.nu,
-            &pull,
-            &[],
-            &mut ws,
-            &mut acc
-        ));
         assert!(tree.step(&mut s, &pull, &[], &[], h, &mut ws));
-        assert!(acc[6 + dof] < 0.0);
-        let gap = (&s.nu - &at.nu - &acc * h).amax();
+        assert!(s.nu[6 + dof] < 0.0, "the joint stayed on its bound");
+        let gap = gap_to_forward_dynamics(&tree, &mut ws, (&at, &s), &pull, h);
         assert!(
             gap < 1e-12,
             "pulled off its bound: ν differs from forward dynamics by {gap:e}"
