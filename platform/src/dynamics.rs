@@ -832,16 +832,16 @@ impl ArticulatedBody {
                 // A held joint whose bound would pull it (its force toward the bound's
                 // outside) is let go: the step again, without the weights.
                 let pulled = locks.iter().any(|&(col, side)| {
-                    // The bound's force: row `col` of M̃·a (M̃ without the weight) less the
-                    // right-hand side, to the precision of a, not of a − a_bound ~ 1/weight.
+                    // The bound's force: row `col` of M̃·a (M̃ without the weight; M's row is
+                    // its column) less the right-hand side, to the precision of a, not of
+                    // a − a_bound ~ 1/weight.
                     let implicit = drives
                         .iter()
                         .zip(&capped)
                         .filter(|(d, c)| 6 + d.dof == col && c.is_none())
                         .map(|(d, _)| h * (h * d.stiffness + d.damping))
                         .sum::<f64>();
-                    let force =
-                        m.row(col).dot(&acc.transpose()) + implicit * acc[col] - ws.free_acc[col];
+                    let force = m.column(col).dot(&acc) + implicit * acc[col] - ws.free_acc[col];
                     force * side > 0.0
                 });
                 if !pulled || round == 1 || !ok {
