@@ -197,8 +197,10 @@ pub struct Workspace {
     limit_cols: DMatrix<f64>,
     limit_force: Vec<f64>,
     /// The joints the last step held on a bound ((ν column, +1 upper / −1 lower)): the next
-    /// step's factor holds them from the start.
+    /// step's factor holds them from the start; and the buffer the step fills (swapped with
+    /// it, so that no step allocates).
     locked: Vec<(usize, f64)>,
+    locked_next: Vec<(usize, f64)>,
 }
 
 /// A position drive of [`ArticulatedBody::step`] on one joint: the effort
@@ -447,6 +449,7 @@ impl ArticulatedBody {
             limit_cols: DMatrix::zeros(self.nv(), self.dof),
             limit_force: Vec::with_capacity(self.dof),
             locked: Vec::with_capacity(self.dof),
+            locked_next: Vec::with_capacity(self.dof),
         }
     }
 
@@ -722,6 +725,7 @@ impl ArticulatedBody {
         // diagonal that the factor absorbs: no solve of its own, unless the bound turns out to
         // pull (then this step's factor is made again without it).
         let mut locks = std::mem::take(&mut ws.locked);
+        std::mem::swap(&mut ws.locked, &mut ws.locked_next);
         locks.retain(|&(col, side)| {
             self.limits[col - 6].is_some_and(|(lo, hi)| {
                 let bound = if side > 0.0 { hi } else { lo };
@@ -893,6 +897,8 @@ impl ArticulatedBody {
         ws.m = m;
         ws.acc = acc;
         ws.capped = capped;
+        locks.clear();
+        ws.locked_next = locks;
         ok
     }
 
