@@ -825,6 +825,7 @@ fn replay(
             rti.reset();
         }
         rti.set_grasp(p.grasp);
+        rti.set_contact(p.contact);
         rti.set_compensated_weight(p.compensated_weight.0, p.compensated_weight.1);
         let t0 = Stamp::now();
         rti.prepare(&p.x_hat, &p.reference, &p.limits, p.elapsed_s);
@@ -844,6 +845,7 @@ fn replay(
                 twin.reset();
             }
             twin.set_grasp(p.grasp);
+            twin.set_contact(p.contact);
             twin.set_compensated_weight(p.compensated_weight.0, p.compensated_weight.1);
             twin.prepare(&p.x_hat, &p.reference, &p.limits, p.elapsed_s);
             let converged = twin.feedback(path);

@@ -529,13 +529,13 @@ fn mpc_bench_reports_both_qp_paths_and_refuses_bad_input() {
     );
 }
 
-/// `amstack mpc-bench --scenario push-slider --paths riccati` with `extra` flags, its JSON
-/// report written to `json` and read back.
-fn push_slider_replay(extra: &[&str], json: &str) -> serde_json::Value {
+/// `amstack mpc-bench --scenario SCENARIO --paths riccati` with `extra` flags, its JSON report
+/// written to `json` and read back.
+fn contact_replay(scenario: &str, extra: &[&str], json: &str) -> serde_json::Value {
     let mut args = vec![
         "mpc-bench",
         "--scenario",
-        "push-slider",
+        scenario,
         "--paths",
         "riccati",
         "--json",
@@ -554,11 +554,14 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
         Ok(d) => d,
         Err(e) => panic!("{e}"),
     };
-    let json = dir.path().join("slider.json");
+    let json = dir.path().join("contact.json");
     let json_arg = json.to_string_lossy().into_owned();
     // The reference's arm servo model (k_a 12/s): its contact QPs turn infeasible, which the
     // early infeasibility exit below needs. (With the default, matched arm model every QP of
-    // this rollout is solved: the last assertions.)
+    // Push Slider's rollout is solved: the last assertions.) Flown on Wipe Window: on Push
+    // Slider, since its knob reaches 0.28 m and the palm presses its end (2026-11-29), one QP
+    // of the 1408 of the held push (tick 1336) stops at the 80-iteration cap, with the exit
+    // and without it (docs/mpc-contact.md §11).
     let reference_arm = dir.path().join("reference-arm.toml");
     std::fs::write(
         &reference_arm,
@@ -566,7 +569,8 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     )
     .unwrap_or_else(|e| panic!("{e}"));
     let reference_arm_arg = reference_arm.to_string_lossy().into_owned();
-    let v = push_slider_replay(
+    let v = contact_replay(
+        "wipe-window",
         &[
             "--mpc-config",
             &reference_arm_arg,
@@ -576,10 +580,10 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
         &json_arg,
     );
     let rollout = &v["rollout"];
-    assert_eq!(rollout["task"], "push-slider");
+    assert_eq!(rollout["task"], "wipe-window");
     assert_eq!(rollout["success"], true, "{rollout}");
     let ticks = rollout["ticks"].as_u64().unwrap_or(0);
-    // The scripted push lasts several seconds at 120 Hz.
+    // The scripted wipe lasts several seconds at 120 Hz.
     assert!(ticks > 600, "{rollout}");
     let p = &v["paths"]["riccati"];
     assert!(v["paths"]["clarabel"].is_null(), "--paths riccati only");
@@ -607,7 +611,7 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     );
     // The row screening (on, as the controller flies) left the far state rows out of the
     // QPs the interior point solved. (Their mean depends on which QPs the active-set shot
-    // leaves it: 168 rows while the shot stopped after two guesses on a rejection, 93 since
+    // leaves it; on Push Slider's rollout with the 0.18 m knob: 168 rows while the shot stopped after two guesses on a rejection, 93 since
     // it goes on while its guesses converge and keeps the QPs nearest the bounds.)
     let screening = &p["screening"];
     assert_eq!(screening["rows_per_qp"].as_u64(), Some(1344), "{screening}");
@@ -633,7 +637,7 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     );
     assert!(with_exit < converged, "{check}");
     // The defaults: the MPC flies every tick of the contact, every QP solved.
-    let v = push_slider_replay(&[], &json_arg);
+    let v = contact_replay("push-slider", &[], &json_arg);
     let p = &v["paths"]["riccati"];
     assert_eq!(v["rollout"]["success"], true, "{}", v["rollout"]);
     assert_eq!(p["statuses"]["solved"], p["ticks"], "{p}");
@@ -643,7 +647,7 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     // every other tick (661 of 1376 solved by it); read against the gradient scale, 1310;
     // with more guesses after a rejection while they converge, 1367 (the position bound's
     // active stages move along the horizon: 2 guesses left 3-5 rows violated).
-    let v = push_slider_replay(&["--seed", "1"], &json_arg);
+    let v = contact_replay("push-slider", &["--seed", "1"], &json_arg);
     let p = &v["paths"]["riccati"];
     assert_eq!(p["statuses"]["solved"], p["ticks"], "{p}");
     let shot = &p["active_set_shot"];

@@ -360,6 +360,9 @@ pub struct MpcStatus {
     /// The EE target's velocity the MPC extrapolated over its horizon, world, m/s (zero for
     /// a held target or a jump).
     pub target_velocity_mps: [f64; 3],
+    /// The normal (unit, world, out of what the hand touches) of the hand's blocking contact
+    /// the MPC was given this tick (null: none).
+    pub hand_contact: Option<[f64; 3]>,
 }
 
 /// The state estimator's tick (flights with `--state-source estimator`): the estimate handed
@@ -803,6 +806,7 @@ impl FlightLog {
                 ee_error_m: status.ee_error_m,
                 predicted_terminal_position_m: v3(&status.predicted_terminal_position_m),
                 target_velocity_mps: v3(&status.target_velocity_mps),
+                hand_contact: status.hand_contact.as_ref().map(v3),
             };
             let logged = self.recorder.log(&channel, t, &message);
             self.mpc = Some(channel);

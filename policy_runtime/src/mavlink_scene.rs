@@ -39,6 +39,7 @@ pub(crate) fn snapshot_from_wire(model: &TaskSnapshot, wire: &TaskArray) -> Opti
         holding: wire.holding,
         // Not on the MAVLink wire: the MPC's grasp rows need the in-process twin.
         held_joint: None,
+        hand_contact: None,
         steps: wire.steps,
     })
 }

@@ -385,6 +385,17 @@ impl FlightStack {
         }
     }
 
+    /// Tells the whole-body MPC the normal (unit, world, out of what the hand touches) of the
+    /// hand's contact with something that does not give way along it (None: none): its
+    /// target then stays on the hand's side of the contact (`MpcConfig::contact_reference`).
+    /// Called every tick by the flight loop from the task's scene; the other controllers do
+    /// not use it.
+    pub fn touch(&mut self, normal: Option<nalgebra::Vector3<f64>>) {
+        if let Some(mpc) = &mut self.mpc {
+            mpc.controller.set_hand_contact(normal);
+        }
+    }
+
     /// Where `action` asks the end-effector link to be: the forward kinematics of a base +
     /// joint target (joints no action commands at their initial configuration), or an EE
     /// target's link pose.

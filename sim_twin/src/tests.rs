@@ -1031,6 +1031,81 @@ fn the_articulated_twin_is_stopped_by_a_wall_as_rapier_is() {
     );
 }
 
+/// The FA-Hexa flown 6 cm forward with a fixed block 2 cm ahead of its palm: the twin reports
+/// no hand contact in free flight and, once the palm presses the block, a contact whose
+/// normal points out of the block's face (−x) — what the whole-body MPC keeps its target on
+/// the near side of (`MpcConfig::contact_reference`).
+#[test]
+fn the_hand_pressing_a_fixed_block_reports_the_blocks_face_normal() {
+    use controllers::{BaseController, BodyParams, Pid6, Pid6Gains};
+    let v = vehicle("fa-hexa");
+    let mut t = twin("fa-hexa", TwinConfig::default());
+    let ee = t.truth().world_from_ee;
+    // The palm (ee_link's box) reaches 0.08 m ahead of the EE link along its x.
+    let palm_front = ee * nalgebra::Point3::new(0.08, 0.0, 0.0);
+    let half = Vector3::new(0.05, 0.03, 0.03);
+    t.add_fixed_box(
+        &Isometry3::translation(palm_front.x + 0.02 + half.x, palm_front.y, palm_front.z),
+        &half,
+    );
+    assert_eq!(t.hand_contact(), None, "touching before the flight");
+    let mut allocator = Allocator::new(&v.rotors, v.actuation, AllocationMethod::PseudoInverse)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut pid = Pid6::new(Pid6Gains::am_bench(), BodyParams::from_vehicle(&v));
+    pid.reset(&t.truth().base);
+    let start = t.truth().base.position_in_world_m;
+    let target = Isometry3::translation(start.x + 0.06, start.y, start.z);
+    let mut cmd = hover(&v);
+    let mut contacts = Vec::new();
+    for _ in 0..240 {
+        pid_tick(&mut t, &mut pid, &mut allocator, &mut cmd, &target);
+        contacts.push(t.hand_contact());
+    }
+    let first = contacts.iter().position(Option::is_some);
+    assert!(
+        first.is_some_and(|k| k > 10),
+        "the first contact at tick {first:?}"
+    );
+    let Some(Some(normal)) = contacts.last() else {
+        panic!("no contact at the end of the press: {contacts:?}");
+    };
+    assert!(
+        (normal + Vector3::x()).norm() < 0.05,
+        "the contact's normal {normal}"
+    );
+    // Stopped by the block: the base 2 cm on, not 6.
+    let moved = t.truth().base.position_in_world_m.x - start.x;
+    assert!((0.01..0.04).contains(&moved), "the base moved {moved} m");
+}
+
+/// What a touched object gives way to: a fixed body nothing; Push Slider's knob (a rail
+/// along y) a push along the rail but not one at its end (its axis, x); a valve's handle
+/// (turning about z through the origin, touched at (0.2, 0, 0)) a push along the circle's
+/// tangent (y) but not one toward the axis.
+#[test]
+fn a_contact_is_blocked_where_the_touched_object_does_not_move() {
+    use crate::tasks::HeldJoint;
+    use crate::twin::blocked_part;
+    let rail = HeldJoint::Prismatic {
+        axis: Vector3::new(0.0, 2.0, 0.0),
+    };
+    let shaft = HeldJoint::Revolute {
+        axis: Vector3::z(),
+        point: Vector3::zeros(),
+    };
+    let at = Vector3::new(0.2, 0.0, 0.0);
+    let n = |v: Vector3<f64>| blocked_part(&v, None, &at);
+    assert_eq!(n(-Vector3::x()), -Vector3::x());
+    let end = blocked_part(&-Vector3::x(), Some(&rail), &at);
+    assert!((end + Vector3::x()).norm() < 1e-12, "{end}");
+    let side = blocked_part(&Vector3::y(), Some(&rail), &at);
+    assert!(side.norm() < 1e-12, "{side}");
+    let tangential = blocked_part(&-Vector3::y(), Some(&shaft), &at);
+    assert!(tangential.norm() < 1e-12, "{tangential}");
+    let radial = blocked_part(&Vector3::x(), Some(&shaft), &at);
+    assert!((radial - Vector3::x()).norm() < 1e-12, "{radial}");
+}
+
 /// A held ball (Toss Ball's, welded in the grasp) rides on the vehicle's own dynamics as a
 /// payload in free flight — the vehicle carries it at 0.3 m/s, then opens the gripper — and
 /// the ball's path, its reported velocity while held and its flight after the release match

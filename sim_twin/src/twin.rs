@@ -34,7 +34,7 @@ use crate::convert::{
 use crate::error::TwinError;
 use crate::tasks::objects::Grasp;
 use crate::tasks::{
-    Build, GraspMode, Scene, TaskId, TaskObservation, TaskSnapshot, TaskStatus, View,
+    Build, GraspMode, HeldJoint, Scene, TaskId, TaskObservation, TaskSnapshot, TaskStatus, View,
 };
 use crate::vehicle_body::{self, ROBOT_GROUP, VehicleBody, WORLD_GROUP, material};
 
@@ -47,6 +47,37 @@ const GRAVITY_MPS2: f64 = platform::GRAVITY_MPS2;
 /// away (the stem broke at 23 N before the fingers closed: 4 of 30 Lemon Harvesting rollouts
 /// failed so, on the FA-Hexa and on the EE-only oracle alike; none at 0.005 m).
 pub(crate) const PREDICTION_DISTANCE_M: f64 = 0.005;
+
+/// How near a point of the hand must come to count as touching for
+/// [`Twin::hand_contact`], m: any contact point rapier keeps (they start at
+/// [`PREDICTION_DISTANCE_M`]; the FA-Hexa's palm pressed on Push Slider's knob rests with
+/// its points 3.2–3.9 mm off, as the manifold reports them between full updates).
+const HAND_CONTACT_M: f64 = PREDICTION_DISTANCE_M;
+/// The part of a contact's unit normal off the touched object's joint motion that blocks the
+/// hand for [`Twin::hand_contact`]: sin 60°, the normal at least 60° off that motion.
+const HAND_CONTACT_BLOCKED: f64 = 0.866;
+
+/// The part of a contact's unit `normal` (world) that the touched object does not give way
+/// along, at the contact point `at`: all of it for a fixed body (`motion` None); without
+/// its part along the rail of a prismatic joint, or along the circle's tangent through `at`
+/// of a revolute one.
+pub(crate) fn blocked_part(
+    normal: &Vector3<f64>,
+    motion: Option<&HeldJoint>,
+    at: &Vector3<f64>,
+) -> Vector3<f64> {
+    let along = |d: &Vector3<f64>| normal - d * d.dot(normal);
+    match motion {
+        None => *normal,
+        Some(HeldJoint::Prismatic { axis }) => along(&axis.normalize()),
+        Some(HeldJoint::Revolute { axis, point }) => {
+            match axis.cross(&(at - point)).try_normalize(1e-9) {
+                Some(tangent) => along(&tangent),
+                None => *normal,
+            }
+        }
+    }
+}
 
 /// A rotor's force for the current tick, in its own frame (so it turns with the rotor
 /// during substeps), and where it is mounted.
@@ -142,6 +173,8 @@ struct TaskState {
     grasp: Grasp,
     /// Colliders of the two gripping sides.
     fingers: [Vec<ColliderHandle>; 2],
+    /// Colliders of the hand: the EE link and every link it carries (fingers, palm, tool).
+    hand: Vec<ColliderHandle>,
     /// Configuration indices of the gripper joints.
     gripper_dofs: Vec<usize>,
     /// Env steps since reset.
@@ -1435,6 +1468,30 @@ impl TaskState {
             ],
             [] => [Vec::new(), Vec::new()],
         };
+        // The EE link and the links below it (joints list parents before children in
+        // URDF order, but not necessarily: repeat until nothing is added).
+        let mut in_hand = vec![false; model.links.len()];
+        if let Some(ee) = in_hand.get_mut(vehicle.ee_link) {
+            *ee = true;
+        }
+        loop {
+            let mut added = false;
+            for j in &model.joints {
+                if in_hand[j.parent] && !in_hand[j.child] {
+                    in_hand[j.child] = true;
+                    added = true;
+                }
+            }
+            if !added {
+                break;
+            }
+        }
+        let hand = in_hand
+            .iter()
+            .enumerate()
+            .filter(|(_, h)| **h)
+            .flat_map(|(link, _)| body.link_colliders[link].iter().copied())
+            .collect();
         let status = TaskStatus {
             success: false,
             criteria: vec![false; scene.as_ref().map_or(0, |s| s.criteria_names().len())],
@@ -1443,6 +1500,7 @@ impl TaskState {
             scene,
             grasp: Grasp::default(),
             fingers,
+            hand,
             gripper_dofs: joints.iter().filter_map(|&j| model.joints[j].dof).collect(),
             steps: 0,
             status,
@@ -1486,9 +1544,73 @@ impl Twin {
     }
 
     /// The joint the held object moves on, now (None: nothing held, or a free object).
-    pub fn held_joint(&self) -> Option<crate::tasks::HeldJoint> {
+    pub fn held_joint(&self) -> Option<HeldJoint> {
         let (object, _) = self.task.grasp.held?;
         self.task.scene.as_ref()?.held_joint(&self.world, object)
+    }
+
+    /// The hand's blocking contact: the unit normal (world, pointing out of what it
+    /// touches) of the hand's contacts — points within the contact distance of its EE link,
+    /// fingers or tool — with what does not give way along them: a fixed body, or an
+    /// articulated object whose joint (as the scene describes it, `Scene::held_joint`)
+    /// does not move that way; the part of the normal along the motion the joint allows is
+    /// dropped, and a contact at least 60° off that motion counts. None: no such contact.
+    /// The held object and free objects give way. A controller with no contact in its model
+    /// (the whole-body MPC) keeps its target on the hand's side of it.
+    pub fn hand_contact(&self) -> Option<Vector3<f64>> {
+        let scene = self.task.scene.as_ref();
+        let held = self.task.grasp.held.map(|(object, _)| object);
+        let mut sum = Vector3::zeros();
+        let mut any = false;
+        for &c in &self.task.hand {
+            for pair in self.world.contact_pairs_with(c) {
+                let PairContacts::Rigid(contacts) = &pair.contacts else {
+                    continue;
+                };
+                let (other, sign) = if pair.collider1 == c {
+                    (pair.collider2, -1.0)
+                } else {
+                    (pair.collider1, 1.0)
+                };
+                let Some(body) = self.world.colliders.get(other).and_then(|o| o.parent()) else {
+                    continue;
+                };
+                if Some(body) == held || self.body.bodies.contains(&body) {
+                    continue;
+                }
+                let Some(rb) = self.world.bodies.get(body) else {
+                    continue;
+                };
+                // A fixed body does not move; an articulated object moves as its joint lets
+                // it; a free object (or a joint the scene does not describe) gives way.
+                let motion = if rb.is_fixed() {
+                    None
+                } else {
+                    match scene.and_then(|s| s.held_joint(&self.world, body)) {
+                        Some(joint) => Some(joint),
+                        None => continue,
+                    }
+                };
+                let Some(c1) = self.world.colliders.get(pair.collider1) else {
+                    continue;
+                };
+                for m in &contacts.manifolds {
+                    let Some(point) = m.points.iter().find(|p| p.dist <= HAND_CONTACT_M) else {
+                        continue;
+                    };
+                    // Out of the other collider, into the hand.
+                    let normal = vector_from_rapier(m.data.normal) * sign;
+                    let at = pose_from_rapier(c1.position())
+                        * Point3::from(vector_from_rapier(point.local_p1));
+                    let blocked = blocked_part(&normal, motion.as_ref(), &at.coords);
+                    if blocked.norm() >= HAND_CONTACT_BLOCKED {
+                        sum += blocked;
+                        any = true;
+                    }
+                }
+            }
+        }
+        if any { sum.try_normalize(1e-9) } else { None }
     }
 
     /// Env steps since reset.
@@ -1507,6 +1629,7 @@ impl Twin {
             obstacle_face_x: scene.obstacle_face_x(&self.world),
             holding: self.holding(),
             held_joint: self.held_joint(),
+            hand_contact: self.hand_contact(),
             steps: self.task.steps,
         })
     }

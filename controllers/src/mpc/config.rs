@@ -291,6 +291,17 @@ pub struct MpcConfig {
     /// true (FA-Hexa MPC, 30 rollouts: Pull Lever 23 → 30, tilt use 52.9° → 26.0°; Rotate
     /// Valve 28 → 30; `docs/mpc-contact.md` §10). False: the target's orientation as given.
     pub grasp_orientation: bool,
+    /// Contact model: while the hand touches something that does not give way along the
+    /// contact's normal (given per tick by `WholeBodyMpc::set_hand_contact`: a fixed body,
+    /// or an object whose joint does not move that way — the end of Push Slider's knob
+    /// against the palm before the fingers close), the part of the EE position target that
+    /// lies beyond the contact plane through the measured EE is dropped (the target's
+    /// velocity into it too), and the EE offset does not integrate an error into it. The
+    /// model has no contact: without this it planned to close the blocked error by
+    /// stretching the arm, whose drives, the hand pinned, pushed the base back until the
+    /// shoulder and elbow met their limits (FA-Hexa, Push Slider with the knob reaching
+    /// 0.28 m: the base 0.9 m back, 0 of 10; `docs/mpc-contact.md` §11). Default true.
+    pub contact_reference: bool,
     /// Wall-time budget of one RTI step, s: a step that takes longer (by the caller's clock)
     /// counts as failed and starts the fallback. Default None: the iteration budget
     /// `qp.max_iterations` alone, so a flight does not depend on the machine's speed.
@@ -331,6 +342,7 @@ impl Default for MpcConfig {
             grasp_band_m: None,
             grasp_reference: true,
             grasp_orientation: true,
+            contact_reference: true,
             solve_budget_s: None,
         }
     }

@@ -114,6 +114,9 @@ pub struct MpcProblem {
     pub warm: bool,
     /// The held object's joint ([`SqpRti::set_grasp`] before the step; None: nothing held).
     pub grasp: Option<crate::mpc::GraspJoint>,
+    /// The normal of the hand's blocking contact ([`SqpRti::set_contact`] before the step;
+    /// None: none).
+    pub contact: Option<Vector3<f64>>,
     /// The weight (N) and centre of mass (base frame, m) the rotor rows compensate, the flown
     /// posture's ([`SqpRti::set_compensated_weight`] before the step).
     pub compensated_weight: (f64, Vector3<f64>),
@@ -141,6 +144,9 @@ pub struct MpcStatus {
     /// The EE target's velocity extrapolated over the horizon, world, m/s
     /// ([`MpcConfig::target_velocity_limit_mps`]; zero for a held target or a jump).
     pub target_velocity_mps: Vector3<f64>,
+    /// The normal of the hand's blocking contact this tick was given
+    /// ([`WholeBodyMpc::set_hand_contact`]; None: none).
+    pub hand_contact: Option<Vector3<f64>>,
     /// What the RTI step was given (None when nothing was solved); not logged.
     #[serde(skip)]
     pub problem: Option<MpcProblem>,
@@ -209,6 +215,7 @@ impl WholeBodyMpc {
                 ee_error_m: 0.0,
                 predicted_terminal_position_m: Vector3::zeros(),
                 target_velocity_mps: Vector3::zeros(),
+                hand_contact: None,
                 problem: None,
             },
             last_command: None,
@@ -243,6 +250,14 @@ impl WholeBodyMpc {
     pub fn set_held_joint(&mut self, joint: Option<crate::mpc::GraspJoint>) {
         self.rti
             .set_grasp(joint.filter(crate::mpc::GraspJoint::is_valid));
+    }
+
+    /// The normal (unit, world, out of what the hand touches) of the hand's contact with
+    /// something that does not give way along it (None: no such contact), for the next
+    /// ticks: the contact model of [`MpcConfig::contact_reference`]. Given every tick by the
+    /// flight stack from the scene, as the held joint.
+    pub fn set_hand_contact(&mut self, normal: Option<Vector3<f64>>) {
+        self.rti.set_contact(normal);
     }
 
     /// Replaces the mass properties used for gravity compensation.
@@ -337,6 +352,7 @@ impl WholeBodyMpc {
                 elapsed_s: elapsed,
                 warm: self.rti.is_warm(),
                 grasp: self.rti.grasp().copied(),
+                contact: self.rti.contact(),
                 compensated_weight: (self.body.mass_kg * GRAVITY_MPS2, self.body.com_in_body_m),
             });
             let r = self
@@ -436,6 +452,7 @@ impl WholeBodyMpc {
                 terminal[IX_P + 2],
             ),
             target_velocity_mps,
+            hand_contact: self.rti.contact(),
             problem,
         };
         command.status = self.status;

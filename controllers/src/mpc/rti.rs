@@ -191,6 +191,11 @@ pub struct SqpRti {
     grasp: Option<GraspJoint>,
     /// That joint anchored at the measured EE of the last preparation (None: no grasp rows).
     anchored_grasp: Option<AnchoredGrasp>,
+    /// The normal of the hand's blocking contact (unit, world, pointing out of what the hand
+    /// touches; None: no such contact).
+    contact: Option<Vector3<f64>>,
+    /// That normal and the measured EE of the last preparation, with `contact_reference`.
+    anchored_contact: Option<(Vector3<f64>, Vector3<f64>)>,
 }
 
 impl SqpRti {
@@ -293,6 +298,8 @@ impl SqpRti {
             rotor_rows: Vec::with_capacity(rotor_rows),
             grasp: None,
             anchored_grasp: None,
+            contact: None,
+            anchored_contact: None,
             config,
         })
     }
@@ -396,12 +403,33 @@ impl SqpRti {
         self.grasp.as_ref()
     }
 
-    /// The part of an EE position error (at the EE position `at`) the held joint lets the
-    /// hand move (the error itself when nothing is held or the grasp model is off).
+    /// The hand's blocking contact from the next preparation on: the unit normal (world)
+    /// pointing out of what it touches, which the hand cannot move against (None: none;
+    /// a zero or non-finite normal counts as none). With `MpcConfig::contact_reference`
+    /// the EE target handed to the QP stays on the hand's side of the contact plane
+    /// through the measured EE.
+    pub fn set_contact(&mut self, normal: Option<Vector3<f64>>) {
+        self.contact = normal
+            .filter(|n| n.iter().all(|v| v.is_finite()))
+            .and_then(|n| n.try_normalize(1e-9));
+    }
+
+    /// The hand's blocking contact's normal (None: none).
+    pub fn contact(&self) -> Option<Vector3<f64>> {
+        self.contact
+    }
+
+    /// The part of an EE position error (at the EE position `at`) the held joint and the
+    /// hand's contact let the hand move (the error itself when nothing is held or touched,
+    /// or the models are off).
     pub fn grasp_allowed_part(&self, at: &Vector3<f64>, error: &Vector3<f64>) -> Vector3<f64> {
-        match &self.anchored_grasp {
+        let error = match &self.anchored_grasp {
             Some(g) => g.allowed_part(at, error),
             None => *error,
+        };
+        match &self.anchored_contact {
+            Some((normal, _)) => beyond_contact_dropped(normal, &error),
+            None => error,
         }
     }
 
@@ -503,6 +531,21 @@ impl SqpRti {
             {
                 reference.ee_rotation = turn * UnitQuaternion::from_rotation_matrix(&ee.rotation);
             }
+        }
+        // Touching what does not give way: the target's part beyond the contact plane
+        // through the measured EE is one the hand cannot reach (the model, without contact,
+        // would stretch the arm for it and push its own base back), as is its velocity into
+        // the contact; the offset added back as above.
+        self.anchored_contact = self
+            .contact
+            .filter(|_| self.config.contact_reference)
+            .map(|normal| (normal, self.model.ee(x_hat).position));
+        if let Some((normal, anchor)) = &self.anchored_contact {
+            let offset = reference.ee_offset_m;
+            reference.ee_position_m = anchor
+                + beyond_contact_dropped(normal, &(reference.ee_position_m - offset - anchor))
+                + offset;
+            reference.ee_velocity_mps = beyond_contact_dropped(normal, &reference.ee_velocity_mps);
         }
         self.reference = Some(reference);
         self.set_bounds(x_hat, limits);
@@ -858,4 +901,10 @@ fn rotor_rows<'a>(
         .into_iter()
         .flat_map(move |(e, f)| e.wrench_rows(&attitude, f));
     force.chain(wrench)
+}
+
+/// `v` without its part against the unit contact `normal` (the part into what the hand
+/// touches): `v − n·min(0, n·v)`.
+fn beyond_contact_dropped(normal: &Vector3<f64>, v: &Vector3<f64>) -> Vector3<f64> {
+    v - normal * normal.dot(v).min(0.0)
 }

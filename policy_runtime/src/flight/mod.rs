@@ -218,6 +218,7 @@ pub fn run(
         let t = k as f64 * spec.dt_s;
         stack.keep_in_front_of(scene.as_ref().and_then(|s| s.obstacle_face_x));
         stack.hold_on_joint(scene.as_ref().and_then(|s| s.held_joint).map(grasp_joint));
+        stack.touch(scene.as_ref().and_then(|s| s.hand_contact));
         // The images of observation k: begun now (the state after the last step), read back
         // before the first consumer that needs them.
         let (source_frames, frame_use) = match rig.as_deref() {

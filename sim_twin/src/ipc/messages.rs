@@ -254,6 +254,7 @@ impl TaskMsg {
             holding: self.flags & TASK_HOLDING != 0,
             // Not on this wire: the MPC's grasp rows need the in-process twin.
             held_joint: None,
+            hand_contact: None,
             steps: self.steps,
         })
     }

@@ -295,6 +295,9 @@ pub struct TaskSnapshot {
     pub holding: bool,
     /// The joint the held object moves on, now (None: nothing held, or a free object).
     pub held_joint: Option<HeldJoint>,
+    /// The normal (unit, world, out of what the hand touches) of the hand's contacts with
+    /// what does not give way along them (`Twin::hand_contact`; None: no such contact).
+    pub hand_contact: Option<Vector3<f64>>,
     /// Env steps since reset.
     pub steps: u64,
 }

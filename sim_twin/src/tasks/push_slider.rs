@@ -3,10 +3,28 @@
 //!
 //! [U] choices (the reference keeps the slider only as a USD asset): the rail is a fixed bar
 //! 1.1 m long, 0.02 m deep and 0.04 m high on the wall face; the knob ("Slider" body) is a
-//! round bar 0.03 m across standing 0.16 m out from the rail along the wall's normal, mass
-//! 0.2 kg, its origin at its centre (0.10 m off the wall face); the joint is limited to
-//! [−0.5, 0.5] m. The root is the wall frame turned 180° about z, so the joint's positive
+//! round bar 0.03 m across standing out from the rail along the wall's normal to 0.28 m off
+//! the wall face, mass 0.2 kg, its body's origin on its axis 0.10 m off the wall face (the
+//! point the script aims at: the EE link stops 0.23 m in front of it); the joint is limited
+//! to [−0.5, 0.5] m. The root is the wall frame turned 180° about z, so the joint's positive
 //! direction is −w_y (the scripted push direction).
+//!
+//! The knob reaches 0.28 m (it reached 0.18 m, a bar 0.16 m long centred on the origin):
+//! the scripts aim every vehicle's EE link at the same point (AMBENCH_SPEC §4.0), and the
+//! tools reach 0.18 m (FA-Hexa, UA-Hexa), 0.075 m (UA-Quad) and 0.0445 m (Omni-Hexa) ahead
+//! of it, so the UA-Quad's and the Omni-Hexa's tips stopped 0.075 m and 0.105 m short of the
+//! 0.18 m knob, where the paper's embodiment table has every vehicle push it. A knob they
+//! reach puts the FA-Hexa's palm (0.08 m ahead of its EE link, 0.25 m off the wall face)
+//! against its end, 0.03 m short of its target: the paper's FA-Hexa saturates its rotors on
+//! 39.5 % of Push Slider's steps (embodiment table), which such a press explains (the twin's
+//! FA-Hexa IK-PID: 0.3 % with the short knob, 42.9 % now); 0.28 m is the least that gives
+//! the UA-Quad's pads (0.04 m long, to its tip at 0.255 m off the wall face) their whole
+//! length on the knob. Measured (30 rollouts, seed 0, `amstack bench --platform P
+//! [--controller C] --task push-slider`): Omni-Hexa 0 → 100 % and UA-Quad, with its pads
+//! reaching down across its EE link's axis (`ua-quad.urdf`), 0 → 100 % (10 rollouts);
+//! the FA-Hexa's whole-body MPC 100 → 0 % until it kept its target off what the palm
+//! presses (`MpcConfig::contact_reference`), then 100 %; the FA-Hexa IK-PID, IK-L1, the
+//! UA-Hexa and the EE-only oracle 100 % before and after.
 //!
 //! The knob is round (a departure from this module's earlier box, 0.03 × 0.16 × 0.08 m; the
 //! reference's shape is not known): the twin's grasp lets a round bar turn in the fingers
@@ -35,8 +53,15 @@ pub(crate) const INITIAL_M: f64 = -0.5;
 pub(crate) const ENGAGED_M: f64 = 0.05 * (PUSHED_M - INITIAL_M);
 
 const RAIL_DEPTH_M: f64 = 0.02;
+/// The knob body's origin ("Slider", the point the script aims at) off the rail, m.
+const KNOB_ORIGIN_OUT_M: f64 = 0.08;
+/// How far the knob reaches off the wall face, m.
+pub(crate) const KNOB_REACH_M: f64 = 0.28;
+/// The knob's end beyond its body's origin, along its axis, m.
+#[cfg(test)]
+pub(crate) const KNOB_END_FROM_ORIGIN_M: f64 = KNOB_REACH_M - RAIL_DEPTH_M - KNOB_ORIGIN_OUT_M;
 /// Half the knob's length out from the rail, m.
-const KNOB_HALF_LENGTH_M: f64 = 0.08;
+const KNOB_HALF_LENGTH_M: f64 = (KNOB_REACH_M - RAIL_DEPTH_M) / 2.0;
 /// The knob's radius, m (0.03 m across, along the rail as across it).
 pub(crate) const KNOB_RADIUS_M: f64 = 0.015;
 
@@ -88,7 +113,7 @@ impl Scene for PushSlider {
         let root_from_joint = Isometry3::rotation(Vector3::z() * std::f64::consts::FRAC_PI_2);
         // Knob centre in the joint frame at q = 0: out of the wall along the root's x, which
         // is the joint frame's −y.
-        let out = RAIL_DEPTH_M + KNOB_HALF_LENGTH_M;
+        let out = RAIL_DEPTH_M + KNOB_ORIGIN_OUT_M;
         let joint_from_link0 = Isometry3::from_parts(
             nalgebra::Translation3::new(0.0, -out, 0.0),
             root_from_joint.rotation.inverse(),
@@ -102,7 +127,13 @@ impl Scene for PushSlider {
             // (out of the wall).
             vec![(
                 ColliderBuilder::cylinder(KNOB_HALF_LENGTH_M, KNOB_RADIUS_M),
-                Isometry3::rotation(Vector3::z() * -std::f64::consts::FRAC_PI_2),
+                Isometry3::from_parts(
+                    nalgebra::Translation3::new(RAIL_DEPTH_M + KNOB_HALF_LENGTH_M - out, 0.0, 0.0),
+                    UnitQuaternion::from_axis_angle(
+                        &Vector3::z_axis(),
+                        -std::f64::consts::FRAC_PI_2,
+                    ),
+                ),
             )],
             0.2,
             &SPEC,

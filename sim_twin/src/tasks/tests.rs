@@ -445,7 +445,8 @@ fn roll_the_hand_on_the_knob(torque_in_knob_frame: Vector3<f64>) -> f64 {
     };
     let knob_pose = super::objects::pose_of(&w, knob);
     // The knob's axis is its link's x, out of the wall toward the vehicle.
-    let hand_at = knob_pose * nalgebra::Point3::new(0.08 + 0.05, 0.0, 0.0);
+    let hand_at = knob_pose
+        * nalgebra::Point3::new(super::push_slider::KNOB_END_FROM_ORIGIN_M + 0.05, 0.0, 0.0);
     let hand = w.insert_body(
         RigidBodyBuilder::dynamic()
             .pose(crate::convert::pose_to_rapier(&Isometry3::translation(
