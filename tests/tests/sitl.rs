@@ -278,6 +278,64 @@ fn bench_over_ipc_equals_the_in_process_bench() {
 }
 
 #[test]
+fn the_mpc_over_ipc_pushes_the_slider_as_in_process() {
+    // The whole-body MPC reads the held joint and the hand's blocking contact from the task
+    // scene (Push Slider: the palm on the knob's end, then the rail): both cross the wire, so
+    // the split flight pushes the knob as the in-process one does. (Without them on the wire,
+    // 0 of 3 over the link against 3 of 3 in-process: the plan stretched the arm into the
+    // knob's end and pushed its own base back.)
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let mut sitl = Sitl::new();
+    let svc = service("mpc");
+    let twin = sitl.twin(
+        &svc,
+        &[
+            "--flight-chooses-episode",
+            "--sessions",
+            "1",
+            "--platform",
+            "fa-hexa",
+        ],
+    );
+    let json = |name: &str| dir.path().join(name);
+    let bench = |file: &Path, link: &str| -> Vec<String> {
+        [
+            "bench",
+            "--platform",
+            "fa-hexa",
+            "--controller",
+            "mpc",
+            "--task",
+            "push-slider",
+            "--rollouts",
+            "1",
+            "--link-timeout-ms",
+            "10000",
+            "--link",
+            link,
+            "--json",
+            &file.display().to_string(),
+        ]
+        .iter()
+        .map(|s| (*s).to_owned())
+        .collect()
+    };
+    let in_args = bench(&json("in.json"), "twin");
+    let ipc_args = bench(&json("ipc.json"), &format!("ipc:{svc}"));
+    let in_args: Vec<&str> = in_args.iter().map(String::as_str).collect();
+    let ipc_args: Vec<&str> = ipc_args.iter().map(String::as_str).collect();
+    let in_process = sitl.start("mpc-in", &in_args);
+    let split = sitl.start("mpc-ipc", &ipc_args);
+    for i in [in_process, split, twin] {
+        let status = sitl.procs[i].wait();
+        assert!(status.success(), "{}", sitl.procs[i].stderr());
+    }
+    let (a, b) = (json("in.json"), json("ipc.json"));
+    assert_eq!(read_json(&b)["tasks"]["push-slider"]["success_rate"], 1.0);
+    assert_eq!(bench_scores(&a), bench_scores(&b));
+}
+
+#[test]
 fn killing_the_twin_stops_the_flight_with_a_finished_log() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let mcap = dir.path().join("cut.mcap");

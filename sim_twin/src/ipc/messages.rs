@@ -17,11 +17,11 @@ use platform::{
     ActuatorCommand, DisturbanceReport, Measurement, RigidBodyState, RotorReport, Wrench,
 };
 
-use crate::{TaskId, TaskObservation, TaskSnapshot, TaskStatus};
+use crate::{HeldJoint, TaskId, TaskObservation, TaskSnapshot, TaskStatus};
 
 /// Version of the data messages' layout and meaning. Bump on any change of
 /// [`MeasurementMsg`] or [`CommandMsg`] (and of the type names below).
-pub const MESSAGE_VERSION: u32 = 2;
+pub const MESSAGE_VERSION: u32 = 3;
 /// Most movable joints a vehicle may have on the wire (arm, gripper, tilt hinges).
 pub const MAX_JOINTS: usize = 16;
 /// Most rotors a vehicle may have on the wire.
@@ -49,6 +49,12 @@ pub const TASK_HOLDING: u32 = 2;
 pub const TASK_HAS_WALL: u32 = 4;
 /// [`TaskMsg::flags`]: `obstacle_face_x_m` is set.
 pub const TASK_HAS_OBSTACLE_FACE: u32 = 8;
+/// [`TaskMsg::flags`]: the held object slides along `held_axis` (a prismatic joint).
+pub const TASK_HELD_PRISMATIC: u32 = 16;
+/// [`TaskMsg::flags`]: the held object turns about `held_axis` through `held_point_m`.
+pub const TASK_HELD_REVOLUTE: u32 = 32;
+/// [`TaskMsg::flags`]: `hand_contact` is set.
+pub const TASK_HAS_HAND_CONTACT: u32 = 64;
 
 /// [`CommandMsg::flags`]: the flight process ends its session (no failsafe follows).
 pub const COMMAND_END_OF_SESSION: u32 = 1;
@@ -78,7 +84,7 @@ pub mod joint_role {
 /// One rotor over the last control period (see [`RotorReport`]).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("amstack.sitl.Rotor.v2")]
+#[type_name("amstack.sitl.Rotor.v3")]
 pub struct RotorMsg {
     /// Thrust commanded, N.
     pub commanded_n: f64,
@@ -103,7 +109,7 @@ pub struct RotorMsg {
 /// ([`crate::sensors::ideal_imu`]).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("amstack.sitl.Imu.v2")]
+#[type_name("amstack.sitl.Imu.v3")]
 pub struct ImuMsg {
     /// Specific force f = Rᵀ(a − g), base frame, m/s², with a the base origin's world
     /// acceleration averaged over the last control period, R the attitude at mid-period and
@@ -117,7 +123,7 @@ pub struct ImuMsg {
 /// The task scene after the tick (see [`TaskSnapshot`]); `task` 0 without a task.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("amstack.sitl.Task.v2")]
+#[type_name("amstack.sitl.Task.v3")]
 pub struct TaskMsg {
     /// 0: no task; k: `TaskId::ALL[k − 1]`.
     pub task: u32,
@@ -145,6 +151,13 @@ pub struct TaskMsg {
     pub world_from_wall_wxyz: [f64; 4],
     /// World x of the obstacle face the base must stay in front of, m.
     pub obstacle_face_x_m: f64,
+    /// The held object's joint axis, world (`TASK_HELD_*`; `TaskSnapshot::held_joint`).
+    pub held_axis: [f64; 3],
+    /// A point on a held revolute joint's axis, world, m.
+    pub held_point_m: [f64; 3],
+    /// The normal of the hand's blocking contact, world (`TASK_HAS_HAND_CONTACT`;
+    /// `TaskSnapshot::hand_contact`).
+    pub hand_contact: [f64; 3],
 }
 
 impl Default for TaskMsg {
@@ -163,6 +176,9 @@ impl Default for TaskMsg {
             wall_position_in_world_m: [0.0; 3],
             world_from_wall_wxyz: [1.0, 0.0, 0.0, 0.0],
             obstacle_face_x_m: 0.0,
+            held_axis: [0.0; 3],
+            held_point_m: [0.0; 3],
+            hand_contact: [0.0; 3],
         }
     }
 }
@@ -216,6 +232,22 @@ impl TaskMsg {
             msg.flags |= TASK_HAS_OBSTACLE_FACE;
             msg.obstacle_face_x_m = x;
         }
+        match t.held_joint {
+            Some(HeldJoint::Prismatic { axis }) => {
+                msg.flags |= TASK_HELD_PRISMATIC;
+                msg.held_axis = axis.into();
+            }
+            Some(HeldJoint::Revolute { axis, point }) => {
+                msg.flags |= TASK_HELD_REVOLUTE;
+                msg.held_axis = axis.into();
+                msg.held_point_m = point.into();
+            }
+            None => {}
+        }
+        if let Some(n) = t.hand_contact {
+            msg.flags |= TASK_HAS_HAND_CONTACT;
+            msg.hand_contact = n.into();
+        }
         Ok(msg)
     }
 
@@ -252,9 +284,20 @@ impl TaskMsg {
             obstacle_face_x: (self.flags & TASK_HAS_OBSTACLE_FACE != 0)
                 .then_some(self.obstacle_face_x_m),
             holding: self.flags & TASK_HOLDING != 0,
-            // Not on this wire: the MPC's grasp rows need the in-process twin.
-            held_joint: None,
-            hand_contact: None,
+            held_joint: if self.flags & TASK_HELD_PRISMATIC != 0 {
+                Some(HeldJoint::Prismatic {
+                    axis: Vector3::from(self.held_axis),
+                })
+            } else if self.flags & TASK_HELD_REVOLUTE != 0 {
+                Some(HeldJoint::Revolute {
+                    axis: Vector3::from(self.held_axis),
+                    point: Vector3::from(self.held_point_m),
+                })
+            } else {
+                None
+            },
+            hand_contact: (self.flags & TASK_HAS_HAND_CONTACT != 0)
+                .then(|| Vector3::from(self.hand_contact)),
             steps: self.steps,
         })
     }
@@ -263,7 +306,7 @@ impl TaskMsg {
 /// Twin → flight: the measurement at the end of a control period.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("amstack.sitl.Measurement.v2")]
+#[type_name("amstack.sitl.Measurement.v3")]
 pub struct MeasurementMsg {
     /// [`MESSAGE_VERSION`].
     pub version: u32,
@@ -320,7 +363,7 @@ pub struct MeasurementMsg {
 /// Flight → twin: the actuator command for one control period.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("amstack.sitl.Command.v2")]
+#[type_name("amstack.sitl.Command.v3")]
 pub struct CommandMsg {
     /// [`MESSAGE_VERSION`].
     pub version: u32,

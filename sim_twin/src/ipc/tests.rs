@@ -167,11 +167,33 @@ fn task_state_crosses_the_wire_bit_for_bit() {
     let snapshot = twin.task_snapshot().unwrap_or_else(|| panic!("a task"));
     assert!(snapshot.wall.is_some() && snapshot.obstacle_face_x.is_some());
     let msg = TaskMsg::from_snapshot(Some(&snapshot)).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(msg.to_snapshot(), Some(snapshot));
+    assert_eq!(msg.to_snapshot(), Some(snapshot.clone()));
     assert_eq!(
         TaskMsg::from_snapshot(None).map(|m| m.to_snapshot()),
         Ok(None)
     );
+    // The held joint and the hand's contact, which the whole-body MPC reads from the scene,
+    // cross it too (a flight over the wire flies what the in-process twin flies).
+    for held in [
+        None,
+        Some(crate::HeldJoint::Prismatic {
+            axis: nalgebra::Vector3::new(0.1, -0.99, 0.05),
+        }),
+        Some(crate::HeldJoint::Revolute {
+            axis: nalgebra::Vector3::new(0.0, 0.6, 0.8),
+            point: nalgebra::Vector3::new(1.9, -0.3, 1.2),
+        }),
+    ] {
+        let mut s = snapshot.clone();
+        s.held_joint = held;
+        s.hand_contact = Some(nalgebra::Vector3::new(
+            -0.98,
+            0.1,
+            std::f64::consts::FRAC_1_PI,
+        ));
+        let msg = TaskMsg::from_snapshot(Some(&s)).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(msg.to_snapshot(), Some(s));
+    }
     // Every task's state fits the message.
     for task in TaskId::ALL {
         twin.reset_episode(Some(task), 1)
