@@ -614,6 +614,26 @@ fn soft_state_rows_leave_a_feasible_qp_unchanged() {
     }
 }
 
+/// One tick of the controller flown on its own model: the measured state from `x` (the arm's
+/// joints written into the configuration at their dofs), the update toward the target within
+/// the limits — the MPC must fly it, not its fallback — then `x` advanced over the tick by
+/// RK4 with the input it applied.
+fn one_tick_on_the_model(
+    mpc: &mut WholeBodyMpc,
+    x: &mut StateVector,
+    (arm_dofs, configuration): (&[usize], &mut [f64]),
+    (target, limits): (&nalgebra::Isometry3<f64>, &BaseLimits),
+    tick: usize,
+) {
+    let measured = measured_from_model(x, arm_dofs, configuration);
+    let c = mpc.update(&measured, configuration, target, limits, DT, None);
+    assert_eq!(c.status.mode, MpcMode::Mpc, "tick {tick}");
+    let u = mpc
+        .last_input()
+        .unwrap_or_else(|| panic!("tick {tick}: no input"));
+    *x = mpc.rti().model().rk4(x, &u, DT).0;
+}
+
 /// The base state and joint configuration the MPC's model state `x` stands for (the arm's
 /// joints written into `configuration` at `arm_dofs`).
 fn measured_from_model(
@@ -1114,13 +1134,13 @@ fn pressing_a_blocking_contact(config: MpcConfig) -> Vector3<f64> {
     let mut configuration = q.clone();
     for tick in 0..120 {
         mpc.set_hand_contact(Some(-Vector3::x()));
-        let measured = measured_from_model(&x, &arm_dofs, &mut configuration);
-        let c = mpc.update(&measured, &configuration, &target, &limits, DT, None);
-        assert_eq!(c.status.mode, MpcMode::Mpc, "tick {tick}");
-        let u = mpc
-            .last_input()
-            .unwrap_or_else(|| panic!("tick {tick}: no input"));
-        x = mpc.rti().model().rk4(&x, &u, DT).0;
+        one_tick_on_the_model(
+            &mut mpc,
+            &mut x,
+            (&arm_dofs, &mut configuration),
+            (&target, &limits),
+            tick,
+        );
     }
     mpc.rti_mut().ee_kinematics(&x).position - start.translation.vector
 }
@@ -1168,14 +1188,14 @@ fn held_on_a_lever(config: MpcConfig) -> (f64, f64) {
     let mut x = mpc.state_vector(&state, &q);
     let mut configuration = q.clone();
     for tick in 0..240 {
-        let measured = measured_from_model(&x, &arm_dofs, &mut configuration);
         mpc.set_held_joint(Some(lever));
-        let c = mpc.update(&measured, &configuration, &target, &limits, DT, None);
-        assert_eq!(c.status.mode, MpcMode::Mpc, "tick {tick}");
-        let u = mpc
-            .last_input()
-            .unwrap_or_else(|| panic!("tick {tick}: no input"));
-        x = mpc.rti().model().rk4(&x, &u, DT).0;
+        one_tick_on_the_model(
+            &mut mpc,
+            &mut x,
+            (&arm_dofs, &mut configuration),
+            (&target, &limits),
+            tick,
+        );
     }
     let end = mpc.rti_mut().ee_kinematics(&x);
     let (r0, r1) = (start.translation.vector - point, end.position - point);
