@@ -1561,7 +1561,6 @@ impl Twin {
         let scene = self.task.scene.as_ref();
         let held = self.task.grasp.held.map(|(object, _)| object);
         let mut sum = Vector3::zeros();
-        let mut any = false;
         for &c in &self.task.hand {
             for pair in self.world.contact_pairs_with(c) {
                 let PairContacts::Rigid(contacts) = &pair.contacts else {
@@ -1605,12 +1604,12 @@ impl Twin {
                     let blocked = blocked_part(&normal, motion.as_ref(), &at.coords);
                     if blocked.norm() >= HAND_CONTACT_BLOCKED {
                         sum += blocked;
-                        any = true;
                     }
                 }
             }
         }
-        if any { sum.try_normalize(1e-9) } else { None }
+        // No blocking contact leaves the sum zero: None.
+        sum.try_normalize(1e-9)
     }
 
     /// Env steps since reset.

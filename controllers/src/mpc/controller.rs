@@ -525,7 +525,7 @@ impl WholeBodyMpc {
         };
         // Holding an object on a joint, only what the joint lets the hand move is an offset
         // the MPC can remove.
-        let error = self.rti.grasp_allowed_part(&at, &error);
+        let error = self.rti.allowed_ee_error(&at, &error);
         let limit = self.config.ee_offset_limit_m;
         if !(error.iter().all(|v| v.is_finite()) && error.norm() <= limit) {
             return;

@@ -422,7 +422,7 @@ impl SqpRti {
     /// The part of an EE position error (at the EE position `at`) the held joint and the
     /// hand's contact let the hand move (the error itself when nothing is held or touched,
     /// or the models are off).
-    pub fn grasp_allowed_part(&self, at: &Vector3<f64>, error: &Vector3<f64>) -> Vector3<f64> {
+    pub fn allowed_ee_error(&self, at: &Vector3<f64>, error: &Vector3<f64>) -> Vector3<f64> {
         let error = match &self.anchored_grasp {
             Some(g) => g.allowed_part(at, error),
             None => *error,

@@ -19,12 +19,13 @@
 //! 39.5 % of Push Slider's steps (embodiment table), which such a press explains (the twin's
 //! FA-Hexa IK-PID: 0.3 % with the short knob, 42.9 % now); 0.28 m is the least that gives
 //! the UA-Quad's pads (0.04 m long, to its tip at 0.255 m off the wall face) their whole
-//! length on the knob. Measured (30 rollouts, seed 0, `amstack bench --platform P
-//! [--controller C] --task push-slider`): Omni-Hexa 0 → 100 % and UA-Quad, with its pads
-//! reaching down across its EE link's axis (`ua-quad.urdf`), 0 → 100 % (10 rollouts);
-//! the FA-Hexa's whole-body MPC 100 → 0 % until it kept its target off what the palm
-//! presses (`MpcConfig::contact_reference`), then 100 %; the FA-Hexa IK-PID, IK-L1, the
-//! UA-Hexa and the EE-only oracle 100 % before and after.
+//! length on the knob. Measured (seed 0, `amstack bench --platform P [--controller C]
+//! --task push-slider --rollouts N`; 10 rollouts for the other vehicles, 30 for the FA-Hexa
+//! and the oracle): Omni-Hexa 0 → 100 % and UA-Quad, with its pads reaching down across its
+//! EE link's axis (`ua-quad.urdf`), 0 → 100 %; the FA-Hexa's whole-body MPC 100 → 0 % (10
+//! rollouts) until it kept its target off what the palm presses
+//! (`MpcConfig::contact_reference`), then 100 %; the FA-Hexa IK-PID, IK-L1, the UA-Hexa and
+//! the EE-only oracle 100 % before and after.
 //!
 //! The knob is round (a departure from this module's earlier box, 0.03 × 0.16 × 0.08 m; the
 //! reference's shape is not known): the twin's grasp lets a round bar turn in the fingers
