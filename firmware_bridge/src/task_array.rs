@@ -11,14 +11,21 @@
 //! |---|---|
 //! | 0 | task number: k for the k-th task of the benchmark's order (1-based), 0 none |
 //! | 1 | env steps since reset (exact below 2²⁴) |
-//! | 2 | flags: 1 success, 2 holding an object, 4 wall pose present, 8 obstacle face present |
+//! | 2 | flags: 1 success, 2 holding an object, 4 wall pose present, 8 obstacle face present, 16 held object on a prismatic joint, 32 … on a revolute joint, 64 hand contact present |
 //! | 3 | number of criteria (≤ 16) |
 //! | 4 | criteria bits, criterion i is bit i |
 //! | 5 | world x of the obstacle face, m |
 //! | 6–8 | wall position in the world, m |
 //! | 9–12 | wall orientation, w x y z |
-//! | 13 | number of observation values n (≤ 44) |
-//! | 14… | the observation values, in the scene's key order |
+//! | 13 | number of observation values n (≤ 33) |
+//! | 14 … 13+n | the observation values, in the scene's key order |
+//! | 47–49 | the held object's joint axis (unit, world), flags 16 or 32 |
+//! | 50–52 | a point on that axis, m (world), flag 32 |
+//! | 53–55 | the hand contact's normal (unit, world, out of what the hand touches), flag 64 |
+//!
+//! The held joint and the hand contact are what the whole-body MPC models of the task
+//! (`sim_twin::HeldJoint`, `Twin::hand_contact`, docs/mpc-contact.md); without them an MPC
+//! flown over MAVLink would not know that its hand is pinned to a slider or pressing a knob.
 //!
 //! Positions are in amstack's world frame (x forward, z up), not NED: the array is ours, and
 //! the values are the scene's own observation keys. Names and lengths of the keys are not
@@ -35,13 +42,43 @@ pub const TASK_ARRAY_NAME: &str = "task";
 pub const MAX_CRITERIA: usize = 16;
 /// Where the observation values start.
 const VALUES_AT: usize = 14;
+/// Where the held joint's axis starts (then its point, then the hand contact's normal).
+const JOINT_AT: usize = 47;
+/// Where the point on a revolute held joint's axis starts.
+const POINT_AT: usize = 50;
+/// Where the hand contact's normal starts.
+const CONTACT_AT: usize = 53;
 /// The most observation values the array carries.
-pub const MAX_VALUES: usize = 58 - VALUES_AT;
+pub const MAX_VALUES: usize = JOINT_AT - VALUES_AT;
+/// A received unit vector whose norm is further than this from 1 is not one (f32 rounding
+/// leaves ~1e-7).
+const UNIT_TOLERANCE: f64 = 1e-3;
 
 const SUCCESS: u32 = 1;
 const HOLDING: u32 = 2;
 const HAS_WALL: u32 = 4;
 const HAS_FACE: u32 = 8;
+const HELD_PRISMATIC: u32 = 16;
+const HELD_REVOLUTE: u32 = 32;
+const HAS_CONTACT: u32 = 64;
+const ALL_FLAGS: u32 = 127;
+
+/// The joint a held articulated object moves on, in the world frame at this step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum HeldJointWire {
+    /// Slides along `axis` (unit).
+    Prismatic {
+        /// The sliding direction.
+        axis: Vector3<f64>,
+    },
+    /// Turns about `axis` (unit) through `point` (m).
+    Revolute {
+        /// The turning axis.
+        axis: Vector3<f64>,
+        /// A point on the axis.
+        point: Vector3<f64>,
+    },
+}
 
 /// One step's task state.
 #[derive(Debug, Clone, PartialEq)]
@@ -64,6 +101,10 @@ pub struct TaskArray {
     pub wall: Option<Isometry3<f64>>,
     /// The observation values, in the scene's key order.
     pub values: Vec<f64>,
+    /// The joint the held object moves on (None: nothing held, or a free object).
+    pub held_joint: Option<HeldJointWire>,
+    /// The normal of the hand's contacts with what does not give way along them.
+    pub hand_contact: Option<Vector3<f64>>,
 }
 
 fn f(x: f64) -> f32 {
@@ -131,6 +172,27 @@ impl TaskArray {
             flags |= HAS_FACE;
             data[5] = f(x);
         }
+        let mut put = |at: usize, v: &Vector3<f64>| {
+            for (d, x) in data[at..at + 3].iter_mut().zip(v.iter()) {
+                *d = f(*x);
+            }
+        };
+        match &self.held_joint {
+            Some(HeldJointWire::Prismatic { axis }) => {
+                flags |= HELD_PRISMATIC;
+                put(JOINT_AT, axis);
+            }
+            Some(HeldJointWire::Revolute { axis, point }) => {
+                flags |= HELD_REVOLUTE;
+                put(JOINT_AT, axis);
+                put(POINT_AT, point);
+            }
+            None => {}
+        }
+        if let Some(n) = &self.hand_contact {
+            flags |= HAS_CONTACT;
+            put(CONTACT_AT, n);
+        }
         let bits = self
             .criteria
             .iter()
@@ -179,7 +241,7 @@ impl TaskArray {
         };
         let task_number = count(0, 1 << 16, "task number")?;
         let steps = count(1, 1 << 24, "steps")?;
-        let flags = count(2, 15, "flags")?;
+        let flags = count(2, ALL_FLAGS as usize, "flags")?;
         let criteria_count = count(3, MAX_CRITERIA, "criteria count")?;
         let bits = count(4, (1 << MAX_CRITERIA) - 1, "criteria bits")?;
         let value_count = count(13, MAX_VALUES, "value count")?;
@@ -214,6 +276,44 @@ impl TaskArray {
         let values = (VALUES_AT..VALUES_AT + value_count)
             .map(|i| real(i, "observation value"))
             .collect::<Result<_, _>>()?;
+        let vector = |at: usize, what: &str| -> Result<Vector3<f64>, TaskArrayError> {
+            Ok(Vector3::new(
+                real(at, what)?,
+                real(at + 1, what)?,
+                real(at + 2, what)?,
+            ))
+        };
+        // A unit vector, renormalised after f32's rounding.
+        let unit = |at: usize, what: &str| -> Result<Vector3<f64>, TaskArrayError> {
+            let v = vector(at, what)?;
+            if (v.norm() - 1.0).abs() > UNIT_TOLERANCE {
+                return Err(bad(format!("{what} of norm {} (expected 1)", v.norm())));
+            }
+            Ok(v.normalize())
+        };
+        let held_joint = match (
+            flags & HELD_PRISMATIC as usize != 0,
+            flags & HELD_REVOLUTE as usize != 0,
+        ) {
+            (false, false) => None,
+            (true, false) => Some(HeldJointWire::Prismatic {
+                axis: unit(JOINT_AT, "held joint axis")?,
+            }),
+            (false, true) => Some(HeldJointWire::Revolute {
+                axis: unit(JOINT_AT, "held joint axis")?,
+                point: vector(POINT_AT, "held joint point")?,
+            }),
+            (true, true) => {
+                return Err(bad(
+                    "flags say the held joint is both prismatic and revolute".to_owned(),
+                ));
+            }
+        };
+        let hand_contact = if flags & HAS_CONTACT as usize != 0 {
+            Some(unit(CONTACT_AT, "hand contact normal")?)
+        } else {
+            None
+        };
         Ok(Self {
             time_usec: d.time_usec,
             task_number: task_number as u32,
@@ -224,6 +324,8 @@ impl TaskArray {
             obstacle_face_x_m,
             wall,
             values,
+            held_joint,
+            hand_contact,
         })
     }
 }
@@ -251,6 +353,11 @@ mod tests {
                 UnitQuaternion::from_euler_angles(0.0, 0.0, 0.5),
             )),
             values: vec![0.125, 1.0, 1.5, -0.75, 1.25],
+            held_joint: Some(HeldJointWire::Revolute {
+                axis: Vector3::new(0.6, 0.0, 0.8),
+                point: Vector3::new(1.75, 0.5, 1.25),
+            }),
+            hand_contact: Some(Vector3::new(-1.0, 0.0, 0.0)),
         }
     }
 
@@ -268,8 +375,13 @@ mod tests {
         let d = data(&m);
         // The layout of the contract, by hand.
         assert_eq!((d.array_id, d.name.to_str().unwrap()), (2, "task"));
-        assert_eq!(&d.data[..5], &[8.0, 841.0, 14.0, 3.0, 5.0]);
+        // Flags: holding 2, wall 4, face 8, revolute held joint 32, contact 64.
+        assert_eq!(&d.data[..5], &[8.0, 841.0, 110.0, 3.0, 5.0]);
         assert_eq!(d.data[13], 5.0);
+        assert_eq!(
+            &d.data[47..56],
+            &[0.6, 0.0, 0.8, 1.75, 0.5, 1.25, -1.0, 0.0, 0.0]
+        );
         let b = TaskArray::decode(d).unwrap();
         assert_eq!(b.criteria, a.criteria);
         assert_eq!((b.steps, b.holding, b.success), (841, true, false));
@@ -278,6 +390,26 @@ mod tests {
         let (wa, wb) = (a.wall.unwrap(), b.wall.unwrap());
         assert_eq!(wb.translation, wa.translation);
         assert!(wa.rotation.angle_to(&wb.rotation) < 1e-6);
+        // The held joint and the contact: unit vectors to f32's precision, renormalised.
+        let Some(HeldJointWire::Revolute { axis, point }) = b.held_joint else {
+            panic!("a revolute held joint, got {:?}", b.held_joint);
+        };
+        assert!((axis - Vector3::new(0.6, 0.0, 0.8)).norm() < 1e-7);
+        assert!((axis.norm() - 1.0).abs() < 1e-15);
+        assert_eq!(point, Vector3::new(1.75, 0.5, 1.25));
+        assert_eq!(b.hand_contact, a.hand_contact);
+        // A prismatic joint sends its axis only.
+        let c = TaskArray {
+            held_joint: Some(HeldJointWire::Prismatic {
+                axis: Vector3::new(0.0, 1.0, 0.0),
+            }),
+            hand_contact: None,
+            ..sample()
+        };
+        let m = c.encode().unwrap();
+        assert_eq!(data(&m).data[2], 30.0);
+        let d = TaskArray::decode(data(&m)).unwrap();
+        assert_eq!((d.held_joint, d.hand_contact), (c.held_joint, None));
     }
 
     #[test]
@@ -287,6 +419,8 @@ mod tests {
             obstacle_face_x_m: None,
             values: vec![],
             criteria: vec![],
+            held_joint: None,
+            hand_contact: None,
             ..sample()
         };
         let b = TaskArray::decode(data(&a.encode().unwrap())).unwrap();
@@ -301,7 +435,7 @@ mod tests {
         };
         assert!(matches!(
             a.encode(),
-            Err(TaskArrayError::TooLarge { max: 44, .. })
+            Err(TaskArrayError::TooLarge { max: 33, .. })
         ));
     }
 
@@ -310,8 +444,15 @@ mod tests {
         let good = sample().encode().unwrap();
         let mut cases = Vec::new();
         for (i, x) in [
-            (13, 45.0),
+            (13, 34.0),
             (13, 1.5),
+            // Prismatic and revolute at once; an unknown flag.
+            (2, 126.0),
+            (2, 128.0),
+            // Not unit: the held joint's axis, the contact's normal.
+            (47, 0.9),
+            (53, -0.5),
+            (54, f32::NAN),
             (3, -1.0),
             (2, f32::NAN),
             (6, f32::INFINITY),
@@ -325,7 +466,7 @@ mod tests {
         wrong_id.array_id = 1;
         cases.push(wrong_id);
         for d in &cases {
-            assert!(TaskArray::decode(d).is_err(), "{:?}", &d.data[..14]);
+            assert!(TaskArray::decode(d).is_err(), "{:?}", &d.data);
         }
     }
 }

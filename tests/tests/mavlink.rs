@@ -1153,6 +1153,22 @@ mod bridge {
     }
 
     #[test]
+    fn the_whole_body_mpc_flies_push_slider_over_udp_as_in_process() {
+        // The MPC models the task: the slider's joint once the hand holds it, and the knob's
+        // end the palm presses (docs/mpc-contact.md). Both reach it over MAVLink in the task
+        // array; without them the same flight timed out (3119 steps, the slider not pushed)
+        // where the in-process rollout succeeds at 1379.
+        let _one = serial();
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let mut flags = TASK.to_vec();
+        flags.extend_from_slice(&["--controller", "mpc", "--interface", "ee"]);
+        let reference = in_process(&flags, dir.path());
+        flags.extend_from_slice(&["--level", "actuator"]);
+        let (over, _) = against_autopilot("--lockstep", TASK_SCENE, &flags, dir.path(), "mpc");
+        assert_same_rollout(&over, &reference);
+    }
+
+    #[test]
     fn the_same_task_flight_over_a_serial_pseudo_terminal_pair() {
         // Two pseudo-terminals joined by scripts/pty_pair.py (a null-modem cable): the twin's
         // autopilot opens one as its serial port, the bridge the other.

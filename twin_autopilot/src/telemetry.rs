@@ -6,7 +6,7 @@
 
 use estimator::ImuSample;
 use firmware_bridge::frames;
-use firmware_bridge::task_array::TaskArray;
+use firmware_bridge::task_array::{HeldJointWire, TaskArray};
 use mavlink::dialects::common::{
     ACTUATOR_OUTPUT_STATUS_DATA, ALTITUDE_DATA, ATTITUDE_DATA, ATTITUDE_QUATERNION_DATA,
     AUTOPILOT_VERSION_DATA, DEBUG_FLOAT_ARRAY_DATA, EXTENDED_SYS_STATE_DATA,
@@ -21,7 +21,7 @@ use platform::{GRAVITY_MPS2, Measurement, RigidBodyState};
 
 use crate::modes::{Commander, Failsafe};
 use crate::wire::LinkCounters;
-use sim_twin::{TaskId, TaskSnapshot};
+use sim_twin::{HeldJoint, TaskId, TaskSnapshot};
 
 /// Where the twin's world origin is on the globe: PX4 SITL's default home (Zürich). The
 /// ground under the origin is at `alt_m`; world z is the height above it.
@@ -50,7 +50,7 @@ pub const JOINTS_ARRAY_ID: u16 = 1;
 
 /// The task scene's state after a step as the contract's SITL extension, DEBUG_FLOAT_ARRAY
 /// "task" (`firmware_bridge::task_array`), stamped with the step's time. `None` when it does
-/// not fit the array (no scene of ours comes near: at most 9 observation values of 44).
+/// not fit the array (no scene of ours comes near: at most 9 observation values of 33).
 pub fn task_array(m: &Measurement, snapshot: &TaskSnapshot) -> Option<MavMessage> {
     let number = TaskId::ALL
         .iter()
@@ -71,6 +71,11 @@ pub fn task_array(m: &Measurement, snapshot: &TaskSnapshot) -> Option<MavMessage
             .iter()
             .flat_map(|(_, v)| v.iter().copied())
             .collect(),
+        held_joint: snapshot.held_joint.map(|j| match j {
+            HeldJoint::Prismatic { axis } => HeldJointWire::Prismatic { axis },
+            HeldJoint::Revolute { axis, point } => HeldJointWire::Revolute { axis, point },
+        }),
+        hand_contact: snapshot.hand_contact,
     }
     .encode()
     .ok()
