@@ -36,6 +36,15 @@
 //!   of its margin, so the MPC plans only wrenches the rotors can deliver. The reference's
 //!   torque is unbounded.
 //! - Joint and arm-reference bounds are the URDF limits within ±π (the reference: ±π).
+//! - The joint bounds of the states are not rows of the QP when the arm-reference bounds
+//!   imply them ([`arm_state_rows_implied`]): the servo model's step is
+//!   `q_{k+1} = φ q_k + (1 − φ) q_ref,k` with `0 ≤ φ ≤ e^{−h/τ}` (τ the joints' recovery time
+//!   constant), so a joint whose reference keeps within the bounds keeps within them, and
+//!   within the widened bounds of a measured joint past its limit. The feasible set is the
+//!   same; the QP has 8 fewer rows per stage (256 of 1344), and none of the linearly
+//!   dependent ones that a joint held on its limit makes active at every stage (its state
+//!   row at k + 1 and its reference row at k, with the state row at k), whose multipliers are
+//!   not unique.
 //! - A grasp model ([`crate::mpc::grasp`], not in the reference): while the hand holds an
 //!   object on a joint ([`SqpRti::set_grasp`]), the EE position target is moved onto the
 //!   joint's motion through the measured EE, and optionally two EE rows per state stage
@@ -84,6 +93,9 @@ const STATE_BOUND_INDICES: [usize; 10] = [
     IX_Q + 2,
     IX_Q + 3,
 ];
+/// State bounds that are rows of the QP when the arm's joint bounds are implied by its
+/// reference bounds (position and Euler angles): the first six of [`STATE_BOUND_INDICES`].
+const STATE_BOUND_ROWS_WITHOUT_ARM: usize = 6;
 /// Bounded input entries: the arm references (force and torque: the rotor envelope rows).
 const INPUT_BOUND_INDICES: [usize; NQ] = [IU_QREF, IU_QREF + 1, IU_QREF + 2, IU_QREF + 3];
 
@@ -205,6 +217,12 @@ impl SqpRti {
         let model = MpcModel::new(vehicle, config.arm_gain_per_s)?;
         let h = config.interval_s();
         let (_, a, b) = model.rk4(&StateVector::zeros(), &InputVector::zeros(), h);
+        let arm_tau = Self::arm_recovery_time_constant(&config);
+        let state_rows = if arm_state_rows_implied(&a, &b, h, arm_tau) {
+            STATE_BOUND_ROWS_WITHOUT_ARM
+        } else {
+            STATE_BOUND_INDICES.len()
+        };
         let mut joint_lower = [0.0; NQ];
         let mut joint_upper = [0.0; NQ];
         for j in 0..NQ {
@@ -245,9 +263,9 @@ impl SqpRti {
         qp.soft_penalty = config.state_row_penalty;
         for (k, c) in qp.constraints.iter_mut().enumerate() {
             if k > 0 {
-                c.state_indices = STATE_BOUND_INDICES.to_vec();
-                c.state_lower = vec![0.0; 10];
-                c.state_upper = vec![0.0; 10];
+                c.state_indices = STATE_BOUND_INDICES[..state_rows].to_vec();
+                c.state_lower = vec![0.0; state_rows];
+                c.state_upper = vec![0.0; state_rows];
                 c.general = vec![StateVector::zeros()];
                 c.general_lower = vec![0.0];
                 c.general_upper = vec![0.0];
@@ -569,7 +587,7 @@ impl SqpRti {
         upper[5] = c.yaw_limit_rad;
         lower[6..].copy_from_slice(&self.joint_lower);
         upper[6..].copy_from_slice(&self.joint_upper);
-        let arm_tau = 2.0 / c.arm_gain_per_s;
+        let arm_tau = Self::arm_recovery_time_constant(c);
         let height_hat = self.model.ee(x_hat).position.z - x_hat[IX_P + 2];
         let relax = |lo: f64, hi: f64, v: f64, decay: f64| -> (f64, f64) {
             (lo.min(lo + (v - lo) * decay), hi.max(hi + (v - hi) * decay))
@@ -577,7 +595,7 @@ impl SqpRti {
         for k in 1..=c.intervals {
             let t = k as f64 * self.h;
             let decay_fast = (-t / c.recovery_time_constant_s).exp();
-            let decay_arm = (-t / arm_tau.max(c.recovery_time_constant_s)).exp();
+            let decay_arm = (-t / arm_tau).exp();
             let b = &mut self.bounds[k];
             for (i, &ix) in STATE_BOUND_INDICES.iter().enumerate() {
                 let decay = if i >= 6 { decay_arm } else { decay_fast };
@@ -589,6 +607,21 @@ impl SqpRti {
             b.height_lower = lo;
             b.height_upper = hi;
         }
+    }
+
+    /// Time constant with which the bounds of a joint (and of the EE height) measured past
+    /// them close in over the horizon: the servo's 2/k_a, at least the base's.
+    fn arm_recovery_time_constant(c: &MpcConfig) -> f64 {
+        (2.0 / c.arm_gain_per_s).max(c.recovery_time_constant_s)
+    }
+
+    /// Whether the arm joints' state bounds are rows of the QP (false: implied by the
+    /// arm-reference bounds, [`arm_state_rows_implied`]).
+    pub fn has_arm_state_rows(&self) -> bool {
+        self.qp
+            .constraints
+            .get(1)
+            .is_some_and(|c| c.state_indices.len() == STATE_BOUND_INDICES.len())
     }
 
     fn stage_scale(&self, k: usize) -> f64 {
@@ -702,7 +735,8 @@ impl SqpRti {
             if k > 0 {
                 let b = self.bounds[k];
                 let c = &mut self.qp.constraints[k];
-                for (i, &ix) in STATE_BOUND_INDICES.iter().enumerate() {
+                let rows = c.state_indices.len();
+                for (i, &ix) in STATE_BOUND_INDICES.iter().enumerate().take(rows) {
                     c.state_lower[i] = b.state_lower[i] - x[ix];
                     c.state_upper[i] = b.state_upper[i] - x[ix];
                 }
@@ -876,6 +910,33 @@ fn pose_residual(
         y[3 + i] = wrap_angle(rpy[i] - ref_rpy[i]);
     }
     y
+}
+
+/// Whether the arm joints' state bounds (`q_min ≤ q_k ≤ q_max`, k = 1..N, widened toward a
+/// measured joint past them as `b + (q̂ − b)·e^{−t_k/τ}`) follow from the arm-reference
+/// bounds (`q_min ≤ q_ref,k ≤ q_max`) through the dynamics, so that leaving them out of the
+/// QP leaves its feasible set as it is. True when each joint's row of the step is
+/// `q_{k+1} = φ q_k + β q_ref,k` (A and B without another entry on it) with
+/// `0 ≤ φ ≤ e^{−h/τ}` and `φ + β = 1`: then by induction from `q_0 = q̂`,
+/// `q_k − b ≤ φ^k (q̂ − b)⁺ ≤ (q̂ − b)⁺ e^{−t_k/τ}` on either side. The servo's exact step has
+/// φ = e^{−k_a h} ≤ e^{−k_a h/2}; RK4's (the MPC's integrator) is its degree-4 polynomial,
+/// which leaves [0, 1] for k_a h > 2.79 (then the rows stay).
+pub(crate) fn arm_state_rows_implied(
+    a: &StateMatrix,
+    b: &StateInputMatrix,
+    h: f64,
+    tau: f64,
+) -> bool {
+    const ROUND_OFF: f64 = 1e-12;
+    let decay = (-h / tau).exp();
+    (0..NQ).all(|j| {
+        let (row, input) = (IX_Q + j, IU_QREF + j);
+        let phi = a[(row, row)];
+        let beta = b[(row, input)];
+        let others_zero = (0..NX).all(|c| c == row || a[(row, c)] == 0.0)
+            && (0..NU).all(|c| c == input || b[(row, c)] == 0.0);
+        others_zero && phi >= 0.0 && phi <= decay && (phi + beta - 1.0).abs() <= ROUND_OFF
+    })
 }
 
 /// The rotor rows of a stage (`lower ≤ eᵀu ≤ upper`): the force's share of each rotor's
