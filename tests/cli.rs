@@ -613,8 +613,15 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     // QPs the interior point solved. (Their mean depends on which QPs the active-set shot
     // leaves it; on Push Slider's rollout with the 0.18 m knob: 168 rows while the shot stopped after two guesses on a rejection, 93 since
     // it goes on while its guesses converge and keeps the QPs nearest the bounds.)
+    // 32 stages of 34 rows: 12 on the base's position and Euler angles, 2 on the EE height,
+    // 8 on the arm references, 12 rotor rows (the arm joints' state rows, 8 more, are implied
+    // by the reference rows through the servo model and are not rows).
     let screening = &p["screening"];
-    assert_eq!(screening["rows_per_qp"].as_u64(), Some(1344), "{screening}");
+    assert_eq!(
+        screening["rows_per_qp"].as_u64(),
+        Some(32 * 34),
+        "{screening}"
+    );
     assert!(
         screening["screened_rows_mean"]
             .as_f64()
