@@ -560,8 +560,10 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     // early infeasibility exit below needs. (With the default, matched arm model every QP of
     // Push Slider's rollout is solved: the last assertions.) Flown on Wipe Window: on Push
     // Slider, since its knob reaches 0.28 m and the palm presses its end (2026-11-29), one QP
-    // of the 1408 of the held push (tick 1336) stops at the 80-iteration cap, with the exit
-    // and without it (docs/mpc-contact.md §11).
+    // of the 1408 of the held push (tick 1336) stopped at the 80-iteration cap, with the exit
+    // and without it (docs/mpc-contact.md §11); since the arm joints' implied state rows left
+    // the QP (later that day) that rollout has none (27 iterations at most), but Wipe Window
+    // stays the test's scene.
     let reference_arm = dir.path().join("reference-arm.toml");
     std::fs::write(
         &reference_arm,
