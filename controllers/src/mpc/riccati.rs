@@ -1294,20 +1294,29 @@ impl RiccatiIpm {
         // Every row as hard (branch-free, so it vectorises), then the soft rows redone.
         let m = self.rows.len();
         match sigma_mu {
+            // Zipped slices (no bounds checks), so the element-wise loops vectorise.
             None => {
-                for i in 0..m {
-                    let ds = -self.r_ineq[i] - self.g_dz[i];
-                    let rc = self.s[i] * self.lambda[i];
-                    self.ds[i] = ds;
-                    self.dlambda[i] = -(rc + self.lambda[i] * ds) / self.s[i];
+                let rows = self.ds[..m].iter_mut().zip(&mut self.dlambda[..m]);
+                let inputs = self.r_ineq[..m].iter().zip(&self.g_dz[..m]);
+                let pairs = self.s[..m].iter().zip(&self.lambda[..m]);
+                for (((ds, dl), (r, g)), (s, l)) in rows.zip(inputs).zip(pairs) {
+                    let d = -r - g;
+                    let rc = s * l;
+                    *ds = d;
+                    *dl = -(rc + l * d) / s;
                 }
             }
             Some(sm) => {
-                for i in 0..m {
-                    let ds = -self.r_ineq[i] - self.g_dz[i];
-                    let rc = self.s[i] * self.lambda[i] + self.ds_aff[i] * self.dlambda_aff[i] - sm;
-                    self.ds[i] = ds;
-                    self.dlambda[i] = -(rc + self.lambda[i] * ds) / self.s[i];
+                let rows = self.ds[..m].iter_mut().zip(&mut self.dlambda[..m]);
+                let inputs = self.r_ineq[..m].iter().zip(&self.g_dz[..m]);
+                let pairs = self.s[..m].iter().zip(&self.lambda[..m]);
+                let aff = self.ds_aff[..m].iter().zip(&self.dlambda_aff[..m]);
+                for ((((ds, dl), (r, g)), (s, l)), (sa, la)) in rows.zip(inputs).zip(pairs).zip(aff)
+                {
+                    let d = -r - g;
+                    let rc = s * l + sa * la - sm;
+                    *ds = d;
+                    *dl = -(rc + l * d) / s;
                 }
             }
         }
@@ -1362,11 +1371,18 @@ impl RiccatiIpm {
         let mut lanes = [1.0f64; 4];
         let m = self.s.len();
         let whole = m - m % 4;
-        for i in (0..whole).step_by(4) {
-            for l in 0..4 {
-                let a_s = ratio(self.s[i + l], self.ds[i + l]);
-                let a_l = ratio(self.lambda[i + l], self.dlambda[i + l]);
-                lanes[l] = lanes[l].min(a_s).min(a_l);
+        // Fixed-size chunks of zipped slices: no bounds checks in the lanes.
+        let slacks = self.s[..whole]
+            .chunks_exact(4)
+            .zip(self.ds[..whole].chunks_exact(4));
+        let multipliers = self.lambda[..whole]
+            .chunks_exact(4)
+            .zip(self.dlambda[..whole].chunks_exact(4));
+        for ((s, ds), (l, dl)) in slacks.zip(multipliers) {
+            for k in 0..4 {
+                let a_s = ratio(s[k], ds[k]);
+                let a_l = ratio(l[k], dl[k]);
+                lanes[k] = lanes[k].min(a_s).min(a_l);
             }
         }
         let mut alpha = lanes.iter().copied().fold(1.0, f64::min);
@@ -1945,8 +1961,12 @@ impl RiccatiIpm {
             }
             iterations += 1;
             // Every row as hard (vectorises), then the soft rows.
-            for i in 0..m {
-                self.w[i] = self.lambda[i] / self.s[i];
+            for ((w, l), s) in self.w[..m]
+                .iter_mut()
+                .zip(&self.lambda[..m])
+                .zip(&self.s[..m])
+            {
+                *w = l / s;
             }
             for &i in &self.soft_index {
                 self.w[i] = 1.0 / (self.s[i] / self.lambda[i] + self.t[i] / self.nu[i]);
@@ -1956,8 +1976,12 @@ impl RiccatiIpm {
                 break;
             }
             // Predictor (affine scaling): r_c = s∘λ, coefficient W r_i.
-            for i in 0..m {
-                self.coef[i] = self.w[i] * self.r_ineq[i];
+            for ((c, w), r) in self.coef[..m]
+                .iter_mut()
+                .zip(&self.w[..m])
+                .zip(&self.r_ineq[..m])
+            {
+                *c = w * r;
             }
             for j in 0..self.soft_count {
                 let i = self.soft_index[j];
@@ -1985,9 +2009,15 @@ impl RiccatiIpm {
             }
             // Corrector: r_c = s∘λ + ds_aff∘dλ_aff − σμ.
             let sigma_mu = sigma * mu;
-            for i in 0..m {
-                self.coef[i] = self.w[i] * self.r_ineq[i]
-                    - (self.ds_aff[i] * self.dlambda_aff[i] - sigma_mu) / self.s[i];
+            let weighted = self.w[..m].iter().zip(&self.r_ineq[..m]);
+            let aff = self.ds_aff[..m].iter().zip(&self.dlambda_aff[..m]);
+            for (((c, (w, r)), (sa, la)), s) in self.coef[..m]
+                .iter_mut()
+                .zip(weighted)
+                .zip(aff)
+                .zip(&self.s[..m])
+            {
+                *c = w * r - (sa * la - sigma_mu) / s;
             }
             for j in 0..self.soft_count {
                 let i = self.soft_index[j];
@@ -2010,9 +2040,11 @@ impl RiccatiIpm {
                     self.y[k] = y;
                 }
             }
-            for i in 0..m {
-                self.s[i] += alpha * self.ds[i];
-                self.lambda[i] += alpha * self.dlambda[i];
+            for (s, ds) in self.s[..m].iter_mut().zip(&self.ds[..m]) {
+                *s += alpha * ds;
+            }
+            for (l, dl) in self.lambda[..m].iter_mut().zip(&self.dlambda[..m]) {
+                *l += alpha * dl;
             }
             if self.soft_count > 0 {
                 for &i in &self.soft_index {
