@@ -181,6 +181,13 @@ pub struct Pid4Gains {
     pub max_torque_nm: Option<f64>,
     /// Norm limit of each integral state. Default none.
     pub integral_limit: Option<f64>,
+    /// Largest angle of the desired thrust direction from the vertical, rad: the position
+    /// loop's horizontal demand is scaled down to it, its vertical part kept (PX4's
+    /// MPC_TILTMAX_AIR, whose default this is). Default π/4 (45°). `None`, or any value of
+    /// π/2 or more (`max_tilt_rad = 1.6` in a TOML gain table), for no limit, as the
+    /// reference — whose UA-Hexa turned over in 24 of 60 rollouts of Lemon Harvesting and
+    /// Wipe Window (README, departures).
+    pub max_tilt_rad: Option<f64>,
 }
 
 impl Default for Pid4Gains {
@@ -200,6 +207,7 @@ impl Default for Pid4Gains {
             max_force_n: None,
             max_torque_nm: None,
             integral_limit: None,
+            max_tilt_rad: Some(std::f64::consts::FRAC_PI_4),
         }
     }
 }
@@ -243,7 +251,14 @@ impl Pid4Gains {
         }
         check_limit("max_force_n", self.max_force_n)?;
         check_limit("max_torque_nm", self.max_torque_nm)?;
-        check_limit("integral_limit", self.integral_limit)
+        check_limit("integral_limit", self.integral_limit)?;
+        match self.max_tilt_rad {
+            Some(t) if !(t.is_finite() && t > 0.0) => Err(invalid(
+                "max_tilt_rad",
+                format!("{t} must be finite and positive (π/2 or more for no limit)"),
+            )),
+            _ => Ok(()),
+        }
     }
 }
 

@@ -7,6 +7,7 @@
 //!
 //! ```text
 //! A = m (K_p e_p + K_v e_v + K_i ∫e_p + g ẑ + a_d)      K = diag(xy, xy, z)
+//! A ← A tilted at most θ_max from ẑ                    (horizontal part scaled, A_z kept)
 //! f = A · (R ê3)                                        held until the next outer update
 //! b3d = A/|A|,  b2d = (b3d × b1)/|b3d × b1|,  b1d = b2d × b3d,  b1 = heading x axis
 //! R_d = [b1d b2d b3d]
@@ -15,6 +16,12 @@
 //! Inner loop: the torque law of [`crate::Pid6`] toward R_d.
 //!
 //! Differences from the reference, each noted where it is made:
+//! - the desired thrust direction is held within `max_tilt_rad` (default 45°, PX4's
+//!   MPC_TILTMAX_AIR; π/2 or more, or none, for no limit) of the vertical: its horizontal part is scaled down, its vertical part
+//!   kept (at least a tenth of the weight, so a demand to fall still has a direction). The
+//!   reference has no limit, and its position loop, wound up against a wall or a held load,
+//!   asks for thrust directions past 90°: the vehicle turns over (`amstack bench --platform
+//!   ua-hexa --rollouts 30`, seed 0: Lemon Harvesting 16 of 30 rollouts, Wipe Window 8);
 //! - the reference differentiates R_d every tick although R_d only changes at outer
 //!   updates, so its Ω_d is a spike of 3× the rate on one tick in three and zero otherwise;
 //!   here Ω_d = log(R_d,prevᵀ R_d)/outer_dt is computed at each outer update and held;
@@ -41,6 +48,25 @@ use crate::so3::clamp_elementwise;
 
 /// Below this norm (N) the desired thrust vector has no direction: body +z is used.
 const THRUST_DIRECTION_EPS: f64 = 1e-6;
+/// Under a tilt limit, the least vertical part of the desired thrust, as a fraction of the
+/// weight.
+const TILT_LIMIT_MIN_VERTICAL: f64 = 0.1;
+
+/// `thrust` (N, world) with its direction at most `max_tilt` (rad, below π/2) from the
+/// vertical: the horizontal part scaled down to `A_z·tan(max_tilt)`, the vertical part kept
+/// but at least `min_vertical`. Unchanged when already within the limit.
+pub(crate) fn limit_tilt(thrust: &Vector3<f64>, max_tilt: f64, min_vertical: f64) -> Vector3<f64> {
+    let vertical = thrust.z.max(min_vertical);
+    let horizontal = Vector3::new(thrust.x, thrust.y, 0.0);
+    let allowed = vertical * max_tilt.tan();
+    let norm = horizontal.norm();
+    let horizontal = if norm > allowed {
+        horizontal * (allowed / norm)
+    } else {
+        horizontal
+    };
+    Vector3::new(horizontal.x, horizontal.y, vertical)
+}
 
 /// The nested 4-DoF geometric PID.
 #[derive(Debug, Clone)]
@@ -143,12 +169,18 @@ impl BaseController for Pid4 {
                     limit_norm(self.position_integral + increment, g.integral_limit);
                 let kp = Vector3::new(g.kp_xy, g.kp_xy, g.kp_z);
                 let kd = Vector3::new(g.kd_xy, g.kd_xy, g.kd_z);
-                let thrust_vector = (kp.component_mul(&e_p)
+                let mut thrust_vector = (kp.component_mul(&e_p)
                     + kd.component_mul(&e_v)
                     + ki.component_mul(&self.position_integral)
                     + Vector3::z() * GRAVITY_MPS2
                     + d.acceleration_mps2)
                     * m;
+                // π/2 or more: no limit (the reference).
+                if let Some(max_tilt) = g.max_tilt_rad.filter(|t| *t < std::f64::consts::FRAC_PI_2)
+                {
+                    let min_vertical = TILT_LIMIT_MIN_VERTICAL * m * GRAVITY_MPS2;
+                    thrust_vector = limit_tilt(&thrust_vector, max_tilt, min_vertical);
+                }
                 let body_z = state.world_from_body * Vector3::z();
                 let mut thrust_n = thrust_vector.dot(&body_z);
                 if let Some(max) = g.max_force_n {

@@ -594,3 +594,65 @@ fn the_rate_level_turns_an_attitude_error_into_rates_back_toward_the_target() {
     let rates = crate::rate_setpoint(&level, &Vector3::zeros(), crate::PX4_ATTITUDE_P_PER_S);
     assert_eq!(rates.body_rates_radps, Vector3::zeros());
 }
+
+#[test]
+fn the_tilt_limit_keeps_the_vertical_thrust_and_scales_the_horizontal_demand() {
+    use crate::pid4::limit_tilt;
+    let limit = std::f64::consts::FRAC_PI_4;
+    // Within the limit: unchanged.
+    let within = Vector3::new(3.0, -4.0, 20.0);
+    assert_eq!(limit_tilt(&within, limit, 1.0), within);
+    // 10 N up and 30 N sideways (71.6° from the vertical): at 45° the horizontal part is
+    // scaled to 10 N along the same direction, the vertical part kept.
+    let out = limit_tilt(&Vector3::new(18.0, 24.0, 10.0), limit, 1.0);
+    assert!((out - Vector3::new(6.0, 8.0, 10.0)).norm() < 1e-12, "{out}");
+    let tilt = out.xy().norm().atan2(out.z);
+    assert!((tilt - limit).abs() < 1e-12);
+    // A demand to fall (A_z < 0, a direction past 90°) keeps the least vertical part.
+    let out = limit_tilt(&Vector3::new(5.0, 0.0, -3.0), limit, 2.0);
+    assert!((out - Vector3::new(2.0, 0.0, 2.0)).norm() < 1e-12, "{out}");
+}
+
+#[test]
+fn pid4_under_a_far_sideways_target_asks_for_at_most_its_tilt_limit() {
+    // A UA-Hexa body at hover with its target 20 m to the side: the reference's law asks for
+    // a thrust direction ~87° from the vertical (k_p·e = 200 m/s² against g); the limited
+    // law's desired attitude (its attitude target's body z) is 45° from it.
+    let body = BodyParams {
+        mass_kg: 6.635,
+        inertia_kgm2: Matrix3::from_diagonal(&Vector3::new(0.198, 0.198, 0.46)),
+        com_in_body_m: Vector3::zeros(),
+    };
+    let state = RigidBodyState {
+        position_in_world_m: Vector3::new(0.0, 0.0, 1.0),
+        ..RigidBodyState::default()
+    };
+    let target = Isometry3::translation(0.0, 20.0, 1.0);
+    let tilt_asked = |gains: Pid4Gains| {
+        let mut pid = Pid4::new(gains, body);
+        pid.reset(&state);
+        pid.update(&state, &target, 1.0 / 120.0);
+        let r_d = pid
+            .status()
+            .attitude_target
+            .unwrap_or_else(|| panic!("PID4 sets an attitude target"))
+            .world_from_body;
+        (r_d * Vector3::z()).angle(&Vector3::z())
+    };
+    let limited = tilt_asked(Pid4Gains::ua_hexa());
+    let free = tilt_asked(Pid4Gains {
+        max_tilt_rad: None,
+        ..Pid4Gains::ua_hexa()
+    });
+    assert!(
+        (limited - std::f64::consts::FRAC_PI_4).abs() < 1e-6,
+        "{limited}"
+    );
+    assert!(free > 1.4, "{free}");
+    // And π/2 or more is no limit.
+    let wide = tilt_asked(Pid4Gains {
+        max_tilt_rad: Some(1.6),
+        ..Pid4Gains::ua_hexa()
+    });
+    assert_eq!(wide, free);
+}
