@@ -40,7 +40,7 @@ pub use address::Address;
 pub use bridge::{Bridge, BridgeConfig, BridgeError};
 pub use capture::{CaptureStats, Direction, RawFrame};
 pub use setpoint::{ActuatorUpdate, AttitudeSetpoint, SetpointCodec, SetpointError};
-pub use task_array::{HeldJointWire, TaskArray};
+pub use task_array::TaskArray;
 pub use telemetry::{AutopilotState, AutopilotVersion, Telemetry};
 pub use wire::{CounterSnapshot, Signing, SigningKey};
 

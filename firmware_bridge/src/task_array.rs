@@ -24,7 +24,7 @@
 //! | 53–55 | the hand contact's normal (unit, world, out of what the hand touches), flag 64 |
 //!
 //! The held joint and the hand contact are what the whole-body MPC models of the task
-//! (`sim_twin::HeldJoint`, `Twin::hand_contact`, docs/mpc-contact.md); without them an MPC
+//! (`platform::HeldJoint`, `Twin::hand_contact`, docs/mpc-contact.md); without them an MPC
 //! flown over MAVLink would not know that its hand is pinned to a slider or pressing a knob.
 //!
 //! Positions are in amstack's world frame (x forward, z up), not NED: the array is ours, and
@@ -33,6 +33,7 @@
 
 use mavlink::dialects::common::{DEBUG_FLOAT_ARRAY_DATA, MavMessage};
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use platform::HeldJoint;
 
 /// DEBUG_FLOAT_ARRAY's array_id for the task state.
 pub const TASK_ARRAY_ID: u16 = 2;
@@ -63,23 +64,6 @@ const HELD_REVOLUTE: u32 = 32;
 const HAS_CONTACT: u32 = 64;
 const ALL_FLAGS: u32 = 127;
 
-/// The joint a held articulated object moves on, in the world frame at this step.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum HeldJointWire {
-    /// Slides along `axis` (unit).
-    Prismatic {
-        /// The sliding direction.
-        axis: Vector3<f64>,
-    },
-    /// Turns about `axis` (unit) through `point` (m).
-    Revolute {
-        /// The turning axis.
-        axis: Vector3<f64>,
-        /// A point on the axis.
-        point: Vector3<f64>,
-    },
-}
-
 /// One step's task state.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TaskArray {
@@ -102,7 +86,7 @@ pub struct TaskArray {
     /// The observation values, in the scene's key order.
     pub values: Vec<f64>,
     /// The joint the held object moves on (None: nothing held, or a free object).
-    pub held_joint: Option<HeldJointWire>,
+    pub held_joint: Option<HeldJoint>,
     /// The normal of the hand's contacts with what does not give way along them.
     pub hand_contact: Option<Vector3<f64>>,
 }
@@ -178,11 +162,11 @@ impl TaskArray {
             }
         };
         match &self.held_joint {
-            Some(HeldJointWire::Prismatic { axis }) => {
+            Some(HeldJoint::Prismatic { axis }) => {
                 flags |= HELD_PRISMATIC;
                 put(JOINT_AT, axis);
             }
-            Some(HeldJointWire::Revolute { axis, point }) => {
+            Some(HeldJoint::Revolute { axis, point }) => {
                 flags |= HELD_REVOLUTE;
                 put(JOINT_AT, axis);
                 put(POINT_AT, point);
@@ -296,10 +280,10 @@ impl TaskArray {
             flags & HELD_REVOLUTE as usize != 0,
         ) {
             (false, false) => None,
-            (true, false) => Some(HeldJointWire::Prismatic {
+            (true, false) => Some(HeldJoint::Prismatic {
                 axis: unit(JOINT_AT, "held joint axis")?,
             }),
-            (false, true) => Some(HeldJointWire::Revolute {
+            (false, true) => Some(HeldJoint::Revolute {
                 axis: unit(JOINT_AT, "held joint axis")?,
                 point: vector(POINT_AT, "held joint point")?,
             }),
@@ -353,7 +337,7 @@ mod tests {
                 UnitQuaternion::from_euler_angles(0.0, 0.0, 0.5),
             )),
             values: vec![0.125, 1.0, 1.5, -0.75, 1.25],
-            held_joint: Some(HeldJointWire::Revolute {
+            held_joint: Some(HeldJoint::Revolute {
                 axis: Vector3::new(0.6, 0.0, 0.8),
                 point: Vector3::new(1.75, 0.5, 1.25),
             }),
@@ -391,7 +375,7 @@ mod tests {
         assert_eq!(wb.translation, wa.translation);
         assert!(wa.rotation.angle_to(&wb.rotation) < 1e-6);
         // The held joint and the contact: unit vectors to f32's precision, renormalised.
-        let Some(HeldJointWire::Revolute { axis, point }) = b.held_joint else {
+        let Some(HeldJoint::Revolute { axis, point }) = b.held_joint else {
             panic!("a revolute held joint, got {:?}", b.held_joint);
         };
         assert!((axis - Vector3::new(0.6, 0.0, 0.8)).norm() < 1e-7);
@@ -400,7 +384,7 @@ mod tests {
         assert_eq!(b.hand_contact, a.hand_contact);
         // A prismatic joint sends its axis only.
         let c = TaskArray {
-            held_joint: Some(HeldJointWire::Prismatic {
+            held_joint: Some(HeldJoint::Prismatic {
                 axis: Vector3::new(0.0, 1.0, 0.0),
             }),
             hand_contact: None,

@@ -22,6 +22,7 @@ mod actuation;
 mod builtin;
 mod dynamics;
 mod error;
+mod held_joint;
 mod kinematics;
 mod link;
 mod mass;
@@ -42,6 +43,7 @@ pub use actuation::Actuation;
 pub use builtin::BUILTIN_IDS;
 pub use dynamics::{ArticulatedBody, Drive, TreeState, Workspace as DynamicsWorkspace};
 pub use error::{DescriptionError, Problem};
+pub use held_joint::HeldJoint;
 pub use link::{
     ActuatorCommand, AttitudeSetpoint, DisturbanceReport, Measurement, PositionSetpoint,
     RateSetpoint, RotorReport,

@@ -5,8 +5,8 @@
 
 use std::borrow::Cow;
 
-use firmware_bridge::{HeldJointWire, TaskArray};
-use sim_twin::{HeldJoint, TaskId, TaskObservation, TaskSnapshot, TaskStatus};
+use firmware_bridge::TaskArray;
+use sim_twin::{TaskId, TaskObservation, TaskSnapshot, TaskStatus};
 
 /// The most a value of the autopilot's task state at reset may differ from the scene
 /// model's: f32 rounding of values of a few metres is below 1e-6; a different seed moves
@@ -37,10 +37,7 @@ pub(crate) fn snapshot_from_wire(model: &TaskSnapshot, wire: &TaskArray) -> Opti
         wall: wire.wall,
         obstacle_face_x: wire.obstacle_face_x_m,
         holding: wire.holding,
-        held_joint: wire.held_joint.map(|j| match j {
-            HeldJointWire::Prismatic { axis } => HeldJoint::Prismatic { axis },
-            HeldJointWire::Revolute { axis, point } => HeldJoint::Revolute { axis, point },
-        }),
+        held_joint: wire.held_joint,
         hand_contact: wire.hand_contact,
         steps: wire.steps,
     })

@@ -6,7 +6,7 @@
 
 use estimator::ImuSample;
 use firmware_bridge::frames;
-use firmware_bridge::task_array::{HeldJointWire, TaskArray};
+use firmware_bridge::task_array::TaskArray;
 use mavlink::dialects::common::{
     ACTUATOR_OUTPUT_STATUS_DATA, ALTITUDE_DATA, ATTITUDE_DATA, ATTITUDE_QUATERNION_DATA,
     AUTOPILOT_VERSION_DATA, DEBUG_FLOAT_ARRAY_DATA, EXTENDED_SYS_STATE_DATA,
@@ -21,7 +21,7 @@ use platform::{GRAVITY_MPS2, Measurement, RigidBodyState};
 
 use crate::modes::{Commander, Failsafe};
 use crate::wire::LinkCounters;
-use sim_twin::{HeldJoint, TaskId, TaskSnapshot};
+use sim_twin::{TaskId, TaskSnapshot};
 
 /// Where the twin's world origin is on the globe: PX4 SITL's default home (Zürich). The
 /// ground under the origin is at `alt_m`; world z is the height above it.
@@ -71,10 +71,7 @@ pub fn task_array(m: &Measurement, snapshot: &TaskSnapshot) -> Option<MavMessage
             .iter()
             .flat_map(|(_, v)| v.iter().copied())
             .collect(),
-        held_joint: snapshot.held_joint.map(|j| match j {
-            HeldJoint::Prismatic { axis } => HeldJointWire::Prismatic { axis },
-            HeldJoint::Revolute { axis, point } => HeldJointWire::Revolute { axis, point },
-        }),
+        held_joint: snapshot.held_joint,
         hand_contact: snapshot.hand_contact,
     }
     .encode()
