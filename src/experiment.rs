@@ -266,34 +266,36 @@ fn table(cells: &[Cell]) -> Table {
 #[derive(Debug, Clone, PartialEq)]
 struct Claim {
     claim: String,
-    /// Whether it holds on every task where it can be compared, and on at least one.
-    holds: bool,
-    /// Task by task: (task, holds there, the first vehicle that contradicts it and the two
-    /// values), for the tasks where it can be compared.
-    per_task: Vec<(String, bool, Option<String>)>,
+    /// Task by task, for the tasks where it can be compared: (task, the first vehicle that
+    /// contradicts it there and the two values; None where it holds).
+    per_task: Vec<(String, Option<String>)>,
 }
 
 impl Claim {
-    fn from_tasks(claim: &str, per_task: Vec<(String, bool, Option<String>)>) -> Self {
+    fn from_tasks(claim: &str, per_task: Vec<(String, Option<String>)>) -> Self {
         Self {
             claim: claim.to_owned(),
-            holds: !per_task.is_empty() && per_task.iter().all(|(_, h, _)| *h),
             per_task,
         }
+    }
+
+    /// Whether it holds on every task where it can be compared, and on at least one.
+    fn holds(&self) -> bool {
+        !self.per_task.is_empty() && self.per_task.iter().all(|(_, why)| why.is_none())
     }
 
     /// `holds:   claim`, or `differs: claim (push-slider: ua-hexa 0.398 > omni-hexa 0.114;
     /// open-door holds)`.
     fn line(&self) -> String {
-        if self.holds {
+        if self.holds() {
             return format!("holds:   {}", self.claim);
         }
         let detail: Vec<String> = self
             .per_task
             .iter()
-            .map(|(task, holds, why)| match (holds, why) {
-                (false, Some(why)) => format!("{task}: {why}"),
-                _ => format!("{task} holds"),
+            .map(|(task, why)| match why {
+                Some(why) => format!("{task}: {why}"),
+                None => format!("{task} holds"),
             })
             .collect();
         if detail.is_empty() {
@@ -306,9 +308,9 @@ impl Claim {
     fn to_json(&self) -> Value {
         json!({
             "claim": self.claim,
-            "holds": self.holds,
-            "per_task": self.per_task.iter().map(|(task, holds, why)| json!({
-                "task": task, "holds": holds, "contradicted_by": why,
+            "holds": self.holds(),
+            "per_task": self.per_task.iter().map(|(task, why)| json!({
+                "task": task, "holds": why.is_none(), "contradicted_by": why,
             })).collect::<Vec<Value>>(),
         })
     }
@@ -330,7 +332,7 @@ fn orderings(cells: &[Cell], valve: &[(&str, bool, BaseOrientation)]) -> Vec<Cla
                    who: &str,
                    others: &[&str],
                    highest: bool|
-     -> Vec<(String, bool, Option<String>)> {
+     -> Vec<(String, Option<String>)> {
         let mut per_task = Vec::new();
         for task in TASKS {
             let Some(mine) = value(who, task, pick) else {
@@ -348,7 +350,7 @@ fn orderings(cells: &[Cell], valve: &[(&str, bool, BaseOrientation)]) -> Vec<Cla
                 }
             }
             if compared {
-                per_task.push((task.to_owned(), against.is_none(), against));
+                per_task.push((task.to_owned(), against));
             }
         }
         per_task
@@ -358,29 +360,25 @@ fn orderings(cells: &[Cell], valve: &[(&str, bool, BaseOrientation)]) -> Vec<Cla
     let base = |s: &RunSummary| s.norm_base_error.mean;
     let sat = |s: &RunSummary| s.saturation_rate.mean;
     // Each under-actuated vehicle against the FA-Hexa, merged task by task.
-    let ua_tilt_more: Vec<(String, bool, Option<String>)> = TASKS
+    let ua_tilt_more: Vec<(String, Option<String>)> = TASKS
         .iter()
         .filter_map(|task| {
-            let verdicts: Vec<(bool, Option<String>)> = ["ua-quad", "ua-hexa"]
+            let verdicts: Vec<Option<String>> = ["ua-quad", "ua-hexa"]
                 .iter()
                 .flat_map(|ua| extreme(&tilt, ua, &["fa-hexa"], true))
-                .filter(|(t, _, _)| t == task)
-                .map(|(_, h, why)| (h, why))
+                .filter(|(t, _)| t == task)
+                .map(|(_, why)| why)
                 .collect();
-            (!verdicts.is_empty()).then(|| {
-                let why = verdicts.iter().find_map(|(_, w)| w.clone());
-                ((*task).to_owned(), why.is_none(), why)
-            })
+            (!verdicts.is_empty())
+                .then(|| ((*task).to_owned(), verdicts.into_iter().flatten().next()))
         })
         .collect();
     let valve_claim = match valve {
         [(_, _, ua), (_, _, fa)] => {
             let (u, f) = (ua.max_tilt_deviation(), fa.max_tilt_deviation());
-            let holds = u > 2.0 * f;
             vec![(
                 "rotate-valve".to_owned(),
-                holds,
-                (!holds).then(|| format!("ua-hexa {u:.4} rad, fa-hexa {f:.4} rad")),
+                (u <= 2.0 * f).then(|| format!("ua-hexa {u:.4} rad, fa-hexa {f:.4} rad")),
             )]
         }
         _ => Vec::new(),
@@ -639,11 +637,11 @@ mod tests {
         let claims = orderings(&paper, &[]);
         assert_eq!(claims.len(), 7);
         for c in &claims[..6] {
-            assert!(c.holds, "{}", c.line());
+            assert!(c.holds(), "{}", c.line());
             assert_eq!(c.per_task.len(), 2, "{}", c.line());
         }
         // Without the valve's two logs nothing is compared: not a pass.
-        assert!(!claims[6].holds);
+        assert!(!claims[6].holds());
         assert!(claims[6].line().contains("no task to compare"));
     }
 
@@ -668,13 +666,13 @@ mod tests {
         ]);
         let claims = orderings(&ours, &[]);
         let tilt = &claims[4];
-        assert!(!tilt.holds);
+        assert!(!tilt.holds());
         assert_eq!(
             tilt.line(),
             "differs: the Omni-Hexa has the largest tilt use (push-slider: ua-quad 0.1520 > \
              omni-hexa 0.1140; open-door holds)"
         );
-        assert!(claims[0].holds && claims[3].holds && claims[5].holds);
+        assert!(claims[0].holds() && claims[3].holds() && claims[5].holds());
         // The JSON says the same, task by task.
         let j = tilt.to_json();
         assert_eq!(j["per_task"][0]["task"], "push-slider");
