@@ -379,7 +379,7 @@ impl FlightStack {
     /// that joint's motion (`controllers::mpc::grasp`). Called every tick by the flight loop
     /// from the task's scene, as [`Self::keep_in_front_of`]; the other controllers do not
     /// use it.
-    pub fn hold_on_joint(&mut self, joint: Option<controllers::mpc::GraspJoint>) {
+    pub fn hold_on_joint(&mut self, joint: Option<platform::HeldJoint>) {
         if let Some(mpc) = &mut self.mpc {
             mpc.controller.set_held_joint(joint);
         }

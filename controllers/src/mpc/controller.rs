@@ -113,7 +113,7 @@ pub struct MpcProblem {
     /// Whether the solver started from its previous solution (false: a cold start).
     pub warm: bool,
     /// The held object's joint ([`SqpRti::set_grasp`] before the step; None: nothing held).
-    pub grasp: Option<crate::mpc::GraspJoint>,
+    pub grasp: Option<platform::HeldJoint>,
     /// The normal of the hand's blocking contact ([`SqpRti::set_contact`] before the step;
     /// None: none).
     pub contact: Option<Vector3<f64>>,
@@ -247,9 +247,9 @@ impl WholeBodyMpc {
     /// The joint of the object the hand holds (None: nothing held, or a free object), for
     /// the next ticks: the grasp model of [`crate::mpc::grasp`]. Given
     /// every tick by the flight stack from the scene, as the wall's face.
-    pub fn set_held_joint(&mut self, joint: Option<crate::mpc::GraspJoint>) {
+    pub fn set_held_joint(&mut self, joint: Option<platform::HeldJoint>) {
         self.rti
-            .set_grasp(joint.filter(crate::mpc::GraspJoint::is_valid));
+            .set_grasp(joint.filter(platform::HeldJoint::is_valid));
     }
 
     /// The normal (unit, world, out of what the hand touches) of the hand's contact with

@@ -5,7 +5,7 @@
 //! valve's shaft, a lever's pivot) lets it move one way only; the prediction model has no
 //! contact, so without this model the MPC plans to close an EE error along a blocked
 //! direction by extending the arm, which, the EE being pinned, pushes its own base back
-//! (`docs/mpc-contact.md` §2). The scene describes the joint every tick ([`GraspJoint`],
+//! (`docs/mpc-contact.md` §2). The scene describes the joint every tick ([`HeldJoint`],
 //! world frame), anchored at the measured EE p(x̂):
 //!
 //! - **target on the joint's motion** (`MpcConfig::grasp_reference`, on by default): the EE
@@ -29,26 +29,10 @@
 //! the rows cost successes (their QPs need slacks the model's slow arm servo cannot avoid).
 
 use nalgebra::{Unit, UnitQuaternion, Vector3};
+use platform::HeldJoint;
 
 use crate::mpc::model::EeKinematics;
 use crate::mpc::qp::StateVector;
-
-/// The motion a held object's joint allows the hand (world frame, at this tick).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum GraspJoint {
-    /// The object slides along `axis`.
-    Prismatic {
-        /// Sliding direction (any length but zero; normalised on use).
-        axis: Vector3<f64>,
-    },
-    /// The object turns about `axis` through `point`.
-    Revolute {
-        /// Turning axis (any length but zero; normalised on use).
-        axis: Vector3<f64>,
-        /// A point on the axis, world, m.
-        point: Vector3<f64>,
-    },
-}
 
 /// Rows per stage of a held joint.
 pub const GRASP_ROWS: usize = 2;
@@ -57,7 +41,7 @@ pub const GRASP_ROWS: usize = 2;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct AnchoredGrasp {
     /// The joint, axis unit.
-    joint: GraspJoint,
+    joint: HeldJoint,
     /// Two unit directions normal to the axis (prismatic rows; the revolute's axial row is
     /// the axis).
     normals: [Vector3<f64>; 2],
@@ -67,52 +51,34 @@ pub(crate) struct AnchoredGrasp {
     radius: f64,
 }
 
-impl GraspJoint {
-    /// Whether the description is usable (finite, a non-zero axis).
-    pub fn is_valid(&self) -> bool {
-        match self {
-            Self::Prismatic { axis } => axis.iter().all(|v| v.is_finite()) && axis.norm() > 1e-9,
-            Self::Revolute { axis, point } => {
-                axis.iter().chain(point.iter()).all(|v| v.is_finite()) && axis.norm() > 1e-9
-            }
-        }
+/// `joint` anchored at the EE position `anchor` (None for an invalid joint).
+pub(crate) fn anchored(joint: &HeldJoint, anchor: Vector3<f64>) -> Option<AnchoredGrasp> {
+    if !(joint.is_valid() && anchor.iter().all(|v| v.is_finite())) {
+        return None;
     }
-
-    fn axis(&self) -> Vector3<f64> {
-        match self {
-            Self::Prismatic { axis } | Self::Revolute { axis, .. } => axis.normalize(),
-        }
-    }
-
-    /// The joint anchored at the EE position `anchor` (None for an invalid joint).
-    pub(crate) fn anchored(&self, anchor: Vector3<f64>) -> Option<AnchoredGrasp> {
-        if !(self.is_valid() && anchor.iter().all(|v| v.is_finite())) {
-            return None;
-        }
-        let axis = self.axis();
-        let joint = match *self {
-            Self::Prismatic { .. } => Self::Prismatic { axis },
-            Self::Revolute { point, .. } => Self::Revolute { axis, point },
-        };
-        // Any vector not parallel to the axis gives the first normal.
-        let seed = if axis.x.abs() < 0.9 {
-            Vector3::x()
-        } else {
-            Vector3::y()
-        };
-        let n1 = axis.cross(&seed).normalize();
-        let n2 = axis.cross(&n1);
-        let radius = match joint {
-            Self::Prismatic { .. } => 0.0,
-            Self::Revolute { point, .. } => radial(&axis, &(anchor - point)).norm(),
-        };
-        Some(AnchoredGrasp {
-            joint,
-            normals: [n1, n2],
-            anchor,
-            radius,
-        })
-    }
+    let axis = joint.unit_axis();
+    let joint = match *joint {
+        HeldJoint::Prismatic { .. } => HeldJoint::Prismatic { axis },
+        HeldJoint::Revolute { point, .. } => HeldJoint::Revolute { axis, point },
+    };
+    // Any vector not parallel to the axis gives the first normal.
+    let seed = if axis.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let n1 = axis.cross(&seed).normalize();
+    let n2 = axis.cross(&n1);
+    let radius = match joint {
+        HeldJoint::Prismatic { .. } => 0.0,
+        HeldJoint::Revolute { point, .. } => radial(&axis, &(anchor - point)).norm(),
+    };
+    Some(AnchoredGrasp {
+        joint,
+        normals: [n1, n2],
+        anchor,
+        radius,
+    })
 }
 
 /// The part of `v` normal to the unit `axis`.
@@ -128,11 +94,11 @@ impl AnchoredGrasp {
             (value, ee.position_jacobian.transpose() * direction)
         };
         match self.joint {
-            GraspJoint::Prismatic { .. } => {
+            HeldJoint::Prismatic { .. } => {
                 let [n1, n2] = &self.normals;
                 [row(n1, n1.dot(&d)), row(n2, n2.dot(&d))]
             }
-            GraspJoint::Revolute { axis, point } => {
+            HeldJoint::Revolute { axis, point } => {
                 let r = radial(&axis, &(ee.position - point));
                 let distance = r.norm();
                 // On the axis itself the distance has no gradient: take the anchor's.
@@ -152,10 +118,8 @@ impl AnchoredGrasp {
     /// through the anchor, or on the anchor's circle about the axis.
     pub(crate) fn project(&self, target: &Vector3<f64>) -> Vector3<f64> {
         match self.joint {
-            GraspJoint::Prismatic { axis } => {
-                self.anchor + axis * axis.dot(&(target - self.anchor))
-            }
-            GraspJoint::Revolute { axis, point } => {
+            HeldJoint::Prismatic { axis } => self.anchor + axis * axis.dot(&(target - self.anchor)),
+            HeldJoint::Revolute { axis, point } => {
                 let centre = point + axis * axis.dot(&(self.anchor - point));
                 let direction = radial(&axis, &(target - point))
                     .try_normalize(1e-9)
@@ -171,8 +135,8 @@ impl AnchoredGrasp {
     /// radii. None for a prismatic joint (the object slides without turning).
     pub(crate) fn turn_to(&self, to: &Vector3<f64>) -> Option<UnitQuaternion<f64>> {
         match self.joint {
-            GraspJoint::Prismatic { .. } => None,
-            GraspJoint::Revolute { axis, point } => {
+            HeldJoint::Prismatic { .. } => None,
+            HeldJoint::Revolute { axis, point } => {
                 let r0 = radial(&axis, &(self.anchor - point));
                 let r1 = radial(&axis, &(to - point));
                 // atan2(0, 0) = 0: a point on the axis turns nothing.
@@ -188,8 +152,8 @@ impl AnchoredGrasp {
     /// hand move: along the rail, or along the circle's tangent.
     pub(crate) fn allowed_part(&self, at: &Vector3<f64>, error: &Vector3<f64>) -> Vector3<f64> {
         match self.joint {
-            GraspJoint::Prismatic { axis } => axis * axis.dot(error),
-            GraspJoint::Revolute { axis, point } => {
+            HeldJoint::Prismatic { axis } => axis * axis.dot(error),
+            HeldJoint::Revolute { axis, point } => {
                 match axis.cross(&(at - point)).try_normalize(1e-9) {
                     Some(tangent) => tangent * tangent.dot(error),
                     None => Vector3::zeros(),

@@ -42,7 +42,6 @@ pub use config::{MpcConfig, MpcConfigError, MpcWeights, QpPath, QpSettings};
 pub use controller::{
     FallbackEvent, MpcCommand, MpcMode, MpcProblem, MpcStatus, SolveFailure, WholeBodyMpc,
 };
-pub use grasp::GraspJoint;
 pub use model::{EeKinematics, ModelError, MpcModel};
 pub use qp::{
     InputVector, NU, NX, QpSolution, QpSolver, QpStatus, StageConstraints, StateVector,

@@ -70,7 +70,7 @@ use serde::Serialize;
 use crate::ik::BaseLimits;
 use crate::mpc::clarabel_qp::ClarabelQp;
 use crate::mpc::config::{MpcConfig, MpcConfigError, QpPath};
-use crate::mpc::grasp::{AnchoredGrasp, GRASP_ROWS, GraspJoint};
+use crate::mpc::grasp::{AnchoredGrasp, GRASP_ROWS, anchored};
 use crate::mpc::model::{IU_QREF, IX_ETA, IX_OMEGA, IX_P, IX_Q, IX_V, ModelError, MpcModel, NQ};
 use crate::mpc::qp::{
     InputMatrix, InputStateMatrix, InputVector, NU, NX, QpSolution, QpSolver, QpStatus,
@@ -79,6 +79,7 @@ use crate::mpc::qp::{
 use crate::mpc::riccati::{
     InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport, ShotOutcome,
 };
+use platform::HeldJoint;
 
 /// Bounded state entries: position, Euler angles, arm joints.
 const STATE_BOUND_INDICES: [usize; 10] = [
@@ -200,7 +201,7 @@ pub struct SqpRti {
     /// Whether the Riccati path starts from the last solve's multipliers.
     qp_warm_start: bool,
     /// The joint of the object the hand holds (None: nothing held).
-    grasp: Option<GraspJoint>,
+    grasp: Option<HeldJoint>,
     /// That joint anchored at the measured EE of the last preparation (None: no grasp rows).
     anchored_grasp: Option<AnchoredGrasp>,
     /// The normal of the hand's blocking contact (unit, world, pointing out of what the hand
@@ -412,12 +413,12 @@ impl SqpRti {
     /// The joint of the object the hand holds from the next preparation on (None: nothing
     /// held): the grasp model of [`crate::mpc::grasp`] (the EE target on the joint's motion
     /// with `grasp_reference`, the grasp rows with `grasp_band_m`).
-    pub fn set_grasp(&mut self, joint: Option<GraspJoint>) {
+    pub fn set_grasp(&mut self, joint: Option<HeldJoint>) {
         self.grasp = joint;
     }
 
     /// The held joint (None: nothing held).
-    pub fn grasp(&self) -> Option<&GraspJoint> {
+    pub fn grasp(&self) -> Option<&HeldJoint> {
         self.grasp.as_ref()
     }
 
@@ -527,7 +528,7 @@ impl SqpRti {
             .map(|joint| (joint, self.model.ee(x_hat)));
         self.anchored_grasp = held_ee
             .as_ref()
-            .and_then(|(joint, ee)| joint.anchored(ee.position));
+            .and_then(|(joint, ee)| anchored(joint, ee.position));
         // Holding: the EE target moved onto the joint's motion through the measured EE (what
         // the hand can reach without leaving it), the offset added back: it makes up for the
         // arm regularisation's steady-state shortfall, which does not vanish along the

@@ -2,7 +2,7 @@
 //! paths agreeing, constraints held in closed loop, and the controller's fallback.
 
 use nalgebra::{Point3, UnitQuaternion, Vector3};
-use platform::Vehicle;
+use platform::{HeldJoint, Vehicle};
 
 use super::model::{IU_QREF, IX_ETA, IX_OMEGA, IX_P, IX_Q, IX_V};
 use super::*;
@@ -981,7 +981,7 @@ fn held_on_a_rail(config: MpcConfig) -> (Vector3<f64>, f64) {
         (start.translation.vector + Vector3::new(0.015, 0.1, 0.0)).into(),
         start.rotation,
     );
-    let rail = GraspJoint::Prismatic { axis: Vector3::y() };
+    let rail = HeldJoint::Prismatic { axis: Vector3::y() };
     let limits = BaseLimits::in_front_of_face_x(1.15, 0.85);
     let arm_dofs = vehicle.arm_dofs();
     let mut x = mpc.state_vector(&state, &q);
@@ -1079,7 +1079,7 @@ fn grasping_a_rail_after_settling(config: MpcConfig) -> (Vector3<f64>, f64, f64)
             at_grasp = mpc.rti_mut().ee_kinematics(&x).position;
             offset = mpc.ee_offset();
         }
-        let held = (tick >= settle).then_some(GraspJoint::Prismatic { axis: Vector3::y() });
+        let held = (tick >= settle).then_some(HeldJoint::Prismatic { axis: Vector3::y() });
         mpc.set_held_joint(held);
         let measured = measured_from_model(&x, &arm_dofs, &mut configuration);
         let c = mpc.update(&measured, &configuration, &target, &limits, DT, None);
@@ -1181,7 +1181,7 @@ fn held_on_a_lever(config: MpcConfig) -> (f64, f64) {
         (point + swing * (start.translation.vector - point)).into(),
         start.rotation,
     );
-    let lever = GraspJoint::Revolute {
+    let lever = HeldJoint::Revolute {
         axis: Vector3::y(),
         point,
     };
@@ -1237,13 +1237,12 @@ fn grasp_rows_of_a_revolute_joint_vanish_on_its_circle_and_match_their_gradient(
     let ee = model.ee(&x);
     // A valve axis along world x, 0.12 m below the EE.
     let point = ee.position - Vector3::new(0.0, 0.0, 0.12);
-    let joint = GraspJoint::Revolute {
+    let joint = HeldJoint::Revolute {
         axis: Vector3::new(2.0, 0.0, 0.0),
         point,
     };
-    let anchored = joint
-        .anchored(ee.position)
-        .unwrap_or_else(|| panic!("a valid joint"));
+    let anchored =
+        super::grasp::anchored(&joint, ee.position).unwrap_or_else(|| panic!("a valid joint"));
     for (value, _) in anchored.rows(&ee) {
         assert!(value.abs() < 1e-12, "{value}");
     }
@@ -1257,8 +1256,7 @@ fn grasp_rows_of_a_revolute_joint_vanish_on_its_circle_and_match_their_gradient(
         .unwrap_or_else(|| panic!("a revolute joint turns"));
     assert!((turn.angle() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
     assert!((point + turn * (ee.position - point) - turned).norm() < 1e-12);
-    let rail = GraspJoint::Prismatic { axis: Vector3::y() }
-        .anchored(ee.position)
+    let rail = super::grasp::anchored(&HeldJoint::Prismatic { axis: Vector3::y() }, ee.position)
         .unwrap_or_else(|| panic!("a valid joint"));
     assert!(rail.turn_to(&turned).is_none());
     // Gradients against finite differences.
@@ -1278,7 +1276,7 @@ fn grasp_rows_of_a_revolute_joint_vanish_on_its_circle_and_match_their_gradient(
         }
     }
     assert!(
-        !GraspJoint::Prismatic {
+        !HeldJoint::Prismatic {
             axis: Vector3::zeros()
         }
         .is_valid()

@@ -387,7 +387,7 @@ fn the_open_fingers_pass_the_lemon_without_knocking_it_off() {
 
 /// Keeps the held joint each tick's MPC problem was posed with.
 #[derive(Default)]
-struct HeldJoints(Vec<Option<controllers::mpc::GraspJoint>>);
+struct HeldJoints(Vec<Option<platform::HeldJoint>>);
 
 impl Observer for HeldJoints {
     fn decided(&mut self, tick: &crate::flight::Decided<'_>) -> Result<(), FlightError> {
@@ -433,7 +433,7 @@ fn the_mpc_is_told_the_held_knobs_rail_from_the_grasp_on() {
         held.0[first..].iter().all(Option::is_some),
         "the grasp holds to the end"
     );
-    let Some(controllers::mpc::GraspJoint::Prismatic { axis }) = held.0[first] else {
+    let Some(platform::HeldJoint::Prismatic { axis }) = held.0[first] else {
         panic!("the knob slides: {:?}", held.0[first]);
     };
     assert!(

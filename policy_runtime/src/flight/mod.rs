@@ -217,7 +217,7 @@ pub fn run(
         }
         let t = k as f64 * spec.dt_s;
         stack.keep_in_front_of(scene.as_ref().and_then(|s| s.obstacle_face_x));
-        stack.hold_on_joint(scene.as_ref().and_then(|s| s.held_joint).map(grasp_joint));
+        stack.hold_on_joint(scene.as_ref().and_then(|s| s.held_joint));
         stack.touch(scene.as_ref().and_then(|s| s.hand_contact));
         // The images of observation k: begun now (the state after the last step), read back
         // before the first consumer that needs them.
@@ -390,14 +390,4 @@ fn estimated(
         o.estimated(m.time_s, &report)?;
     }
     Ok(fed)
-}
-
-/// The scene's description of a held object's joint, as the MPC's grasp model takes it.
-fn grasp_joint(joint: sim_twin::HeldJoint) -> controllers::mpc::GraspJoint {
-    match joint {
-        sim_twin::HeldJoint::Prismatic { axis } => controllers::mpc::GraspJoint::Prismatic { axis },
-        sim_twin::HeldJoint::Revolute { axis, point } => {
-            controllers::mpc::GraspJoint::Revolute { axis, point }
-        }
-    }
 }
