@@ -1241,8 +1241,7 @@ fn grasp_rows_of_a_revolute_joint_vanish_on_its_circle_and_match_their_gradient(
         axis: Vector3::new(2.0, 0.0, 0.0),
         point,
     };
-    let anchored =
-        super::grasp::anchored(&joint, ee.position).unwrap_or_else(|| panic!("a valid joint"));
+    let anchored = grasp::anchored(&joint, ee.position).unwrap_or_else(|| panic!("a valid joint"));
     for (value, _) in anchored.rows(&ee) {
         assert!(value.abs() < 1e-12, "{value}");
     }
@@ -1256,7 +1255,7 @@ fn grasp_rows_of_a_revolute_joint_vanish_on_its_circle_and_match_their_gradient(
         .unwrap_or_else(|| panic!("a revolute joint turns"));
     assert!((turn.angle() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
     assert!((point + turn * (ee.position - point) - turned).norm() < 1e-12);
-    let rail = super::grasp::anchored(&HeldJoint::Prismatic { axis: Vector3::y() }, ee.position)
+    let rail = grasp::anchored(&HeldJoint::Prismatic { axis: Vector3::y() }, ee.position)
         .unwrap_or_else(|| panic!("a valid joint"));
     assert!(rail.turn_to(&turned).is_none());
     // Gradients against finite differences.
