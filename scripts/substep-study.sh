@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
 # Fidelity of cheaper twin physics (docs/speed.md): the same flights at each (P, I) pair of
-# physics substeps per 120 Hz tick (--physics-substeps P) and rapier solver iterations per
-# substep (--solver-iterations I), compared with the default 4x4 by scripts/substep_study.py.
-# rapier rebuilds the vehicle's mass matrix at each of the P x I solver steps of a tick.
+# physics substeps per 120 Hz tick (--physics-substeps P) and solver iterations per substep
+# (--solver-iterations I), compared with 4x4 by scripts/substep_study.py. A pair PxI splits
+# rapier's solver into I steps of one constraint pass (--rapier-steps I: the split before
+# that flag existed); PxIsS into S steps sharing the I passes (--rapier-steps S; the default
+# is 4x4s1). rapier rebuilds the vehicle's mass matrix at each of its solver steps.
 #
 #   bash scripts/substep-study.sh [OUT_DIR] [ROLLOUTS]     (default runs/substeps, 5)
 #
 #   AMSTACK      the amstack command (default: cargo run --release --quiet --)
-#   PAIRS        the PxI pairs to fly (default "4x4 1x4 4x1 2x2 2x1 1x2 1x1")
+#   PAIRS        the PxI[sS] pairs to fly (default "4x4 1x4 4x1 2x2 2x1 1x2 1x1")
 #   BENCH_PAIRS  the pairs that also run the benchmark (default: all of PAIRS; "" for none)
 #   TASKS        the benchmark tasks (default all)
 #   EXPERIMENTS  1 (default) to run `experiment actuator|ground-effect|wrench-limit` per pair
@@ -29,18 +31,26 @@ TASKS="${TASKS:-all}"
 JOBS="${JOBS:-1}"
 mkdir -p "$OUT"
 for pair in $PAIRS; do
-    p=${pair%x*}
-    i=${pair#*x}
-    d="$OUT/p${p}i${i}"
+    p=${pair%%x*}
+    rest=${pair#*x}
+    i=${rest%%s*}
+    if [[ "$rest" == *s* ]]; then
+        s=${rest#*s}
+        d="$OUT/p${p}i${i}s${s}"
+    else
+        s=$i
+        d="$OUT/p${p}i${i}"
+    fi
     mkdir -p "$d"
-    echo "== $p physics substep(s) x $i solver iteration(s) per tick -> $d" >&2
+    echo "== $p physics substep(s) x $i solver iteration(s) per tick, $s rapier step(s) -> $d" >&2
     timed() { # NAME ARGS...: runs amstack at this pair unless NAME is done, keeps its wall time
         local name=$1
         shift
         [[ -s "$d/$name.time" ]] && return 0
         local start end
         start=$(date +%s.%N)
-        "${AM[@]}" "$@" --physics-substeps "$p" --solver-iterations "$i" >"$d/$name.log" 2>&1
+        "${AM[@]}" "$@" --physics-substeps "$p" --solver-iterations "$i" --rapier-steps "$s" \
+            >"$d/$name.log" 2>&1
         end=$(date +%s.%N)
         echo "$end - $start" | bc >"$d/$name.time"
     }

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Summarises scripts/substep-study.sh: for each (P physics substeps, I solver iterations)
-pair, the tracking errors, the validation experiments, the benchmark's successes and the
+"""Summarises scripts/substep-study.sh: for each (P physics substeps, I solver iterations,
+S rapier solver steps) setting, the tracking errors, the validation experiments, the benchmark's successes and the
 grasped objects' trajectories from the rollouts' MCAPs, each against the default 4x4; the
 fidelity bar of issue 22 (tracking within 1 %, validation within 5 %, successes within 1
 rollout per task). Prints Markdown tables and writes OUT/summary.json.
@@ -15,21 +15,27 @@ import re
 import sys
 
 out = pathlib.Path(sys.argv[1] if len(sys.argv) > 1 else "runs/substeps")
-REF = (4, 4)
+# (P, I, S): a folder pPiI is rapier's split before `--rapier-steps` (I steps of one pass,
+# S = I), pPiIsS the I passes over S steps.
+REF = (4, 4, 4)
 pairs = sorted(
     (
-        (int(m[1]), int(m[2]))
+        (int(m[1]), int(m[2]), int(m[3] or m[2]))
         for p in out.glob("p*i*")
-        if (m := re.fullmatch(r"p(\d+)i(\d+)", p.name))
+        if (m := re.fullmatch(r"p(\d+)i(\d+)(?:s(\d+))?", p.name))
     ),
-    key=lambda pi: (-pi[0] * pi[1], -pi[0]),
+    key=lambda pi: (-pi[0] * pi[1], -pi[0], -pi[2]),
 )
 if REF not in pairs:
-    sys.exit(f"{out}: no p4i4 folder (the default, which every pair is compared with)")
+    sys.exit(f"{out}: no p4i4 folder (the 4x4 reference, which every pair is compared with)")
+
+
+def label(pair):
+    return f"{pair[0]}x{pair[1]}" + ("" if pair[2] == pair[1] else f"s{pair[2]}")
 
 
 def folder(pair):
-    return out / f"p{pair[0]}i{pair[1]}"
+    return out / ("p" + label(pair).replace("x", "i"))
 
 
 def load(path):
@@ -210,7 +216,7 @@ for pair in pairs:
         row["contact"] = contact(pair)
     except ImportError:
         row["contact"] = None
-    summary[f"{pair[0]}x{pair[1]}"] = row
+    summary[label(pair)] = row
 
 ref = summary["4x4"]
 
@@ -260,13 +266,14 @@ for key, row in summary.items():
 print("Tracking (RMSE, mm; worst relative change of the step flights from 4x4):\n")
 print("| P x I | mass matrices per tick | hover base | hover EE | x step base | EE step EE | Omni EE step EE | worst change | within 1 % |")
 print("|---|---|---|---|---|---|---|---|---|")
+pair_of = {label(pair): pair for pair in pairs}
 for key, r in summary.items():
     t = r["tracking"]
-    p, i = map(int, key.split("x"))
+    p, _, steps = pair_of[key]
     cell = lambda f, m, nd: f"{1e3 * t[f][m]:.{nd}f}" if f in t else "-"
     w = r["verdict"]["tracking_worst_rel"]
     print(
-        f"| {key} | {p * i} | {cell('hover', 'base_pos_rmse_m', 4)} | {cell('hover', 'ee_pos_rmse_m', 4)}"
+        f"| {key} | {p * steps} | {cell('hover', 'base_pos_rmse_m', 4)} | {cell('hover', 'ee_pos_rmse_m', 4)}"
         f" | {cell('step', 'base_pos_rmse_m', 2)} | {cell('ee-step', 'ee_pos_rmse_m', 2)}"
         f" | {cell('omni', 'ee_pos_rmse_m', 2)} | {'-' if w is None else f'{100 * w:+.2f} %'}"
         f" | {'yes' if r['verdict']['tracking_within_1pct'] else 'NO'} |"

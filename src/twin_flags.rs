@@ -63,6 +63,13 @@ pub struct PhysicsFlags {
     /// (`--vehicle-dynamics articulated`, in free flight). Default: `--solver-iterations`.
     #[arg(long, value_name = "N")]
     pub own_dynamics_steps: Option<u32>,
+    /// Steps rapier's solver splits each physics substep into, each rebuilding the
+    /// vehicle's multibody mass matrix; the `--solver-iterations` constraint passes are
+    /// shared among them. Default 2 (two passes on each of two mass matrices: the
+    /// benchmark's tables and the grasped objects as with 4 steps, the contact ticks
+    /// cheaper; docs/speed.md); 4 with `--solver-iterations 4` is the earlier default.
+    #[arg(long, value_name = "N")]
+    pub rapier_steps: Option<u32>,
 }
 
 /// `--vehicle-dynamics`.
@@ -90,6 +97,11 @@ impl PhysicsFlags {
                 "--own-dynamics-steps: 0; at least 1 step per physics substep",
             ));
         }
+        if self.rapier_steps == Some(0) {
+            return Err(bad_input(
+                "--rapier-steps: 0; at least 1 solver step per physics substep",
+            ));
+        }
         Ok(())
     }
 
@@ -104,6 +116,9 @@ impl PhysicsFlags {
         }
         if let Some(n) = self.own_dynamics_steps {
             twin.own_dynamics_steps = Some(n);
+        }
+        if let Some(n) = self.rapier_steps {
+            twin.rapier_steps = Some(n);
         }
         if let Some(e) = self.vehicle_dynamics {
             twin.vehicle_dynamics = match e {
@@ -125,6 +140,9 @@ impl PhysicsFlags {
         }
         if let Some(n) = self.own_dynamics_steps {
             f.extend(["--own-dynamics-steps".to_owned(), n.to_string()]);
+        }
+        if let Some(n) = self.rapier_steps {
+            f.extend(["--rapier-steps".to_owned(), n.to_string()]);
         }
         if let Some(e) = self.vehicle_dynamics {
             let name = match e {

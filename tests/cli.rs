@@ -366,6 +366,10 @@ fn physics_counts_are_recorded_and_zero_is_bad_input() {
         ]),
         &["--own-dynamics-steps", "0"],
     );
+    assert_bad_input(
+        &amstack(&["track", "--platform", "fa-hexa", "--rapier-steps", "0"]),
+        &["--rapier-steps", "0"],
+    );
     // An experiment refuses it before it writes anything.
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let refused = dir.path().join("refused");
@@ -397,6 +401,8 @@ fn physics_counts_are_recorded_and_zero_is_bad_input() {
         "3",
         "--own-dynamics-steps",
         "2",
+        "--rapier-steps",
+        "3",
         "--out",
         &out_dir.to_string_lossy(),
     ]);
@@ -408,6 +414,7 @@ fn physics_counts_are_recorded_and_zero_is_bad_input() {
     assert_eq!(config["twin"]["physics_substeps"], 2, "{config}");
     assert_eq!(config["twin"]["solver_iterations"], 3, "{config}");
     assert_eq!(config["twin"]["own_dynamics_steps"], 2, "{config}");
+    assert_eq!(config["twin"]["rapier_steps"], 3, "{config}");
 }
 
 #[test]

@@ -235,6 +235,23 @@ pub struct TwinConfig {
     /// as a config written before this field existed (or left out of a file) was flown.
     #[serde(default = "own_steps_before_the_field")]
     pub own_dynamics_steps: Option<u32>,
+    /// Steps rapier's solver splits each physics substep into. Each step rebuilds the
+    /// vehicle multibody's mass matrix (two dense JᵀMJ products and two LU factorisations,
+    /// most of a contact tick's time) and integrates the positions; the `solver_iterations`
+    /// constraint passes are shared among the steps (⌈solver_iterations / steps⌉ each).
+    /// While the hand holds an object on a joint (a lever, valve, slider, door or drawer) the
+    /// solver takes `solver_iterations` steps of one pass whatever this says: the loop the
+    /// grasp closes through the object's joint converges over steps, not passes (the MPC's
+    /// Pull Lever and Rotate Valve 27 and 26 of 30 with 2 steps there, 30 and 29 without).
+    /// Default 2 (two passes on each of two mass matrices per substep): the benchmark's
+    /// tables, the grasped objects (within 2.1 mm) and a vehicle sliding down a wall (within
+    /// 1.3 mm of a converged flight) as with four steps of one pass, the contact ticks
+    /// cheaper; one step slides the vehicle 3 cm further down the wall and the grasped
+    /// objects up to 6.9 mm off (docs/speed.md, "rapier's solver steps"). None:
+    /// `solver_iterations` steps of one pass each, as a config written before this field
+    /// existed (or left out of a file) was flown.
+    #[serde(default = "rapier_steps_before_the_field")]
+    pub rapier_steps: Option<u32>,
     /// Which disturbances act.
     pub disturbances: Disturbances,
     /// Aerodynamic constants.
@@ -270,6 +287,10 @@ fn own_steps_before_the_field() -> Option<u32> {
     None
 }
 
+fn rapier_steps_before_the_field() -> Option<u32> {
+    None
+}
+
 fn allocation_before_the_field() -> SaturatedAllocation {
     SaturatedAllocation::Clip
 }
@@ -286,6 +307,7 @@ impl Default for TwinConfig {
             solver_iterations: 4,
             vehicle_dynamics: VehicleDynamics::default(),
             own_dynamics_steps: None,
+            rapier_steps: Some(2),
             disturbances: Disturbances::default(),
             aero: AeroConfig::default(),
             motor: MotorConfig::default(),
@@ -301,6 +323,20 @@ impl Default for TwinConfig {
 }
 
 impl TwinConfig {
+    /// rapier's solver steps per physics substep and constraint passes per step
+    /// (`IntegrationParameters::num_solver_iterations`, `num_internal_pgs_iterations`),
+    /// with the hand holding an object on a joint or not (see `rapier_steps`).
+    pub fn rapier_solver(&self, holding_on_a_joint: bool) -> (usize, usize) {
+        match self.rapier_steps {
+            _ if holding_on_a_joint => (self.solver_iterations as usize, 1),
+            None => (self.solver_iterations as usize, 1),
+            Some(steps) => (
+                steps as usize,
+                self.solver_iterations.div_ceil(steps.max(1)) as usize,
+            ),
+        }
+    }
+
     /// Control period, s.
     pub fn control_dt_s(&self) -> f64 {
         1.0 / self.control_rate_hz
@@ -319,6 +355,9 @@ impl TwinConfig {
         }
         if self.own_dynamics_steps == Some(0) {
             return Err("own_dynamics_steps must be at least 1".to_owned());
+        }
+        if self.rapier_steps == Some(0) {
+            return Err("rapier_steps must be at least 1".to_owned());
         }
         self.aero.validate()?;
         for (name, v) in [
@@ -358,8 +397,9 @@ mod tests {
 
     /// A config written before a field existed replays as it was flown: no
     /// `vehicle_dynamics` reads as rapier's multibody, no `own_dynamics_steps` as
-    /// `solver_iterations` steps (None); a config written now carries both and reads back
-    /// equal.
+    /// `solver_iterations` steps (None), no `rapier_steps` as rapier's solver in
+    /// `solver_iterations` steps of one pass; a config written now carries them and reads
+    /// back equal.
     #[test]
     fn fields_missing_from_an_older_config_read_as_it_was_flown() {
         let now = TwinConfig {
@@ -371,6 +411,9 @@ mod tests {
             serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(value["vehicle_dynamics"], "articulated", "{value}");
         assert_eq!(value["own_dynamics_steps"], 2, "{value}");
+        assert_eq!(value["rapier_steps"], 2, "{value}");
+        assert_eq!(now.rapier_solver(false), (2, 2));
+        assert_eq!(now.rapier_solver(true), (4, 1));
         let back: TwinConfig =
             serde_json::from_value(value.clone()).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(back, now);
@@ -379,9 +422,18 @@ mod tests {
         };
         fields.remove("vehicle_dynamics");
         fields.remove("own_dynamics_steps");
+        fields.remove("rapier_steps");
         let old: TwinConfig = serde_json::from_value(value).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(old.vehicle_dynamics, VehicleDynamics::Rapier);
         assert_eq!(old.own_dynamics_steps, None);
+        assert_eq!(old.rapier_steps, None);
+        assert_eq!(old.rapier_solver(false), (4, 1));
+        // Passes shared among the steps, rounded up: 4 passes over 3 steps are 2 each.
+        let three = TwinConfig {
+            rapier_steps: Some(3),
+            ..TwinConfig::default()
+        };
+        assert_eq!(three.rapier_solver(false), (3, 2));
         let zero = TwinConfig {
             own_dynamics_steps: Some(0),
             ..TwinConfig::default()
@@ -390,5 +442,10 @@ mod tests {
             zero.validate()
                 .is_err_and(|e| e.contains("own_dynamics_steps"))
         );
+        let zero = TwinConfig {
+            rapier_steps: Some(0),
+            ..TwinConfig::default()
+        };
+        assert!(zero.validate().is_err_and(|e| e.contains("rapier_steps")));
     }
 }

@@ -701,8 +701,10 @@ fn flight_gap(
 /// keep it within ~2.5× of that (2 × 2 breaks the attitude's). The twin on its own dynamics
 /// (the default, 4 steps per substep) 0.39 / 2.49 / 0.53, at 2 and 1 steps per substep
 /// (`own_dynamics_steps`) 0.22 / 1.23 / 0.31 and 0.27 / 2.63 / 0.33 — the last is ours at 4
-/// steps per tick to round-off. `cargo test -p sim_twin --lib rapier_multibody_against --
-/// --nocapture` prints the table.
+/// steps per tick to round-off. rapier's default split since `rapier_steps` (2 solver steps
+/// of 2 passes per substep, the multibody's mass matrix rebuilt twice instead of 4 times)
+/// 0.57 / 5.62 / 0.31 in this free flight, which the twin flies on its own dynamics.
+/// `cargo test -p sim_twin --lib rapier_multibody_against -- --nocapture` prints the table.
 #[test]
 fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
     let v = vehicle("fa-hexa");
@@ -714,6 +716,8 @@ fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
                 physics_substeps: p,
                 solver_iterations: i,
                 vehicle_dynamics: crate::VehicleDynamics::Rapier,
+                // i solver steps of one pass each (rapier's split before `rapier_steps`).
+                rapier_steps: None,
                 ..TwinConfig::default()
             }),
             0,
@@ -754,6 +758,16 @@ fn rapier_multibody_against_our_articulated_dynamics_on_an_arm_sweep() {
                 Some(&TwinConfig {
                     vehicle_dynamics: crate::VehicleDynamics::Articulated,
                     own_dynamics_steps: Some(1),
+                    ..TwinConfig::default()
+                }),
+                0,
+            ),
+        ),
+        (
+            "twin 4 x (2 steps, 2 passes)",
+            arm_sweep_flight(
+                Some(&TwinConfig {
+                    vehicle_dynamics: crate::VehicleDynamics::Rapier,
                     ..TwinConfig::default()
                 }),
                 0,
@@ -969,12 +983,13 @@ fn the_articulated_twin_is_stopped_by_a_wall_as_rapier_is() {
     let v = vehicle("fa-hexa");
     // The wall's face at x = 0.8 m; the rotor arms reach to x ≈ 0.49 m at the start.
     let face_x = 0.8;
-    let fly = |vehicle_dynamics, physics_substeps| {
+    let fly = |vehicle_dynamics, physics_substeps, rapier_steps| {
         let mut t = twin(
             "fa-hexa",
             TwinConfig {
                 vehicle_dynamics,
                 physics_substeps,
+                rapier_steps,
                 ..TwinConfig::default()
             },
         );
@@ -996,9 +1011,12 @@ fn the_articulated_twin_is_stopped_by_a_wall_as_rapier_is() {
         }
         (own, path)
     };
-    let (_, path_rapier) = fly(crate::VehicleDynamics::Rapier, 4);
-    let (own, path_ours) = fly(crate::VehicleDynamics::Articulated, 4);
-    let (_, path_fine) = fly(crate::VehicleDynamics::Rapier, 8);
+    let (_, path_rapier) = fly(crate::VehicleDynamics::Rapier, 4, Some(2));
+    let (own, path_ours) = fly(crate::VehicleDynamics::Articulated, 4, Some(2));
+    let (_, path_fine) = fly(crate::VehicleDynamics::Rapier, 8, Some(2));
+    // rapier's solver split into 4 steps of one pass (its mass matrix rebuilt at each, the
+    // split before `rapier_steps`) instead of the default 2 steps of 2 passes.
+    let (_, path_split) = fly(crate::VehicleDynamics::Rapier, 4, None);
     let gap8 = path_rapier
         .iter()
         .zip(&path_fine)
@@ -1020,6 +1038,33 @@ fn the_articulated_twin_is_stopped_by_a_wall_as_rapier_is() {
     assert!(
         gap < gap8,
         "the articulated twin parts from rapier's by {gap} m, rapier at 8 substeps by {gap8} m"
+    );
+    // How far the contact slides the vehicle down the wall: the default split (2 solver
+    // steps of 2 passes per substep) as rapier converged at 16 substeps of 4 steps, where one
+    // step of 4 passes slides it further. Measured lowest base z: 0.8904 m (default), 0.8917
+    // (16 substeps), 0.8914 (4 steps of one pass, the split before `rapier_steps`), 0.8594
+    // (one step of 4 passes).
+    let lowest = |path: &[Vector3<f64>]| path.iter().map(|p| p.z).fold(f64::MAX, f64::min);
+    let (_, path_converged) = fly(crate::VehicleDynamics::Rapier, 16, None);
+    let (_, path_one_step) = fly(crate::VehicleDynamics::Rapier, 4, Some(1));
+    let (z, z_converged, z_split, z_one) = (
+        lowest(&path_rapier),
+        lowest(&path_converged),
+        lowest(&path_split),
+        lowest(&path_one_step),
+    );
+    println!(
+        "lowest base z: default {z:.4}, 16 substeps {z_converged:.4}, 4 steps {z_split:.4}, one step {z_one:.4}"
+    );
+    assert!(
+        z_converged < 0.95
+            && (z - z_converged).abs() < 0.003
+            && (z_split - z_converged).abs() < 0.003,
+        "the contact slid the base to z = {z} m (default), {z_converged} (16 substeps), {z_split} (4 steps)"
+    );
+    assert!(
+        z_one < z_converged - 0.01,
+        "one solver step slides as far as the converged flight: {z_one} m against {z_converged} m"
     );
     // Own dynamics in free flight, rapier's near the wall, own again after backing away.
     let first_rapier = own.iter().position(|o| !o);

@@ -324,7 +324,9 @@ impl Twin {
         world.gravity = Vector::new(0.0, 0.0, -GRAVITY_MPS2);
         world.integration_parameters.dt =
             config.control_dt_s() / f64::from(config.physics_substeps);
-        world.integration_parameters.num_solver_iterations = config.solver_iterations as usize;
+        let (steps, passes) = config.rapier_solver(false);
+        world.integration_parameters.num_solver_iterations = steps;
+        world.integration_parameters.num_internal_pgs_iterations = passes;
         world.integration_parameters.normalized_prediction_distance = PREDICTION_DISTANCE_M;
         // The ground: a half-space at z = 0.
         let ground = world.insert_body(RigidBodyBuilder::fixed());
@@ -565,6 +567,11 @@ impl Twin {
             self.truth.rotors = reports;
             return Err(e);
         }
+        let (steps, passes) = self.config.rapier_solver(self.held_joint().is_some());
+        self.world.integration_parameters.num_solver_iterations = steps;
+        self.world
+            .integration_parameters
+            .num_internal_pgs_iterations = passes;
         let substep = dt / f64::from(self.config.physics_substeps);
         for k in 1..=self.config.physics_substeps {
             if self.articulated.as_ref().is_some_and(|a| a.engaged) {

@@ -276,6 +276,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "seed": a.seed,
         "physics_substeps": configs.first().map(|c| c.twin.physics_substeps),
         "solver_iterations": configs.first().map(|c| c.twin.solver_iterations),
+        "rapier_steps": configs.first().map(|c| c.twin.rapier_steps),
         "thrust_max_n": thrust_max_n,
         "rows": rows,
         "checks": checks,

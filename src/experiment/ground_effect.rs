@@ -232,6 +232,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "ground_effect_k": a.ground_effect_k,
         "physics_substeps": config.twin.physics_substeps,
         "solver_iterations": config.twin.solver_iterations,
+        "rapier_steps": config.twin.rapier_steps,
         "intervals": {"near_ground": NEAR, "high": HIGH},
         "stand_in": {"mcap": real, "track": stand_in},
         "replays": replays,

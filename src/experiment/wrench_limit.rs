@@ -298,6 +298,7 @@ pub(super) fn run(a: &Args) -> Result<()> {
         "duration_s": a.duration,
         "physics_substeps": configs.first().map(|c| c.twin.physics_substeps),
         "solver_iterations": configs.first().map(|c| c.twin.solver_iterations),
+        "rapier_steps": configs.first().map(|c| c.twin.rapier_steps),
         "thrust_limits_n": [lo, hi],
         "arrival_share": ARRIVED,
         "responses": responses,
