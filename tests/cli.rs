@@ -570,7 +570,9 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     // of the 1408 of the held push (tick 1336) stopped at the 80-iteration cap, with the exit
     // and without it (docs/mpc-contact.md §11); since the arm joints' implied state rows left
     // the QP (later that day) that rollout has none (27 iterations at most), but Wipe Window
-    // stays the test's scene.
+    // stays the test's scene. Seed 2: with this arm model the MPC wipes the window in 8 of
+    // the first 10 rollouts (9 before rapier's solver took 2 steps per substep, 2026-11-29),
+    // seeds 0 and 1 not among them; seed 2's rollout holds 72 infeasible QPs of 1715.
     let reference_arm = dir.path().join("reference-arm.toml");
     std::fs::write(
         &reference_arm,
@@ -585,6 +587,8 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
             &reference_arm_arg,
             "--infeasibility-exit",
             "check",
+            "--seed",
+            "2",
         ],
         &json_arg,
     );
