@@ -1079,8 +1079,10 @@ mod bridge {
     const TASK_SCENE: &[&str] = &["--task", "push-slider"];
 
     /// The actuator-level task flight is the in-process rollout: the same outcome, step for
-    /// step, and errors within 1e-6 m. The flights are lockstep from the same reset; only the
-    /// wire's f32 separates them (measured: 1e-8 m on the mean EE error).
+    /// step, and errors within 1e-5 m. The flights are lockstep from the same reset; only the
+    /// wire's f32 separates them, amplified by the pushes' contact (measured on the mean EE
+    /// and base errors: 1e-8 m with rapier's solver in 4 steps per substep; 1.5e-7 and
+    /// 1.0e-6 m with its 2-step default since 2026-11-29, the bound then 1e-6).
     fn assert_same_rollout(over: &serde_json::Value, reference: &serde_json::Value) {
         assert_eq!(over["task_observed"], true, "{over}");
         assert_eq!(reference["success"], true, "{reference}");
@@ -1098,7 +1100,7 @@ mod bridge {
                 number(&reference["summary"], key),
             );
             assert!(
-                (a - b).abs() < 1e-6,
+                (a - b).abs() < 1e-5,
                 "{key}: {a} over MAVLink, {b} in process"
             );
         }
