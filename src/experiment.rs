@@ -52,7 +52,7 @@ rollouts (the reference's N/A rule); tilt use in rad as the paper prints it.
 
 Each of the paper's orderings is checked task by task and printed `holds:` or `differs:`;
 one that differs names, per task, the first vehicle that breaks it and both figures
-(`push-slider: ua-quad 0.1520 > omni-hexa 0.1137; open-door holds`); embodiment.json has the
+(`push-slider: ua-quad 0.1520 > omni-hexa 0.1136; open-door holds`); embodiment.json has the
 same under orderings[].per_task.
 
 Example:
