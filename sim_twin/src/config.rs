@@ -328,12 +328,11 @@ impl TwinConfig {
     /// with the hand holding an object on a joint or not (see `rapier_steps`).
     pub fn rapier_solver(&self, holding_on_a_joint: bool) -> (usize, usize) {
         match self.rapier_steps {
-            _ if holding_on_a_joint => (self.solver_iterations as usize, 1),
-            None => (self.solver_iterations as usize, 1),
-            Some(steps) => (
+            Some(steps) if !holding_on_a_joint => (
                 steps as usize,
                 self.solver_iterations.div_ceil(steps.max(1)) as usize,
             ),
+            _ => (self.solver_iterations as usize, 1),
         }
     }
 
