@@ -47,8 +47,9 @@ pub struct PhysicsFlags {
     /// before each). Default 4; fewer run faster, at the fidelity measured in docs/speed.md.
     #[arg(long, value_name = "N")]
     pub physics_substeps: Option<u32>,
-    /// rapier's solver iterations per physics step (each one a constraint solve and a
-    /// rebuild of the vehicle's mass matrix). Default 4; see docs/speed.md.
+    /// Constraint-solver iterations per physics step: rapier's passes, shared among its
+    /// `--rapier-steps` steps (each step a rebuild of the vehicle's mass matrix), and the
+    /// default steps of the vehicle's own dynamics. Default 4; see docs/speed.md.
     #[arg(long, value_name = "N")]
     pub solver_iterations: Option<u32>,
     /// What steps the vehicle's dynamics: `articulated` (default): amstack's own rigid-body

@@ -223,7 +223,8 @@ pub struct TwinConfig {
     /// axes at each). Default 4: 480 Hz physics keeps the stiff arm drives (1e5 N·m/rad on
     /// 0.2 kg links) stable while costing little.
     pub physics_substeps: u32,
-    /// Constraint solver iterations per substep. Default 4.
+    /// Constraint solver iterations per substep: rapier's passes, shared among its
+    /// `rapier_steps` steps. Default 4.
     pub solver_iterations: u32,
     /// What steps the vehicle's dynamics. Default: the vehicle's own in free flight,
     /// rapier's multibody near contact; a config written before this field existed (or
