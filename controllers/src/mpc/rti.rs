@@ -492,6 +492,17 @@ impl SqpRti {
         limits: &BaseLimits,
         elapsed_s: f64,
     ) {
+        prepare_vectorised(self, x_hat, reference, limits, elapsed_s);
+    }
+
+    #[inline(always)]
+    fn prepare_impl(
+        &mut self,
+        x_hat: &StateVector,
+        reference: &MpcReference,
+        limits: &BaseLimits,
+        elapsed_s: f64,
+    ) {
         let n = self.config.intervals;
         if self.warm {
             let shift = (elapsed_s / self.h).max(0.0);
@@ -896,6 +907,19 @@ impl SqpRti {
         self.prepare(x_hat, reference, limits, elapsed_s);
         self.feedback(path)
     }
+}
+
+/// [`SqpRti::prepare`] compiled for the baseline and for AVX2, chosen at run time (as the
+/// interior point's kernels, `riccati::vectorised`: the same bits either way).
+#[multiversion::multiversion(targets("x86_64+avx2"))]
+fn prepare_vectorised(
+    rti: &mut SqpRti,
+    x_hat: &StateVector,
+    reference: &MpcReference,
+    limits: &BaseLimits,
+    elapsed_s: f64,
+) {
+    rti.prepare_impl(x_hat, reference, limits, elapsed_s);
 }
 
 /// The EE residual: position against `target`, roll, pitch, yaw against `ref_rpy` (wrapped).
