@@ -365,6 +365,10 @@ pub struct RiccatiIpm {
     cross_zero: bool,
     /// G dz per row (the recovery's).
     g_dz: Vec<f64>,
+    /// ±G z per row at the iterate (the residuals').
+    g_z: Vec<f64>,
+    /// Each row's bound h, contiguous (the residuals').
+    row_h: Vec<f64>,
     /// Per row (used on soft rows only): slack t, its multiplier ν, the dual residual
     /// r_t = ρ − λ − ν, r̃ of the Newton coefficient, and the steps.
     t: Vec<f64>,
@@ -555,6 +559,8 @@ impl RiccatiIpm {
             soft_index: Vec::new(),
             cross_zero: false,
             g_dz: Vec::new(),
+            g_z: Vec::new(),
+            row_h: Vec::new(),
             t: Vec::new(),
             nu: Vec::new(),
             r_t: Vec::new(),
@@ -810,6 +816,8 @@ impl RiccatiIpm {
             }
         }
         self.start.push(self.rows.len());
+        self.row_h.clear();
+        self.row_h.extend(self.rows.iter().map(|r| r.h));
         self.soft_index.clear();
         self.soft_index
             .extend((0..self.rows.len()).filter(|&i| self.rows[i].soft));
@@ -836,6 +844,7 @@ impl RiccatiIpm {
             &mut self.dt_aff,
             &mut self.dnu_aff,
             &mut self.g_dz,
+            &mut self.g_z,
         ] {
             v.resize(m, 0.0);
         }
@@ -1959,30 +1968,29 @@ impl RiccatiIpm {
         loop {
             // Residuals at the iterate.
             self.cost_gradient(qp, &out.x, &out.u);
-            let mut r_ineq_max: f64 = 0.0;
-            let mut r_t_max: f64 = 0.0;
-            let mut pair_value = 0.0;
+            // G z once per pair (lower, upper row on the same row of z): −v, v.
             for k in 0..=n {
-                for idx in self.start[k]..self.start[k + 1] {
-                    let row = self.rows[idx];
-                    // Rows come in pairs (lower, upper) on the same row of z.
-                    if idx % 2 == 0 {
-                        pair_value = Self::kind_value(qp, k, row.kind, &out.x[k], out.u.get(k));
-                    }
-                    let v = if idx % 2 == 0 {
-                        -pair_value
-                    } else {
-                        pair_value
-                    };
-                    self.r_ineq[idx] = v + self.s[idx] - row.h;
-                    if row.soft {
-                        self.r_ineq[idx] -= self.t[idx];
-                        self.r_t[idx] = self.rho - self.lambda[idx] - self.nu[idx];
-                        r_t_max = r_t_max.max(self.r_t[idx].abs());
-                    }
-                    r_ineq_max = r_ineq_max.max(self.r_ineq[idx].abs());
+                for idx in (self.start[k]..self.start[k + 1]).step_by(2) {
+                    let v = Self::kind_value(qp, k, self.rows[idx].kind, &out.x[k], out.u.get(k));
+                    self.g_z[idx] = -v;
+                    self.g_z[idx + 1] = v;
                 }
             }
+            // Every row as hard (zipped slices, branch-free: it vectorises), then the soft
+            // rows' slack and dual residual.
+            let rows = self.r_ineq[..m].iter_mut().zip(&self.g_z[..m]);
+            for ((r, g), (s, h)) in rows.zip(self.s[..m].iter().zip(&self.row_h[..m])) {
+                *r = g + s - h;
+            }
+            let mut r_t_max: f64 = 0.0;
+            for &i in &self.soft_index {
+                self.r_ineq[i] -= self.t[i];
+                self.r_t[i] = self.rho - self.lambda[i] - self.nu[i];
+                r_t_max = r_t_max.max(self.r_t[i].abs());
+            }
+            let r_ineq_max = self.r_ineq[..m]
+                .iter()
+                .fold(0.0f64, |acc, r| acc.max(r.abs()));
             let mu = if self.soft_count > 0 {
                 // t = ν = 0 on the hard rows (set by the start), so no branch is needed.
                 let pairs: f64 = (0..m)
