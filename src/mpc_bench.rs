@@ -491,6 +491,9 @@ struct Report {
     rollout: Option<RolloutFigures>,
     iterations: usize,
     build: &'static str,
+    /// The version of the Riccati kernels this CPU runs (`avx2` or `baseline`): the same
+    /// bits, not the same speed.
+    kernels: &'static str,
     paths: BTreeMap<&'static str, PathFigures>,
 }
 
@@ -1100,6 +1103,12 @@ pub fn run(args: &Args) -> Result<()> {
                 r.tried, f.ticks, r.accepted
             );
         }
+        if *name == "riccati" {
+            println!(
+                "{name}: kernels: {} (this CPU's version of the interior point's kernels; the same bits on every version)",
+                controllers::mpc::kernel_target()
+            );
+        }
         if let Some(c) = &f.screening_check {
             println!(
                 "{name}: row screening against unscreened solves of the same QPs (cold): {} disagreements in {} QPs; {} solved by both: objectives within {:.1e} ({:.1e} relative), points within {:.1e}; {} solved again with every row; against the tight solve (tolerance x 1e-3, {} QPs): screened point within {:.1e}, objective {:.1e}; unscreened point within {:.1e}, objective {:.1e}",
@@ -1148,6 +1157,7 @@ pub fn run(args: &Args) -> Result<()> {
             } else {
                 "release"
             },
+            kernels: controllers::mpc::kernel_target(),
             paths,
         };
         write_json(path, &serde_json::to_value(&report)?)?;

@@ -501,6 +501,8 @@ fn mpc_bench_reports_both_qp_paths_and_refuses_bad_input() {
         }
         assert_eq!(p["failed_solves"], 0, "{path}");
     }
+    // The kernels' version this CPU runs, as the library chooses it.
+    assert_eq!(v["kernels"], controllers::mpc::kernel_target(), "{v}");
     assert_bad_input(
         &amstack(&["mpc-bench", "--iterations", "0"]),
         &["--iterations"],

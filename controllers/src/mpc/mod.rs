@@ -47,5 +47,7 @@ pub use qp::{
     InputVector, NU, NX, QpSolution, QpSolver, QpStatus, StageConstraints, StateVector,
     StructuredQp,
 };
-pub use riccati::{InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport, ShotOutcome};
+pub use riccati::{
+    InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport, ShotOutcome, kernel_target,
+};
 pub use rti::{MpcError, MpcReference, RtiReport, SqpRti, wrap_angle};

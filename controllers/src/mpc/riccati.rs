@@ -212,6 +212,18 @@ mod vectorised {
     }
 }
 
+/// Which version of the interior point's kernels (and of the RTI's linearisation) this CPU
+/// runs: `"avx2"` or `"baseline"` (the choice `multiversion` makes for their
+/// `x86_64+avx2` target). Both compute the same bits; only the speed differs, so speed
+/// figures name it.
+pub fn kernel_target() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        return "avx2";
+    }
+    "baseline"
+}
+
 /// The range `lo..hi` outside which `v` is zero.
 fn support<const N: usize>(v: &SMatrix<f64, N, 1>) -> (usize, usize) {
     let lo = v.iter().position(|x| *x != 0.0).unwrap_or(0);
