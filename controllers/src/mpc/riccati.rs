@@ -142,6 +142,13 @@ const SHOT_STEPS: usize = 4;
 /// The shot's steps stop once every active row's residual is below this fraction of the
 /// tolerance (one step, nearly always: the residual after it is about Δλ/ρ).
 const SHOT_RESIDUAL: f64 = 1e-1;
+/// The shot's steps also stop when a step leaves the worst residual above this fraction of
+/// the last step's: the method of multipliers converges geometrically on a consistent set
+/// of equalities, and a stalled residual means the guessed rows conflict (no point meets
+/// them all), which no further step mends. (`amstack mpc-bench --scenario wipe-window`: 286
+/// of the 361 refused shots ran all four steps with the residual going 2.98e-6 →
+/// 2.97e-6 → … at the median, each step a Newton solve for nothing.)
+const SHOT_STALL: f64 = 0.5;
 /// Most iterative-refinement steps per Newton solve.
 const REFINEMENT_STEPS: usize = 2;
 /// A Newton solve whose residual is below this fraction of (tolerance × its right-hand side) is
@@ -179,7 +186,7 @@ pub enum ShotOutcome {
 /// `a·b + c` into a fused multiply-add and reorders no floating-point sum, so both versions
 /// compute the same bits (the MPC benchmark's rollouts equal in every figure).
 mod vectorised {
-    use super::{RiccatiIpm, StructuredQp};
+    use super::{QpSolution, RiccatiIpm, StructuredQp};
 
     #[multiversion::multiversion(targets("x86_64+avx2"))]
     pub(super) fn recover(ipm: &mut RiccatiIpm, qp: &StructuredQp, sigma_mu: Option<f64>) {
@@ -209,6 +216,15 @@ mod vectorised {
     #[multiversion::multiversion(targets("x86_64+avx2"))]
     pub(super) fn sweep(ipm: &mut RiccatiIpm, qp: &StructuredQp) {
         ipm.sweep_impl(qp);
+    }
+
+    #[multiversion::multiversion(targets("x86_64+avx2"))]
+    pub(super) fn residuals(
+        ipm: &mut RiccatiIpm,
+        qp: &StructuredQp,
+        out: &QpSolution,
+    ) -> (f64, f64, f64) {
+        ipm.residuals_impl(qp, out)
     }
 }
 
@@ -240,13 +256,21 @@ struct Row {
     soft: bool,
 }
 
-/// Non-zeros of a matrix, by column: (row, value).
+/// Non-zeros of a matrix, by column: (row, value). The MPC's A and B are integrator chains
+/// (22 and 16 non-zeros of 256 and 160), so their products are a few column updates.
 #[derive(Debug, Clone, Default)]
-struct SparseColumns {
+pub(crate) struct SparseColumns {
     columns: Vec<Vec<(usize, f64)>>,
 }
 
 impl SparseColumns {
+    /// The non-zeros of `m`.
+    pub(crate) fn of<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Self {
+        let mut out = Self::default();
+        out.set(m);
+        out
+    }
+
     fn set<const R: usize, const C: usize>(&mut self, m: &SMatrix<f64, R, C>) {
         self.columns.resize_with(C, Vec::new);
         for (j, col) in self.columns.iter_mut().enumerate() {
@@ -276,6 +300,18 @@ impl SparseColumns {
             }
             *dst = acc;
         }
+    }
+
+    /// self · v, the same bits as nalgebra's dense product for finite entries (its column
+    /// updates in the same order; the zeros it adds change no sum but the sign of a zero).
+    #[inline(always)]
+    pub(crate) fn times<const R: usize, const C: usize>(
+        &self,
+        v: &SMatrix<f64, C, 1>,
+    ) -> SMatrix<f64, R, 1> {
+        let mut out = SMatrix::<f64, R, 1>::zeros();
+        self.multiply_add(v, &mut out);
+        out
     }
 
     /// out += self · v.
@@ -1498,9 +1534,12 @@ impl RiccatiIpm {
         if pairs == 0 {
             return 0.0;
         }
-        let mut sum: f64 = (0..self.s.len())
-            .map(|i| (self.s[i] + alpha * self.ds[i]) * (self.lambda[i] + alpha * self.dlambda[i]))
-            .sum();
+        let m = self.s.len();
+        let mut sum = stepped_product_sum(
+            (&self.s[..m], &self.ds[..m]),
+            (&self.lambda[..m], &self.dlambda[..m]),
+            alpha,
+        );
         if self.soft_count > 0 {
             sum += self
                 .soft_index
@@ -1625,7 +1664,7 @@ impl RiccatiIpm {
         out.x[0] = qp.x0;
         for k in 0..n {
             out.u[k] = InputVector::zeros();
-            out.x[k + 1] = qp.a * out.x[k] + qp.defects[k];
+            out.x[k + 1] = self.a.times(&out.x[k]) + qp.defects[k];
         }
         self.select_rows(qp, &out.x, &out.u, None);
         let rho = SHOT_PENALTY * qp.r.iter().map(|r| r.amax()).fold(1.0, f64::max);
@@ -1717,13 +1756,17 @@ impl RiccatiIpm {
     /// The active-set shot's method-of-multipliers steps on the rows with a penalty (one
     /// factorisation, done): each step is the Newton step of the penalised QP, exact on its
     /// quadratic, then λ ← λ + ρ r; they stop once every such row is within
-    /// `SHOT_RESIDUAL` of the tolerance. The costates ŷ of the last step are the point's
-    /// (its Newton system is the stationarity of the penalised QP at the new point with the
-    /// updated multipliers), copied to y.
-    fn shot_steps(&mut self, qp: &StructuredQp, out: &mut QpSolution, rho: f64) {
+    /// `SHOT_RESIDUAL` of the tolerance, or once the residual stalls (`SHOT_STALL`). The
+    /// costates ŷ of the last step are the point's (its Newton system is the stationarity of
+    /// the penalised QP at the new point with the updated multipliers), copied to y. Returns
+    /// the steps taken.
+    fn shot_steps(&mut self, qp: &StructuredQp, out: &mut QpSolution, rho: f64) -> usize {
         let n = qp.intervals;
         let tol = self.settings.tolerance;
+        let mut last_worst = f64::INFINITY;
+        let mut steps = 0;
         for _ in 0..SHOT_STEPS {
+            steps += 1;
             self.cost_gradient(qp, &out.x, &out.u);
             for k in 0..=n {
                 for idx in self.start[k]..self.start[k + 1] {
@@ -1756,13 +1799,15 @@ impl RiccatiIpm {
                 }
             }
             // NaN fails the comparison: the steps run out and the test refuses the point.
-            if worst <= SHOT_RESIDUAL * tol {
+            if worst <= SHOT_RESIDUAL * tol || worst > SHOT_STALL * last_worst {
                 break;
             }
+            last_worst = worst;
         }
         for k in 1..=n {
             self.y[k] = self.y_hat[k];
         }
+        steps
     }
 
     /// The interior point's convergence test at the shot's point: slacks s = h − G z, the
@@ -1815,8 +1860,9 @@ impl RiccatiIpm {
                 if row.soft {
                     // Dual feasible (λ + ν = ρ) with λ as for a hard row; the slack t covers
                     // what the start violates (a row starting with a tiny t behaves as hard:
-                    // t cannot grow faster than ν may shrink, and the iterate crawls), and
-                    // elsewhere starts with the hard rows' pair product.
+                    // t cannot grow faster than ν may shrink, and the iterate crawls — on the
+                    // infeasible QPs a cold start is for, the tests below), and elsewhere
+                    // starts with the hard rows' pair product.
                     let small = (0.5 * self.rho).min(INITIAL_MULTIPLIER);
                     self.lambda[idx] = small;
                     self.nu[idx] = self.rho - small;
@@ -1841,6 +1887,21 @@ impl RiccatiIpm {
     /// the last solution's tiny slacks and multipliers instead was measured to stall on
     /// the rows whose activity changed). A soft row keeps λ + ν = ρ (λ below ρ − 1) and
     /// its slack t at least the last one.
+    ///
+    /// Unlike the cold start, a soft row the last solution held (its t within the tolerance)
+    /// starts with t centred like every row's pair (t·ν = s·λ) also where the start point
+    /// violates it: the violation, the shifted solution's, is left to the primal residual
+    /// r = G z + s − t − h as a hard row's is. Starting t at the violation plus
+    /// `INITIAL_SLACK_MIN` (the cold start's rule, which rows the last solution violated
+    /// keep, and all rows here before 2026-11-29, evening) put ν ≈ ρ = 1e5 against t ≥ 0.1 on
+    /// each such row:
+    /// pair products of 1e4 beside the hard rows' ~0.1, a mean complementarity of ~300 at the
+    /// start of the Wipe Window replay's longest QPs, and 3–7 iterations at step lengths of
+    /// 0.005–0.2 before the iterate moved (`amstack mpc-bench --scenario wipe-window`: QP
+    /// iterations p99 / max 15 / 24 → 13 / 17; `--scenario push-slider --seed 1`: 8 / 11 →
+    /// 6 / 10). On a row that must stay violated a tiny t crawls (`cold_init`): the rule is
+    /// kept where the last solution needed the slack (test
+    /// `a_warm_start_reaches_the_cold_solution_in_fewer_iterations`, infeasible QPs).
     fn warm_init(&mut self, qp: &StructuredQp, shift: f64, out: &QpSolution) {
         let n = qp.intervals;
         let (s_floor, l_floor) = (INITIAL_SLACK_MIN, INITIAL_MULTIPLIER);
@@ -1877,10 +1938,13 @@ impl RiccatiIpm {
                         .max(l_floor.min(0.5 * self.rho));
                     self.lambda[idx] = lambda;
                     self.nu[idx] = self.rho - lambda;
-                    self.t[idx] = if v > row.h {
+                    // Centred also where the start violates a row the last solution held
+                    // (above); a row it violated keeps the cold start's rule.
+                    let prev_t = interp(&self.prev_t);
+                    self.t[idx] = if v > row.h && prev_t > self.settings.tolerance {
                         v - row.h + s_floor
                     } else {
-                        interp(&self.prev_t).max(self.s[idx] * lambda / self.nu[idx])
+                        prev_t.max(self.s[idx] * lambda / self.nu[idx])
                     };
                 } else {
                     self.lambda[idx] = lambda;
@@ -1889,6 +1953,58 @@ impl RiccatiIpm {
                 }
             }
         }
+    }
+
+    /// The residuals at the iterate (the cost gradient, r = G z + s − t − h, the soft rows'
+    /// dual residual) and (max |r|, max |r_t|, μ).
+    #[inline(always)]
+    fn residuals_impl(&mut self, qp: &StructuredQp, out: &QpSolution) -> (f64, f64, f64) {
+        let n = qp.intervals;
+        let m = self.rows.len();
+        self.cost_gradient(qp, &out.x, &out.u);
+        // G z once per pair (lower, upper row on the same row of z): −v, v.
+        for k in 0..=n {
+            for idx in (self.start[k]..self.start[k + 1]).step_by(2) {
+                let v = Self::kind_value(qp, k, self.rows[idx].kind, &out.x[k], out.u.get(k));
+                self.g_z[idx] = -v;
+                self.g_z[idx + 1] = v;
+            }
+        }
+        // Every row as hard (zipped slices, branch-free: it vectorises), then the soft
+        // rows' slack and dual residual.
+        let rows = self.r_ineq[..m].iter_mut().zip(&self.g_z[..m]);
+        for ((r, g), (s, h)) in rows.zip(self.s[..m].iter().zip(&self.row_h[..m])) {
+            *r = g + s - h;
+        }
+        let mut r_t_max: f64 = 0.0;
+        for &i in &self.soft_index {
+            self.r_ineq[i] -= self.t[i];
+            self.r_t[i] = self.rho - self.lambda[i] - self.nu[i];
+            r_t_max = r_t_max.max(self.r_t[i].abs());
+        }
+        let r_ineq_max = abs_max(&self.r_ineq[..m]);
+        let mu = if self.soft_count > 0 {
+            // t = ν = 0 on the hard rows (set by the start), so no branch is needed.
+            let pairs = product_sum(&self.s[..m], &self.lambda[..m])
+                + product_sum(&self.t[..m], &self.nu[..m]);
+            pairs / (m + self.soft_count) as f64
+        } else if m > 0 {
+            product_sum(&self.s[..m], &self.lambda[..m]) / m as f64
+        } else {
+            0.0
+        };
+        (r_ineq_max, r_t_max, mu)
+    }
+
+    /// Whether the iterate's point, costates and cost gradient are finite (what makes the
+    /// stationarity residual finite, short of an overflow in its sums).
+    fn iterate_finite(&self, out: &QpSolution) -> bool {
+        let finite = |v: &[f64]| v.iter().all(|e| e.is_finite());
+        out.x.iter().all(|x| finite(x.as_slice()))
+            && out.u.iter().all(|u| finite(u.as_slice()))
+            && self.y.iter().all(|y| finite(y.as_slice()))
+            && self.gx.iter().all(|g| finite(g.as_slice()))
+            && self.gu.iter().all(|g| finite(g.as_slice()))
     }
 
     /// Largest stationarity residual with the current multipliers.
@@ -1952,7 +2068,7 @@ impl RiccatiIpm {
         out.x[0] = qp.x0;
         for k in 0..n {
             out.u[k] = InputVector::zeros();
-            out.x[k + 1] = qp.a * out.x[k] + qp.defects[k];
+            out.x[k + 1] = self.a.times(&out.x[k]) + qp.defects[k];
         }
         self.select_rows(qp, &out.x, &out.u, margin);
         self.screen_broken = false;
@@ -1979,60 +2095,32 @@ impl RiccatiIpm {
         let exit = self.exit.filter(|_| self.soft_count > 0);
         loop {
             // Residuals at the iterate.
-            self.cost_gradient(qp, &out.x, &out.u);
-            // G z once per pair (lower, upper row on the same row of z): −v, v.
-            for k in 0..=n {
-                for idx in (self.start[k]..self.start[k + 1]).step_by(2) {
-                    let v = Self::kind_value(qp, k, self.rows[idx].kind, &out.x[k], out.u.get(k));
-                    self.g_z[idx] = -v;
-                    self.g_z[idx + 1] = v;
-                }
-            }
-            // Every row as hard (zipped slices, branch-free: it vectorises), then the soft
-            // rows' slack and dual residual.
-            let rows = self.r_ineq[..m].iter_mut().zip(&self.g_z[..m]);
-            for ((r, g), (s, h)) in rows.zip(self.s[..m].iter().zip(&self.row_h[..m])) {
-                *r = g + s - h;
-            }
-            let mut r_t_max: f64 = 0.0;
-            for &i in &self.soft_index {
-                self.r_ineq[i] -= self.t[i];
-                self.r_t[i] = self.rho - self.lambda[i] - self.nu[i];
-                r_t_max = r_t_max.max(self.r_t[i].abs());
-            }
-            let r_ineq_max = self.r_ineq[..m]
-                .iter()
-                .fold(0.0f64, |acc, r| acc.max(r.abs()));
-            let mu = if self.soft_count > 0 {
-                // t = ν = 0 on the hard rows (set by the start), so no branch is needed.
-                let pairs: f64 = (0..m)
-                    .map(|i| self.s[i] * self.lambda[i] + self.t[i] * self.nu[i])
-                    .sum();
-                pairs / (m + self.soft_count) as f64
-            } else if m > 0 {
-                self.s
-                    .iter()
-                    .zip(&self.lambda)
-                    .map(|(s, l)| s * l)
-                    .sum::<f64>()
-                    / m as f64
-            } else {
+            let (r_ineq_max, r_t_max, mu) = vectorised::residuals(self, qp, out);
+            // The soft rows' dual equation ρ − λ − ν = 0, relative to ρ.
+            let dual_ok = r_t_max <= tol * gradient_scale.max(self.rho);
+            let converging = r_ineq_max <= tol && mu <= tol && dual_ok;
+            let rescuable = self.settings.polish
+                && r_ineq_max <= POLISH_RESCUE_TOLERANCE
+                && mu <= POLISH_RESCUE_TOLERANCE;
+            // The stationarity (a scatter of every multiplier, and the costates) only where it
+            // decides something: the other tests passed, or the polish's rescue. Elsewhere
+            // the iterate's finiteness is what it was checked for.
+            let stationarity = if converging || rescuable {
+                self.stationarity(qp)
+            } else if self.iterate_finite(out) {
                 0.0
+            } else {
+                f64::NAN
             };
-            let stationarity = self.stationarity(qp);
             if !(stationarity.is_finite() && mu.is_finite() && r_ineq_max.is_finite()) {
                 status = QpStatus::NumericalFailure;
                 break;
             }
-            // The soft rows' dual equation ρ − λ − ν = 0, relative to ρ.
-            let dual_ok = r_t_max <= tol * gradient_scale.max(self.rho);
-            if stationarity <= tol * gradient_scale && r_ineq_max <= tol && mu <= tol && dual_ok {
+            if converging && stationarity <= tol * gradient_scale {
                 status = QpStatus::Solved;
                 break;
             }
-            near_solution = stationarity <= POLISH_RESCUE_TOLERANCE * gradient_scale
-                && r_ineq_max <= POLISH_RESCUE_TOLERANCE
-                && mu <= POLISH_RESCUE_TOLERANCE;
+            near_solution = rescuable && stationarity <= POLISH_RESCUE_TOLERANCE * gradient_scale;
             if let Some(exit) = &exit
                 && iterations >= exit.min_iterations
                 && exit_attempts < exit.max_attempts
@@ -2417,6 +2505,61 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
         res += a[k] * b[k];
     }
     res
+}
+
+/// The largest |v_i| (0 for none; NaN entries ignored, as `f64::max` does), in four lanes so
+/// it vectorises: the maximum is exact in any order, so the same value as a fold in order.
+#[inline(always)]
+fn abs_max(v: &[f64]) -> f64 {
+    let mut lanes = [0.0f64; 4];
+    let (chunks, rest) = v.as_chunks::<4>();
+    for chunk in chunks {
+        for (l, x) in lanes.iter_mut().zip(chunk) {
+            *l = l.max(x.abs());
+        }
+    }
+    let mut out = lanes.iter().copied().fold(0.0, f64::max);
+    for x in rest {
+        out = out.max(x.abs());
+    }
+    out
+}
+
+/// Σ a_i b_i in four interleaved partial sums (lane j takes i ≡ j mod 4), folded pairwise,
+/// then the rest in order: it vectorises, where one running sum waits on each addition.
+#[inline(always)]
+fn product_sum(a: &[f64], b: &[f64]) -> f64 {
+    let mut lanes = [0.0f64; 4];
+    let (ca, ra) = a.as_chunks::<4>();
+    let (cb, rb) = b.as_chunks::<4>();
+    for (x, y) in ca.iter().zip(cb) {
+        for k in 0..4 {
+            lanes[k] += x[k] * y[k];
+        }
+    }
+    let mut out = (lanes[0] + lanes[2]) + (lanes[1] + lanes[3]);
+    for (x, y) in ra.iter().zip(rb) {
+        out += x * y;
+    }
+    out
+}
+
+/// Σ (a_i + α da_i)(b_i + α db_i), summed as [`product_sum`].
+#[inline(always)]
+fn stepped_product_sum(a: (&[f64], &[f64]), b: (&[f64], &[f64]), alpha: f64) -> f64 {
+    let mut lanes = [0.0f64; 4];
+    let ((ca, ra), (cda, rda)) = (a.0.as_chunks::<4>(), a.1.as_chunks::<4>());
+    let ((cb, rb), (cdb, rdb)) = (b.0.as_chunks::<4>(), b.1.as_chunks::<4>());
+    for ((x, dx), (y, dy)) in ca.iter().zip(cda).zip(cb.iter().zip(cdb)) {
+        for k in 0..4 {
+            lanes[k] += (x[k] + alpha * dx[k]) * (y[k] + alpha * dy[k]);
+        }
+    }
+    let mut out = (lanes[0] + lanes[2]) + (lanes[1] + lanes[3]);
+    for ((x, dx), (y, dy)) in ra.iter().zip(rda).zip(rb.iter().zip(rdb)) {
+        out += (x + alpha * dx) * (y + alpha * dy);
+    }
+    out
 }
 
 /// Compile-time check of the dimensions the recursion assumes.
@@ -2911,6 +3054,110 @@ mod tests {
             gap_shot * 10.0 < gap_ipm,
             "the shot ({gap_shot:.2e}) no closer than the interior point ({gap_ipm:.2e})"
         );
+    }
+
+    /// The warm start of a soft row the start point violates: centred (t·ν = s·λ, the
+    /// violation left to the primal residual) where the last solution held the row, the cold
+    /// start's t = violation + `INITIAL_SLACK_MIN` where it needed the slack.
+    #[test]
+    fn a_warm_soft_row_the_start_violates_starts_centred_unless_it_was_violated() {
+        let qp = first_qp();
+        let n = qp.intervals;
+        let mut ipm = RiccatiIpm::new(QpSettings::default());
+        let mut sol = QpSolution::zeros(n);
+        assert_eq!(ipm.solve(&qp, &mut sol), QpStatus::Solved);
+        let mut out = QpSolution::zeros(n);
+        out.x[0] = qp.x0;
+        for k in 0..n {
+            out.x[k + 1] = qp.a * out.x[k] + qp.defects[k];
+        }
+        ipm.select_rows(&qp, &out.x, &out.u, None);
+        let k = 5;
+        let idx = (ipm.start[k]..ipm.start[k + 1])
+            .find(|&i| ipm.rows[i].soft)
+            .unwrap_or_else(|| panic!("stage {k} has a soft row"));
+        let full = ipm.full_of[idx];
+        assert!(
+            ipm.prev_t[full] <= ipm.settings.tolerance,
+            "the last solution held it"
+        );
+        // The row's bound moved 1 cm inside the start point: violated by 0.01.
+        let v = RiccatiIpm::row_value(&qp, k, &ipm.rows[idx], &out.x[k], out.u.get(k));
+        ipm.rows[idx].h = v - 0.01;
+        ipm.warm_init(&qp, 0.0, &out);
+        let (s, l, t, nu) = (ipm.s[idx], ipm.lambda[idx], ipm.t[idx], ipm.nu[idx]);
+        assert_eq!(s, INITIAL_SLACK_MIN);
+        assert!((l + nu - ipm.rho).abs() <= 1e-9 * ipm.rho, "dual feasible");
+        assert!(
+            (t * nu - s * l).abs() <= 1e-12 * s * l,
+            "centred: t·ν {} s·λ {}",
+            t * nu,
+            s * l
+        );
+        // Its residual G z + s − t − h carries the violation (and the slack floor).
+        assert!(v + s - t - ipm.rows[idx].h > 0.01);
+        // Where the last solution needed the slack (t = 5 mm), the cold start's rule.
+        ipm.prev_t[full] = 0.005;
+        ipm.warm_init(&qp, 0.0, &out);
+        assert!(
+            (ipm.t[idx] - (0.01 + INITIAL_SLACK_MIN)).abs() < 1e-12,
+            "t {}",
+            ipm.t[idx]
+        );
+    }
+
+    /// The shot's method-of-multipliers steps on a guess whose equalities conflict (both rows
+    /// of a bound pair, lower < upper: no point meets both) stop once the residual stalls,
+    /// and on a consistent guess (one row of the pair) run to round-off.
+    #[test]
+    fn the_shots_steps_stop_when_the_guessed_rows_conflict() {
+        let qp = first_qp();
+        let mut ipm = RiccatiIpm::new(QpSettings::default());
+        let mut sol = QpSolution::zeros(qp.intervals);
+        assert_eq!(ipm.solve(&qp, &mut sol), QpStatus::Solved);
+        let rho = SHOT_PENALTY * qp.r.iter().map(|r| r.amax()).fold(1.0, f64::max);
+        let tol = ipm.settings.tolerance;
+        // The first row pair of stage 5 (−v ≤ −lower, v ≤ upper).
+        let run = |ipm: &mut RiccatiIpm, rows: &[usize]| {
+            let mut out = QpSolution::zeros(qp.intervals);
+            out.x[0] = qp.x0;
+            for k in 0..qp.intervals {
+                out.x[k + 1] = qp.a * out.x[k] + qp.defects[k];
+            }
+            ipm.select_rows(&qp, &out.x, &out.u, None);
+            for (w, l) in ipm.w.iter_mut().zip(&mut ipm.lambda) {
+                *w = 0.0;
+                *l = 0.0;
+            }
+            for &i in rows {
+                ipm.w[i] = rho;
+            }
+            assert!(ipm.factorize(&qp));
+            let steps = ipm.shot_steps(&qp, &mut out, rho);
+            let k = 5;
+            let worst = rows
+                .iter()
+                .map(|&i| {
+                    let row = ipm.rows[i];
+                    (RiccatiIpm::row_value(&qp, k, &row, &out.x[k], out.u.get(k)) - row.h).abs()
+                })
+                .fold(0.0, f64::max);
+            (steps, worst)
+        };
+        let idx = ipm.start[5];
+        let (lower, upper) = (-ipm.rows[idx].h, ipm.rows[idx + 1].h);
+        assert!(upper - lower > 1e-3, "a pair of width {}", upper - lower);
+        // Conflicting: the residuals of the two rows sum to lower − upper at every point.
+        let (steps, worst) = run(&mut ipm, &[idx, idx + 1]);
+        assert_eq!(
+            steps, 2,
+            "stopped after the first step that did not halve the residual"
+        );
+        assert!(worst >= 0.4 * (upper - lower), "residual {worst:e}");
+        // Consistent: converges (to round-off), before the step budget runs out.
+        let (steps, worst) = run(&mut ipm, &[idx + 1]);
+        assert!(steps < SHOT_STEPS, "{steps} steps");
+        assert!(worst <= SHOT_RESIDUAL * tol, "residual {worst:e}");
     }
 
     #[test]

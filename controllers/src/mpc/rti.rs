@@ -77,7 +77,7 @@ use crate::mpc::qp::{
     StateInputMatrix, StateMatrix, StateVector, StructuredQp,
 };
 use crate::mpc::riccati::{
-    InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport, ShotOutcome,
+    InfeasibilityExit, RiccatiIpm, RowScreening, ScreeningReport, ShotOutcome, SparseColumns,
 };
 use platform::HeldJoint;
 
@@ -173,8 +173,10 @@ pub struct SqpRti {
     config: MpcConfig,
     model: MpcModel,
     h: f64,
-    a: StateMatrix,
-    b: StateInputMatrix,
+    /// A and B (the model's step, the same every stage) by their non-zeros: the rollouts'
+    /// products.
+    a_sparse: SparseColumns,
+    b_sparse: SparseColumns,
     joint_lower: [f64; NQ],
     joint_upper: [f64; NQ],
     /// The rotors' thrust envelope bounding force and torque (None: unbounded).
@@ -289,8 +291,8 @@ impl SqpRti {
         Ok(Self {
             model,
             h,
-            a,
-            b,
+            a_sparse: SparseColumns::of(&a),
+            b_sparse: SparseColumns::of(&b),
             joint_lower,
             joint_upper,
             envelope,
@@ -530,7 +532,7 @@ impl SqpRti {
         }
         self.xs[0] = *x_hat;
         for k in 0..n {
-            self.xs[k + 1] = self.a * self.xs[k] + self.b * self.us[k];
+            self.xs[k + 1] = self.a_sparse.times(&self.xs[k]) + self.b_sparse.times(&self.us[k]);
         }
         // The measured EE, while something is held (the grasp's anchor and turn).
         let held_ee = self
@@ -731,7 +733,8 @@ impl SqpRti {
                         .rate_weights
                         .component_mul(&(u - reference.input_previous)))
                     * scale;
-                self.qp.defects[k] = self.a * x + self.b * u - self.xs[k + 1];
+                self.qp.defects[k] =
+                    self.a_sparse.times(&x) + self.b_sparse.times(&u) - self.xs[k + 1];
                 let c = &mut self.qp.constraints[k];
                 for (j, &iu) in INPUT_BOUND_INDICES.iter().enumerate() {
                     c.input_lower[j] = self.joint_lower[j] - u[iu];
