@@ -1888,20 +1888,13 @@ impl RiccatiIpm {
     /// the rows whose activity changed). A soft row keeps λ + ν = ρ (λ below ρ − 1) and
     /// its slack t at least the last one.
     ///
-    /// Unlike the cold start, a soft row the last solution held (its t within the tolerance)
-    /// starts with t centred like every row's pair (t·ν = s·λ) also where the start point
-    /// violates it: the violation, the shifted solution's, is left to the primal residual
-    /// r = G z + s − t − h as a hard row's is. Starting t at the violation plus
-    /// `INITIAL_SLACK_MIN` (the cold start's rule, which rows the last solution violated
-    /// keep, and all rows here before 2026-11-29, evening) put ν ≈ ρ = 1e5 against t ≥ 0.1 on
-    /// each such row:
-    /// pair products of 1e4 beside the hard rows' ~0.1, a mean complementarity of ~300 at the
-    /// start of the Wipe Window replay's longest QPs, and 3–7 iterations at step lengths of
-    /// 0.005–0.2 before the iterate moved (`amstack mpc-bench --scenario wipe-window`: QP
-    /// iterations p99 / max 15 / 24 → 13 / 17; `--scenario push-slider --seed 1`: 8 / 11 →
-    /// 6 / 10). On a row that must stay violated a tiny t crawls (`cold_init`): the rule is
-    /// kept where the last solution needed the slack (test
-    /// `a_warm_start_reaches_the_cold_solution_in_fewer_iterations`, infeasible QPs).
+    /// A soft row the start point violates starts with t = violation + `INITIAL_SLACK_MIN`,
+    /// ν = ρ − λ: with ρ = 1e5 its pair product is ~1e4 beside the hard rows' ~0.1, and the
+    /// longest contact QPs start at μ ≈ 300 (docs/speed.md, "A centred warm start for the
+    /// soft rows, tried"). Centring such a row (t·ν = s·λ, the violation left to the primal
+    /// residual) was measured to cut the Wipe Window replay's p99 iterations 15 → 13, but on
+    /// the rows that must stay violated t then crawls: with the reference's arm model QPs
+    /// ran to the 80-iteration cap. Not taken.
     fn warm_init(&mut self, qp: &StructuredQp, shift: f64, out: &QpSolution) {
         let n = qp.intervals;
         let (s_floor, l_floor) = (INITIAL_SLACK_MIN, INITIAL_MULTIPLIER);
@@ -1938,13 +1931,10 @@ impl RiccatiIpm {
                         .max(l_floor.min(0.5 * self.rho));
                     self.lambda[idx] = lambda;
                     self.nu[idx] = self.rho - lambda;
-                    // Centred also where the start violates a row the last solution held
-                    // (above); a row it violated keeps the cold start's rule.
-                    let prev_t = interp(&self.prev_t);
-                    self.t[idx] = if v > row.h && prev_t > self.settings.tolerance {
+                    self.t[idx] = if v > row.h {
                         v - row.h + s_floor
                     } else {
-                        prev_t.max(self.s[idx] * lambda / self.nu[idx])
+                        interp(&self.prev_t).max(self.s[idx] * lambda / self.nu[idx])
                     };
                 } else {
                     self.lambda[idx] = lambda;
@@ -3056,56 +3046,6 @@ mod tests {
         );
     }
 
-    /// The warm start of a soft row the start point violates: centred (t·ν = s·λ, the
-    /// violation left to the primal residual) where the last solution held the row, the cold
-    /// start's t = violation + `INITIAL_SLACK_MIN` where it needed the slack.
-    #[test]
-    fn a_warm_soft_row_the_start_violates_starts_centred_unless_it_was_violated() {
-        let qp = first_qp();
-        let n = qp.intervals;
-        let mut ipm = RiccatiIpm::new(QpSettings::default());
-        let mut sol = QpSolution::zeros(n);
-        assert_eq!(ipm.solve(&qp, &mut sol), QpStatus::Solved);
-        let mut out = QpSolution::zeros(n);
-        out.x[0] = qp.x0;
-        for k in 0..n {
-            out.x[k + 1] = qp.a * out.x[k] + qp.defects[k];
-        }
-        ipm.select_rows(&qp, &out.x, &out.u, None);
-        let k = 5;
-        let idx = (ipm.start[k]..ipm.start[k + 1])
-            .find(|&i| ipm.rows[i].soft)
-            .unwrap_or_else(|| panic!("stage {k} has a soft row"));
-        let full = ipm.full_of[idx];
-        assert!(
-            ipm.prev_t[full] <= ipm.settings.tolerance,
-            "the last solution held it"
-        );
-        // The row's bound moved 1 cm inside the start point: violated by 0.01.
-        let v = RiccatiIpm::row_value(&qp, k, &ipm.rows[idx], &out.x[k], out.u.get(k));
-        ipm.rows[idx].h = v - 0.01;
-        ipm.warm_init(&qp, 0.0, &out);
-        let (s, l, t, nu) = (ipm.s[idx], ipm.lambda[idx], ipm.t[idx], ipm.nu[idx]);
-        assert_eq!(s, INITIAL_SLACK_MIN);
-        assert!((l + nu - ipm.rho).abs() <= 1e-9 * ipm.rho, "dual feasible");
-        assert!(
-            (t * nu - s * l).abs() <= 1e-12 * s * l,
-            "centred: t·ν {} s·λ {}",
-            t * nu,
-            s * l
-        );
-        // Its residual G z + s − t − h carries the violation (and the slack floor).
-        assert!(v + s - t - ipm.rows[idx].h > 0.01);
-        // Where the last solution needed the slack (t = 5 mm), the cold start's rule.
-        ipm.prev_t[full] = 0.005;
-        ipm.warm_init(&qp, 0.0, &out);
-        assert!(
-            (ipm.t[idx] - (0.01 + INITIAL_SLACK_MIN)).abs() < 1e-12,
-            "t {}",
-            ipm.t[idx]
-        );
-    }
-
     /// The shot's method-of-multipliers steps on a guess whose equalities conflict (both rows
     /// of a bound pair, lower < upper: no point meets both) stop once the residual stalls,
     /// and on a consistent guess (one row of the pair) run to round-off.
@@ -3120,10 +3060,7 @@ mod tests {
         // The first row pair of stage 5 (−v ≤ −lower, v ≤ upper).
         let run = |ipm: &mut RiccatiIpm, rows: &[usize]| {
             let mut out = QpSolution::zeros(qp.intervals);
-            out.x[0] = qp.x0;
-            for k in 0..qp.intervals {
-                out.x[k + 1] = qp.a * out.x[k] + qp.defects[k];
-            }
+            out.x = start_states(&qp);
             ipm.select_rows(&qp, &out.x, &out.u, None);
             for (w, l) in ipm.w.iter_mut().zip(&mut ipm.lambda) {
                 *w = 0.0;
