@@ -1890,8 +1890,8 @@ impl RiccatiIpm {
     ///
     /// A soft row the start point violates starts with t = violation + `INITIAL_SLACK_MIN`,
     /// ν = ρ − λ: with ρ = 1e5 its pair product is ~1e4 beside the hard rows' ~0.1, and the
-    /// longest contact QPs start at μ ≈ 300 (docs/speed.md, "Wipe Window's tail once
-    /// more"). Centring such a row (t·ν = s·λ, the violation left to the primal residual)
+    /// longest contact QPs start at μ ≈ 300 (docs/speed.md, "The violated soft rows'
+    /// start"). Centring such a row (t·ν = s·λ, the violation left to the primal residual)
     /// was measured to cut the Wipe Window replay's p99 iterations 15 → 13, but on the rows
     /// that must stay violated t then crawls: with the reference's arm model QPs ran to the
     /// 80-iteration cap, and, with a restart past 18 iterations, to 40–48. Not taken.
