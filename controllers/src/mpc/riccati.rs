@@ -19,7 +19,8 @@
 //! general row adds a rank-one term, so the inequalities never enlarge the recursion.
 //!
 //! The iterate starts dynamically feasible (inputs zero, states rolled out from x̄_0 with the
-//! defects) and every step keeps it so. A and B are time-invariant: their non-zeros are found
+//! defects; warm, the inputs the last solve's feedback gives — see `start_point`) and every
+//! step keeps it so. A and B are time-invariant: their non-zeros are found
 //! once per solve, and every product with them walks only those (the FA-Hexa's integrator
 //! chains make A 16 + 10 non-zeros off the identity and B two per column).
 //!
@@ -91,6 +92,9 @@ const STEP_TO_BOUNDARY: f64 = 0.995;
 const INITIAL_SLACK_MIN: f64 = 1e-1;
 /// Initial multipliers.
 const INITIAL_MULTIPLIER: f64 = 1.0;
+/// A warm start's soft row that the start point violates: its slack t starts this far above
+/// the violation (ν = ρ − λ, so its pair product is ~ρ × this; see `warm_init`).
+const VIOLATED_SOFT_MARGIN: f64 = 1e-3;
 /// A solve whose recursion breaks down from an iterate within this tolerance is handed to the
 /// polish (when enabled), which decides it.
 const POLISH_RESCUE_TOLERANCE: f64 = 1e-8;
@@ -442,6 +446,12 @@ pub struct RiccatiIpm {
     prev_valid: bool,
     /// The next solve starts warm, its duals shifted by this many intervals (None: cold).
     warm_shift: Option<f64>,
+    /// The next QP's initial state less the last solution's plan at that time (in the last
+    /// QP's coordinates; see [`RiccatiIpm::warm_start_from_plan`]).
+    plan_offset: Option<StateVector>,
+    /// The solve's start point (the shot's and the interior point's, computed once).
+    start_x: Vec<StateVector>,
+    start_u: Vec<InputVector>,
     /// The early infeasibility exit (None: every solve runs to convergence).
     exit: Option<InfeasibilityExit>,
     /// The exit's certificate: the two directions and a trial point.
@@ -624,6 +634,9 @@ impl RiccatiIpm {
             shot: ShotOutcome::NotTried,
             prev_valid: false,
             warm_shift: None,
+            plan_offset: None,
+            start_x: Vec::new(),
+            start_u: Vec::new(),
             exit: None,
             cert_dx: Vec::new(),
             cert_du: Vec::new(),
@@ -686,12 +699,29 @@ impl RiccatiIpm {
     /// [`Self::forget`], starts cold.
     pub fn warm_start_next(&mut self, shift_intervals: f64) {
         self.warm_shift = Some(shift_intervals.max(0.0));
+        self.plan_offset = None;
+    }
+
+    /// As [`Self::warm_start_next`], and the start point follows the last solution's plan:
+    /// `offset` is where the next QP's initial state (its linearisation point plus x̄_0) lies
+    /// from the last solution's state trajectory at the shifted time. The start's inputs are
+    /// the last factorisation's feedback on that offset as it propagates, u_k = K_j d_k with
+    /// d the offset carried along the start (j the shifted stage): to first order the last
+    /// solution's answer to the new state, its active rows held. The zero-input start rolls
+    /// that offset out open loop (a model mismatch in contact grows along the horizon into
+    /// violated state rows at its end, which the interior point then spends its first
+    /// iterations undoing: docs/speed.md, "A start that follows the plan"). The QP is the
+    /// same either way; only the iterations to its solution change.
+    pub fn warm_start_from_plan(&mut self, shift_intervals: f64, offset: StateVector) {
+        self.warm_start_next(shift_intervals);
+        self.plan_offset = offset.iter().all(|e| e.is_finite()).then_some(offset);
     }
 
     /// Forgets the last solution: the next solve starts cold.
     pub fn forget(&mut self) {
         self.prev_valid = false;
         self.warm_shift = None;
+        self.plan_offset = None;
     }
 
     /// The settings.
@@ -1661,11 +1691,8 @@ impl RiccatiIpm {
         let tol = self.settings.tolerance;
         // The interior point's start point (dynamically feasible), every row walked: the
         // layout is the full one (rows[i] is all_rows[i]).
-        out.x[0] = qp.x0;
-        for k in 0..n {
-            out.u[k] = InputVector::zeros();
-            out.x[k + 1] = self.a.times(&out.x[k]) + qp.defects[k];
-        }
+        out.x.clone_from(&self.start_x);
+        out.u.clone_from(&self.start_u);
         self.select_rows(qp, &out.x, &out.u, None);
         let rho = SHOT_PENALTY * qp.r.iter().map(|r| r.amax()).fold(1.0, f64::max);
         // The guess: each row as the last solution's at the nearest shifted stage of the
@@ -1848,6 +1875,39 @@ impl RiccatiIpm {
         stationarity <= tol * scale && mu <= tol
     }
 
+    /// The solve's start point into `start_x`, `start_u`: states rolled out from x̄_0 with
+    /// the defects, under zero inputs, or warm with a plan offset (the last solve's
+    /// factorisation still in place) under its feedback, u_k = −L⁻ᵀ V d_k at the shifted
+    /// stage, d_k the offset carried along (d_0 = offset + x̄_0; the offset alone propagates
+    /// as A^k offset, the start's deviation is added). A non-finite feedback falls back to
+    /// zero inputs from that stage on.
+    fn start_point(&mut self, qp: &StructuredQp, warm: Option<f64>, offset: Option<StateVector>) {
+        let n = qp.intervals;
+        self.start_x.resize(n + 1, StateVector::zeros());
+        self.start_u.resize(n, InputVector::zeros());
+        self.start_x[0] = qp.x0;
+        let step = warm.map_or(0, |s| s.min(n as f64).round() as usize);
+        let mut feedback = offset.filter(|_| self.gain.len() >= n && self.chol.len() >= n);
+        for k in 0..n {
+            let mut u = InputVector::zeros();
+            if let Some(e) = feedback {
+                let j = (k + step).min(n - 1);
+                let d = e + self.start_x[k];
+                let mut t = InputVector::zeros();
+                t.gemv_tr(1.0, &self.gain[j], &d, 1.0);
+                backward_substitute(&self.chol[j], &self.chol_inv[j], &mut t);
+                if t.iter().all(|v| v.is_finite()) {
+                    u = -t;
+                    feedback = Some(self.a.times(&e));
+                } else {
+                    feedback = None;
+                }
+            }
+            self.start_u[k] = u;
+            self.start_x[k + 1] = self.a.times(&self.start_x[k]) + self.b.times(&u) + qp.defects[k];
+        }
+    }
+
     /// The cold start: each row's slack at the dynamically feasible start (at least
     /// `INITIAL_SLACK_MIN`) and its multiplier `INITIAL_MULTIPLIER`.
     fn cold_init(&mut self, qp: &StructuredQp, out: &QpSolution) {
@@ -1888,13 +1948,18 @@ impl RiccatiIpm {
     /// the rows whose activity changed). A soft row keeps λ + ν = ρ (λ below ρ − 1) and
     /// its slack t at least the last one.
     ///
-    /// A soft row the start point violates starts with t = violation + `INITIAL_SLACK_MIN`,
-    /// ν = ρ − λ: with ρ = 1e5 its pair product is ~1e4 beside the hard rows' ~0.1, and the
-    /// longest contact QPs start at μ ≈ 300 (docs/speed.md, "The violated soft rows'
-    /// start"). Centring such a row (t·ν = s·λ, the violation left to the primal residual)
-    /// was measured to cut the Wipe Window replay's p99 iterations 15 → 13, but on the rows
-    /// that must stay violated t then crawls: with the reference's arm model QPs ran to the
-    /// 80-iteration cap, and, with a restart past 18 iterations, to 40–48. Not taken.
+    /// A soft row the start point violates starts with t = violation + `VIOLATED_SOFT_MARGIN`,
+    /// ν = ρ − λ: free to stay violated by as much as it is, and with a pair product of
+    /// ~ρ × (violation + 1e-3). With t = violation + `INITIAL_SLACK_MIN` (0.1, as this was
+    /// until the start followed the plan) such a pair is ~1e4 beside the hard rows' ~0.1 for
+    /// any violation, however small — and the start that follows the plan
+    /// ([`Self::warm_start_from_plan`]) leaves mostly violations of 1e-6–5e-3 on rows the
+    /// last solution held: Wipe Window's longest QPs started at μ = 12–370 (docs/speed.md,
+    /// "A start that follows the plan"). Centring such a row instead (t·ν = s·λ, the
+    /// violation left to the primal residual) commits it to hold: on the rows that must
+    /// stay violated t then crawls (with the reference's arm model QPs ran to the
+    /// 80-iteration cap, and, with a restart past 18 iterations, to 40–48; "The violated
+    /// soft rows' start").
     fn warm_init(&mut self, qp: &StructuredQp, shift: f64, out: &QpSolution) {
         let n = qp.intervals;
         let (s_floor, l_floor) = (INITIAL_SLACK_MIN, INITIAL_MULTIPLIER);
@@ -1932,7 +1997,7 @@ impl RiccatiIpm {
                     self.lambda[idx] = lambda;
                     self.nu[idx] = self.rho - lambda;
                     self.t[idx] = if v > row.h {
-                        v - row.h + s_floor
+                        v - row.h + VIOLATED_SOFT_MARGIN
                     } else {
                         interp(&self.prev_t).max(self.s[idx] * lambda / self.nu[idx])
                     };
@@ -2054,12 +2119,9 @@ impl RiccatiIpm {
         margin: Option<f64>,
     ) -> QpStatus {
         let n = qp.intervals;
-        // A dynamically feasible start: zero inputs, states rolled out.
-        out.x[0] = qp.x0;
-        for k in 0..n {
-            out.u[k] = InputVector::zeros();
-            out.x[k + 1] = self.a.times(&out.x[k]) + qp.defects[k];
-        }
+        // The solve's dynamically feasible start (`start_point`).
+        out.x.clone_from(&self.start_x);
+        out.u.clone_from(&self.start_u);
         self.select_rows(qp, &out.x, &out.u, margin);
         self.screen_broken = false;
         let m = self.rows.len();
@@ -2295,6 +2357,8 @@ impl QpSolver for RiccatiIpm {
             .warm_shift
             .take()
             .filter(|_| self.prev_valid && self.prev_start == self.all_start);
+        let offset = self.plan_offset.take().filter(|_| warm.is_some());
+        self.start_point(qp, warm, offset);
         // The active-set shot: warm, and the last solution used no soft slack (its guess
         // takes every row as hard).
         let tol = self.settings.tolerance;
@@ -2816,6 +2880,56 @@ mod tests {
     }
 
     #[test]
+    fn the_start_that_follows_the_plan_is_the_solutions_answer_to_a_moved_state() {
+        // Solved once, then the same QP with its initial state moved by e: to first order
+        // (the same active set) the new solution's inputs are the old ones plus the last
+        // factorisation's feedback on e carried along the horizon, which is the start a
+        // plan offset e gives (in the RTI's coordinates the old plan is z = 0).
+        let settings = QpSettings::default();
+        let qp = first_qp();
+        let n = qp.intervals;
+        let mut ipm = RiccatiIpm::new(settings);
+        let mut old = QpSolution::zeros(n);
+        assert_eq!(ipm.solve(&qp, &mut old), QpStatus::Solved);
+        // A lateral velocity error of 1 mm/s and a roll-rate error of 1 mrad/s.
+        let mut e = StateVector::zeros();
+        e[1] = 1e-3;
+        e[6] = 1e-3;
+        let mut moved = qp.clone();
+        moved.x0 = qp.x0 + e;
+        let mut new = QpSolution::zeros(n);
+        let mut check = RiccatiIpm::new(settings);
+        assert_eq!(check.solve(&moved, &mut new), QpStatus::Solved);
+        // The start from the old solve's factorisation, the offset e, x̄_0 = 0.
+        let mut rti_coordinates = qp.clone();
+        rti_coordinates.x0 = StateVector::zeros();
+        ipm.start_point(&rti_coordinates, Some(0.0), Some(e));
+        let (mut answer, mut miss, mut zero_miss): (f64, f64, f64) = (0.0, 0.0, 0.0);
+        for k in 0..n {
+            let du = new.u[k] - old.u[k];
+            answer = answer.max(du.amax());
+            miss = miss.max((ipm.start_u[k] - du).amax());
+            zero_miss = zero_miss.max(du.amax());
+            // Dynamically feasible, to the bit.
+            let next = ipm.a.times(&ipm.start_x[k])
+                + ipm.b.times(&ipm.start_u[k])
+                + rti_coordinates.defects[k];
+            assert_eq!(ipm.start_x[k + 1], next, "stage {k}");
+        }
+        // The answer is not negligible (the zero-input start misses all of it) and the
+        // start has nearly all of it.
+        assert!(answer > 1e-3, "the inputs' answer {answer}");
+        assert!(
+            miss < 1e-2 * zero_miss,
+            "the start misses {miss} of the answer {answer}"
+        );
+        // Without an offset (or without a warm start), the zero-input start.
+        ipm.start_point(&rti_coordinates, Some(0.0), None);
+        assert!(ipm.start_u.iter().all(|u| *u == InputVector::zeros()));
+        assert_eq!(ipm.start_x, start_states(&rti_coordinates));
+    }
+
+    #[test]
     fn row_screening_leaves_the_far_rows_out_and_the_answer_unchanged() {
         let limit = 1e-3;
         let settings = QpSettings::default();
@@ -3181,7 +3295,8 @@ mod tests {
                 warm_iterations += b.iterations;
             }
         }
-        // Measured: 97 against 135.
+        // Measured: 94 against 128 (97 while a violated soft row started 0.1 above its
+        // violation).
         assert!(
             warm_iterations * 5 < cold_iterations * 4,
             "warm {warm_iterations} iterations, cold {cold_iterations}"

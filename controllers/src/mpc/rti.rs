@@ -60,8 +60,11 @@
 //! A, B are the integrator's exact sensitivities). Feedback: the QP is solved by the chosen
 //! path and the full step is taken. A solve that fails leaves the shifted solution in place.
 //! The Riccati path's interior point starts from the last solved QP's multipliers, shifted
-//! the same way ([`RiccatiIpm::warm_start_next`]); after a failed or infeasible solve, or
-//! [`SqpRti::reset`], it starts cold ([`SqpRti::set_qp_warm_start`] turns this off).
+//! the same way, and from the point the last factorisation's feedback gives for x̂'s offset
+//! from the last solution's state at the shifted time ([`RiccatiIpm::warm_start_from_plan`]:
+//! the open-loop rollout alone carries a model mismatch in contact, growing, to the horizon's
+//! end); after a failed or infeasible solve, or [`SqpRti::reset`], it starts cold
+//! ([`SqpRti::set_qp_warm_start`] turns this off).
 
 use nalgebra::{Rotation3, SMatrix, UnitQuaternion, Vector3};
 use platform::Vehicle;
@@ -509,7 +512,13 @@ impl SqpRti {
         if self.warm {
             let shift = (elapsed_s / self.h).max(0.0);
             if self.qp_warm_start {
-                self.riccati.warm_start_next(shift);
+                // The last solution's state at the shifted time (xs holds it: a failed solve
+                // made the solver forget, and then no warm start is taken).
+                let t = shift.min(n as f64);
+                let (i, f) = (t.floor() as usize, t - t.floor());
+                let (a, b) = (self.xs[i.min(n)], self.xs[(i + 1).min(n)]);
+                let planned = a + (b - a) * f;
+                self.riccati.warm_start_from_plan(shift, x_hat - planned);
             }
             self.us_last.clone_from(&self.us);
             let old = &self.us_last;
