@@ -517,8 +517,12 @@ impl SqpRti {
                 let t = shift.min(n as f64);
                 let (i, f) = (t.floor() as usize, t - t.floor());
                 let (a, b) = (self.xs[i.min(n)], self.xs[(i + 1).min(n)]);
-                let planned = a + (b - a) * f;
-                self.riccati.warm_start_from_plan(shift, x_hat - planned);
+                let mut offset = x_hat - (a + (b - a) * f);
+                for i in 0..3 {
+                    // Roll, pitch, yaw: the offset across ±π is the short way round.
+                    offset[IX_ETA + i] = wrap_angle(offset[IX_ETA + i]);
+                }
+                self.riccati.warm_start_from_plan(shift, offset);
             }
             self.us_last.clone_from(&self.us);
             let old = &self.us_last;
