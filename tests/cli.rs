@@ -574,7 +574,9 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
     // the QP (later that day) that rollout has none (27 iterations at most), but Wipe Window
     // stays the test's scene. Seed 2: with this arm model the MPC wipes the window in 8 of
     // the first 10 rollouts (9 before rapier's solver took 2 steps per substep, 2026-11-29),
-    // seeds 0 and 1 not among them; seed 2's rollout holds 72 infeasible QPs of 1715.
+    // seeds 0 and 1 not among them; seed 2's rollout holds 72 infeasible QPs of 1715 (114
+    // of 1677 since the interior point starts from the last plan's feedback, 2026-11-29,
+    // with 27 iterations at most).
     let reference_arm = dir.path().join("reference-arm.toml");
     std::fs::write(
         &reference_arm,
