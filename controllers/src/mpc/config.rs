@@ -110,6 +110,13 @@ pub struct QpSettings {
     /// multipliers of the right sign, stationarity); otherwise the interior point runs as
     /// without it. Default true.
     pub active_set_shot: bool,
+    /// Riccati path only: a warm solve starts from the last factorisation's feedback on the
+    /// measured state's offset from the last plan (`RiccatiIpm::warm_start_from_plan`), not
+    /// from the open-loop rollout of the shifted inputs (which in contact carries a model
+    /// mismatch to the horizon's end). The same QP either way; only the iterations to its
+    /// solution differ. Default true; false is the start before 2026-11-29 (with the newer
+    /// 1e-3 start margin of a violated soft row).
+    pub plan_start: bool,
 }
 
 impl Default for QpSettings {
@@ -119,6 +126,7 @@ impl Default for QpSettings {
             tolerance: 1e-7,
             polish: false,
             active_set_shot: true,
+            plan_start: true,
         }
     }
 }

@@ -3146,6 +3146,7 @@ mod tests {
             tolerance: 1e-10,
             polish: true,
             active_set_shot: false,
+            plan_start: true,
         });
         let mut sol = QpSolution::zeros(qp.intervals);
         assert_eq!(tight.solve(qp, &mut sol), QpStatus::Solved);

@@ -522,7 +522,11 @@ impl SqpRti {
                     // Roll, pitch, yaw: the offset across ±π is the short way round.
                     offset[IX_ETA + i] = wrap_angle(offset[IX_ETA + i]);
                 }
-                self.riccati.warm_start_from_plan(shift, offset);
+                if self.config.qp.plan_start {
+                    self.riccati.warm_start_from_plan(shift, offset);
+                } else {
+                    self.riccati.warm_start_next(shift);
+                }
             }
             self.us_last.clone_from(&self.us);
             let old = &self.us_last;

@@ -1496,6 +1496,7 @@ fn without_the_arm_state_rows_the_qp_has_the_same_solution_with_the_arm_on_its_l
         tolerance: RICCATI_TIGHT,
         polish: true,
         active_set_shot: false,
+        plan_start: true,
     };
     let mut compared = 0;
     let mut on_limit = 0;
