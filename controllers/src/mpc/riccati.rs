@@ -2920,7 +2920,7 @@ mod tests {
         let mut ipm = RiccatiIpm::new(settings);
         let mut old = QpSolution::zeros(n);
         assert_eq!(ipm.solve(&qp, &mut old), QpStatus::Solved);
-        // A lateral velocity error of 1 mm/s and a roll-rate error of 1 mrad/s.
+        // A lateral position error of 1 mm and a roll error of 1 mrad.
         let mut e = StateVector::zeros();
         e[1] = 1e-3;
         e[6] = 1e-3;
@@ -2952,8 +2952,9 @@ mod tests {
             miss < 1e-2 * zero_miss,
             "the start misses {miss} of the answer {answer}"
         );
-        // A gross offset (a hit): the feedback alone would take the input rows far past
-        // their bounds; the start keeps each within the allowance.
+        // A gross offset (1e5 times as large; the feedback is linear): the feedback alone
+        // would take the input rows far past their bounds; the start keeps each within the
+        // allowance.
         let hit = e * 1e5;
         let mut t = InputVector::zeros();
         t.gemv_tr(1.0, &ipm.gain[0], &hit, 1.0);
