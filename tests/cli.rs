@@ -680,6 +680,26 @@ fn mpc_bench_replays_a_recorded_contact_rollout_with_no_qp_at_the_cap() {
         shot["accepted"].as_u64().unwrap_or(0),
     );
     assert!(tried > 1000 && accepted * 100 >= tried * 98, "{shot}");
+    // The reference's arm model on Wipe Window seed 4: a tick whose state lies far off the
+    // last plan (an offset of 1.06), where the plan start's feedback alone asked for an
+    // input change of 99 and took the hard input rows 100 past their bounds, a residual the
+    // interior point ran to the 40-iteration cap removing (2026-11-29); the start's
+    // feedback is scaled back to within 1 of those bounds, and no QP of the rollout reaches
+    // the cap (28 iterations at most).
+    let v = contact_replay(
+        "wipe-window",
+        &["--mpc-config", &reference_arm_arg, "--seed", "4"],
+        &json_arg,
+    );
+    let p = &v["paths"]["riccati"];
+    let statuses = p["statuses"].as_object().unwrap_or_else(|| panic!("{p}"));
+    for status in statuses.keys() {
+        assert!(["solved", "infeasible"].contains(&status.as_str()), "{p}");
+    }
+    assert!(
+        p["qp_iterations_max"].as_u64().is_some_and(|i| i < 40),
+        "{p}"
+    );
     // A bad settings file: one line naming it.
     assert_bad_input(
         &amstack(&["mpc-bench", "--mpc-config", "/nonexistent/mpc.toml"]),
