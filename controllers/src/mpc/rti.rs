@@ -150,6 +150,25 @@ pub struct RtiReport {
     pub max_constraint_violation: f64,
 }
 
+/// `v` at the fractional index `t ≥ 0`: linear between neighbouring entries, the last entry
+/// held beyond the end (the shift of a solution by the time elapsed). A non-finite `t` gives
+/// the last entry.
+fn at_fractional_index<T>(v: &[T], t: f64) -> T
+where
+    T: Copy
+        + std::ops::Add<Output = T>
+        + std::ops::Sub<Output = T>
+        + std::ops::Mul<f64, Output = T>,
+{
+    let last = v.len() - 1;
+    let floor = t.floor().clamp(0.0, last as f64);
+    let f = if t.is_finite() { t - t.floor() } else { 0.0 };
+    // The cast is exact: floor is an integer in 0..=last.
+    let i = floor as usize;
+    let (a, b) = (v[i], v[(i + 1).min(last)]);
+    a + (b - a) * f
+}
+
 /// Wraps an angle to (−π, π].
 pub fn wrap_angle(a: f64) -> f64 {
     let two_pi = std::f64::consts::TAU;
@@ -511,32 +530,21 @@ impl SqpRti {
         let n = self.config.intervals;
         if self.warm {
             let shift = (elapsed_s / self.h).max(0.0);
-            if self.qp_warm_start {
+            if self.qp_warm_start && self.config.qp.plan_start {
                 // The last solution's state at the shifted time (xs holds it: a failed solve
                 // made the solver forget, and then no warm start is taken).
-                let t = shift.min(n as f64);
-                let (i, f) = (t.floor() as usize, t - t.floor());
-                let (a, b) = (self.xs[i.min(n)], self.xs[(i + 1).min(n)]);
-                let mut offset = x_hat - (a + (b - a) * f);
+                let mut offset = x_hat - at_fractional_index(&self.xs, shift);
                 for i in 0..3 {
                     // Roll, pitch, yaw: the offset across ±π is the short way round.
                     offset[IX_ETA + i] = wrap_angle(offset[IX_ETA + i]);
                 }
-                if self.config.qp.plan_start {
-                    self.riccati.warm_start_from_plan(shift, offset);
-                } else {
-                    self.riccati.warm_start_next(shift);
-                }
+                self.riccati.warm_start_from_plan(shift, offset);
+            } else if self.qp_warm_start {
+                self.riccati.warm_start_next(shift);
             }
             self.us_last.clone_from(&self.us);
-            let old = &self.us_last;
             for k in 0..n {
-                let t = k as f64 + shift;
-                let i = t.floor() as usize;
-                let f = t - t.floor();
-                let a = old[i.min(n - 1)];
-                let b = old[(i + 1).min(n - 1)];
-                self.us[k] = a + (b - a) * f;
+                self.us[k] = at_fractional_index(&self.us_last, k as f64 + shift);
             }
         } else {
             for u in &mut self.us {
