@@ -115,6 +115,10 @@ struct EeInterface {
 struct MpcInterface {
     controller: WholeBodyMpc,
     limits: BaseLimits,
+    /// While the IK-PID fallback flies: the joint configuration it was handed and the ticks
+    /// it has flown since (its IK's rest posture fades from it,
+    /// `MpcConfig::fallback_posture_time_constant_s`).
+    handed_posture: Option<(Vec<f64>, u32)>,
 }
 
 /// How thrusts are chosen from the allocation.
@@ -277,6 +281,7 @@ impl FlightStack {
                     )
                     .map_err(|e| StackError(format!("mpc: {e}")))?,
                     limits: BaseLimits::above_ground(),
+                    handed_posture: None,
                 }),
                 ControllerConfig::Pid6(Pid6Gains::am_bench()),
             ),
@@ -520,9 +525,11 @@ impl FlightStack {
         if let Some(ee) = &mut self.ee {
             // A seed of the wrong length or non-finite is refused; the IK then keeps its rest seed.
             let _ = ee.ik.reset(&state.pose(), configuration);
+            ee.ik.restore_rest_configuration();
         }
         if let Some(mpc) = &mut self.mpc {
             mpc.controller.reset(state, configuration);
+            mpc.handed_posture = None;
         }
     }
 
@@ -638,6 +645,11 @@ impl FlightStack {
         if flies_fallback {
             return self.mpc_fallback_tick(measurement, ee, &command.status);
         }
+        if mpc.handed_posture.take().is_some()
+            && let Some(interface) = &mut self.ee
+        {
+            interface.ik.restore_rest_configuration();
+        }
         let target = BaseJointTarget {
             world_from_base: command.base_target,
             arm_joints: command.arm_targets_rad.to_vec(),
@@ -677,8 +689,10 @@ impl FlightStack {
 
     /// A tick the MPC hands to its fallback: the stack's own end-effector path — whole-body IK
     /// and the base controller (PID6 with the reference gains for the `mpc` controller), both
-    /// reset from the measured state on the tick it takes over — then what it flew goes back
-    /// to the MPC, whose filter continues from it.
+    /// reset from the measured state on the tick it takes over, the IK resolving the arm's
+    /// redundancy about the posture it was handed (fading to its configured rest,
+    /// `MpcConfig::fallback_posture_time_constant_s`) — then what it flew goes back to the
+    /// MPC, whose filter continues from it.
     fn mpc_fallback_tick(
         &mut self,
         measurement: &Measurement,
@@ -692,6 +706,24 @@ impl FlightStack {
                     .ik
                     .reset(&measurement.base.pose(), &measurement.joint_positions);
             }
+            if let Some(mpc) = &mut self.mpc {
+                mpc.handed_posture = Some((measurement.joint_positions.clone(), 0));
+            }
+        }
+        // The IK keeps the posture it was handed, fading to its configured rest.
+        if let (Some(mpc), Some(interface)) = (&mut self.mpc, &mut self.ee)
+            && let Some((handed, ticks)) = &mut mpc.handed_posture
+        {
+            let tau = mpc.controller.config().fallback_posture_time_constant_s;
+            let share = if tau > 0.0 {
+                (-f64::from(*ticks) * self.dt_s / tau).exp()
+            } else {
+                0.0
+            };
+            // A handed configuration of the wrong length or non-finite is refused; the IK
+            // then keeps the rest it has.
+            let _ = interface.ik.blend_rest_configuration(handed, share);
+            *ticks = ticks.saturating_add(1);
         }
         let (target, ik) = self.ee_to_base_joint(ee);
         // The posture was followed at the start of the MPC's tick.

@@ -89,6 +89,8 @@ pub(crate) struct Problem {
     pub(crate) held: Vec<f64>,
     /// Rest posture of the arm (command order).
     pub(crate) rest: Vec<f64>,
+    /// The configured rest posture (`IkConfig::rest_posture`), which `rest` returns to.
+    pub(crate) configured_rest: Vec<f64>,
     /// Arm joint limits (command order), ±∞ where unbounded.
     pub(crate) arm_lower: Vec<f64>,
     pub(crate) arm_upper: Vec<f64>,

@@ -28,6 +28,9 @@ pub enum IkError {
     /// A seed with a non-finite number.
     #[error("the seed {0} is not finite")]
     NonFiniteSeed(&'static str),
+    /// A rest posture share outside [0, 1] (`WholeBodyIk::blend_rest_configuration`).
+    #[error("the rest posture share {0} is not within [0, 1]")]
+    RestShare(f64),
 }
 
 /// Why a solve stopped.
@@ -163,6 +166,7 @@ impl WholeBodyIk {
             layout,
             arm_dofs,
             held,
+            configured_rest: rest.clone(),
             rest,
             arm_step: vec![f64::INFINITY; arm_lower.len()],
             arm_lower,
@@ -251,6 +255,43 @@ impl WholeBodyIk {
         }
         self.previous = state;
         Ok(())
+    }
+
+    /// Moves the rest term's posture `share` of the way from the configured one
+    /// (`IkConfig::rest_posture`) to the arm entries of `configuration`: 1 holds that posture,
+    /// 0 is the configured rest. A caller taking over from another controller mid-motion
+    /// holds the posture it was handed and lets it fade, so the arm's redundancy is resolved
+    /// about it instead of jumping to the configured rest (which swings the arm against the
+    /// motion it was making). [`Self::restore_rest_configuration`] undoes it.
+    pub fn blend_rest_configuration(
+        &mut self,
+        configuration: &[f64],
+        share: f64,
+    ) -> Result<(), IkError> {
+        let expected = self.problem.held.len();
+        if configuration.len() != expected {
+            return Err(IkError::ConfigurationLength {
+                expected,
+                got: configuration.len(),
+            });
+        }
+        if !(0.0..=1.0).contains(&share) {
+            return Err(IkError::RestShare(share));
+        }
+        let p = &mut self.problem;
+        if p.arm_dofs.iter().any(|&d| !configuration[d].is_finite()) {
+            return Err(IkError::NonFiniteSeed("rest configuration"));
+        }
+        for ((rest, &configured), &d) in p.rest.iter_mut().zip(&p.configured_rest).zip(&p.arm_dofs)
+        {
+            *rest = configured + share * (configuration[d] - configured);
+        }
+        Ok(())
+    }
+
+    /// The rest term's posture back to the configured one (`IkConfig::rest_posture`).
+    pub fn restore_rest_configuration(&mut self) {
+        self.problem.rest.clone_from(&self.problem.configured_rest);
     }
 
     /// `world_from_ee` of a base pose and configuration (non-arm joints at their held values).

@@ -706,6 +706,79 @@ fn omni_rest_posture_is_the_vehicle_initial_configuration() {
     );
 }
 
+/// A controller taking over mid-motion (the MPC's IK-PID fallback) holds the arm posture it
+/// was handed: with the rest term moved to that posture, a held target at its EE pose is the
+/// cost's exact minimum (every residual zero) and the solves stay there; with the configured
+/// rest (zero) the redundant arm drifts toward it and the base moves to keep the EE, which
+/// in flight swings the arm against the motion it was making.
+#[test]
+fn the_rest_term_can_hold_a_handed_over_posture_blend_it_and_go_back_to_the_configured_one() {
+    let v = vehicle("fa-hexa");
+    let mut ik = ik_for(&v);
+    let mut handed = ik.rest_configuration();
+    // An arm swung forward and down, as the MPC flies Toss Ball's release (rad).
+    for (&d, q) in v.arm_dofs().iter().zip([0.9, 0.4, 0.3, PI / 2.0]) {
+        handed[d] = q;
+    }
+    let target = platform_world_from_ee(&v, &spawn(), &handed);
+    let drift = |ik: &mut WholeBodyIk| {
+        ik.reset(&spawn(), &handed)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut arm = 0.0_f64;
+        let mut base = 0.0_f64;
+        for _ in 0..60 {
+            let s = ik.solve(&target, &BaseLimits::above_ground());
+            let (dp, _) = pose_errors(
+                &platform_world_from_ee(&v, &s.world_from_base, &s.configuration),
+                &target,
+            );
+            assert!(dp < RECOVERED_POSITION_M, "EE off its target by {dp} m");
+            for &d in &v.arm_dofs() {
+                arm = arm.max((s.configuration[d] - handed[d]).abs());
+            }
+            base = base
+                .max((s.world_from_base.translation.vector - spawn().translation.vector).norm());
+        }
+        (arm, base)
+    };
+    let (arm, base) = drift(&mut ik);
+    assert!(
+        arm > 0.05 && base > 0.01,
+        "configured rest: arm {arm} rad, base {base} m"
+    );
+    ik.blend_rest_configuration(&handed, 1.0)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let (arm, base) = drift(&mut ik);
+    assert!(
+        arm < KINEMATICS_AGREEMENT && base < KINEMATICS_AGREEMENT,
+        "held: arm {arm}, base {base}"
+    );
+    ik.restore_rest_configuration();
+    assert_eq!(ik.rest_configuration(), ik_for(&v).rest_configuration());
+    let (arm, _) = drift(&mut ik);
+    assert!(arm > 0.05, "configured rest again: arm {arm} rad");
+    // Half way: the configured rest is zero, so the rest posture is half the handed one.
+    ik.blend_rest_configuration(&handed, 0.5)
+        .unwrap_or_else(|e| panic!("{e}"));
+    for &d in &v.arm_dofs() {
+        assert_eq!(ik.rest_configuration()[d], 0.5 * handed[d]);
+    }
+    assert!(matches!(
+        ik.blend_rest_configuration(&handed, 1.5),
+        Err(IkError::RestShare(_))
+    ));
+    assert!(matches!(
+        ik.blend_rest_configuration(&handed[1..], 1.0),
+        Err(IkError::ConfigurationLength { .. })
+    ));
+    let mut nan = handed.clone();
+    nan[v.arm_dofs()[0]] = f64::NAN;
+    assert!(matches!(
+        ik.blend_rest_configuration(&nan, 1.0),
+        Err(IkError::NonFiniteSeed(_))
+    ));
+}
+
 #[test]
 fn identical_runs_are_bit_identical() {
     let run = || {

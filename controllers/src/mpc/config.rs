@@ -220,6 +220,14 @@ pub struct MpcConfig {
     /// Ticks the shifted previous solution is held after a failed solve before the IK-PID
     /// path takes over. Default 12 (0.1 s at 120 Hz).
     pub fallback_hold_ticks: u32,
+    /// Time constant of the arm posture the IK-PID path keeps when it takes over, s: its
+    /// whole-body IK resolves the arm's redundancy about the posture it was handed (its rest
+    /// term moved to the measured arm joints), fading to the IK's configured rest posture as
+    /// `e^(−t/τ)`, so a motion under way (Toss Ball's swing, with the arm reaching forward)
+    /// continues instead of the arm swinging back to the configured rest within a few ticks.
+    /// Default 1.0. 0: the configured rest from the first tick (as before this setting);
+    /// `inf`: the handed posture held until the MPC flies again.
+    pub fallback_posture_time_constant_s: f64,
     /// Offset-free end-effector position: the EE position reference handed to the QP is the
     /// target plus an offset `b` that integrates, after every solved tick, the EE error the
     /// MPC's own solution still predicts at the end of its horizon,
@@ -341,6 +349,7 @@ impl Default for MpcConfig {
             rotor_margin_for_wrench: None,
             rotor_saturation_fallback: true,
             fallback_hold_ticks: 12,
+            fallback_posture_time_constant_s: 1.0,
             ee_offset_rate_per_s: Some(20.0),
             ee_offset_limit_m: 0.05,
             ee_offset_gap_m: None,
@@ -515,6 +524,15 @@ impl MpcConfig {
                 "rotor_margin_for_wrench",
                 f,
                 "must be within (0, 1]",
+            ));
+        }
+        if self.fallback_posture_time_constant_s.is_nan()
+            || self.fallback_posture_time_constant_s < 0.0
+        {
+            return Err(invalid(
+                "fallback_posture_time_constant_s",
+                self.fallback_posture_time_constant_s,
+                "must be at least 0 (inf holds the handed posture)",
             ));
         }
         if let Some(rho) = self.state_row_penalty {

@@ -1558,3 +1558,24 @@ fn without_the_arm_state_rows_the_qp_has_the_same_solution_with_the_arm_on_its_l
         "the arm never reached a joint limit: the test proves nothing"
     );
 }
+
+/// The fallback's posture time constant: 0 (the configured rest at once) to `inf` (held until
+/// the MPC flies again); negative or NaN refused with the field named.
+#[test]
+fn the_fallback_posture_time_constant_takes_zero_to_infinity() {
+    assert_eq!(MpcConfig::default().fallback_posture_time_constant_s, 1.0);
+    for (text, tau) in [("0.0", 0.0), ("inf", f64::INFINITY), ("0.25", 0.25)] {
+        let c = MpcConfig::from_toml_str(&format!("fallback_posture_time_constant_s = {text}\n"))
+            .unwrap_or_else(|e| panic!("{text}: {e}"));
+        assert_eq!(c.fallback_posture_time_constant_s, tau);
+    }
+    for text in ["-0.5", "nan"] {
+        let e = MpcConfig::from_toml_str(&format!("fallback_posture_time_constant_s = {text}\n"))
+            .err()
+            .unwrap_or_else(|| panic!("{text} accepted"));
+        assert!(
+            e.to_string().contains("fallback_posture_time_constant_s"),
+            "{text}: {e}"
+        );
+    }
+}
