@@ -233,13 +233,7 @@ impl WholeBodyIk {
         world_from_base: &Isometry3<f64>,
         configuration: &[f64],
     ) -> Result<(), IkError> {
-        let expected = self.problem.held.len();
-        if configuration.len() != expected {
-            return Err(IkError::ConfigurationLength {
-                expected,
-                got: configuration.len(),
-            });
-        }
+        self.check_length(configuration)?;
         let state = State {
             position: world_from_base.translation.vector,
             rotation: renormalized(&world_from_base.rotation),
@@ -268,13 +262,7 @@ impl WholeBodyIk {
         configuration: &[f64],
         share: f64,
     ) -> Result<(), IkError> {
-        let expected = self.problem.held.len();
-        if configuration.len() != expected {
-            return Err(IkError::ConfigurationLength {
-                expected,
-                got: configuration.len(),
-            });
-        }
+        self.check_length(configuration)?;
         if !(0.0..=1.0).contains(&share) {
             return Err(IkError::RestShare(share));
         }
@@ -487,6 +475,19 @@ impl WholeBodyIk {
                 limit_violation: f64::INFINITY,
             },
         )
+    }
+
+    /// A configuration must have the model's DoF.
+    fn check_length(&self, configuration: &[f64]) -> Result<(), IkError> {
+        let expected = self.problem.held.len();
+        if configuration.len() == expected {
+            Ok(())
+        } else {
+            Err(IkError::ConfigurationLength {
+                expected,
+                got: configuration.len(),
+            })
+        }
     }
 
     fn configuration_of(&self, arm: &[f64]) -> Vec<f64> {
