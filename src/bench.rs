@@ -376,10 +376,15 @@ fn pm(s: &Spread, scale: f64, decimals: usize) -> String {
     }
 }
 
-/// The paper-shaped table.
+/// The paper-shaped table; with the whole-body MPC, one more column: the share of the ticks
+/// its IK-PID fallback flew (over every rollout, failed ones included).
 pub(crate) fn table(report: &BenchReport) -> Table {
     let mut table = Table::new();
-    table.load_style(presets::ASCII_MARKDOWN).set_header([
+    let mpc = report
+        .tasks
+        .iter()
+        .any(|t| t.summary.fallback_rate.count > 0);
+    let mut header = vec![
         "task",
         "SR (%)",
         "subtasks (%)",
@@ -387,10 +392,14 @@ pub(crate) fn table(report: &BenchReport) -> Table {
         "norm. base error",
         "tilt use (deg)",
         "saturation (%)",
-    ]);
+    ];
+    if mpc {
+        header.push("IK-PID fallback (%)");
+    }
+    table.load_style(presets::ASCII_MARKDOWN).set_header(header);
     for t in &report.tasks {
         let s = &t.summary;
-        table.add_row([
+        let mut row = vec![
             t.task.title().to_owned(),
             format!("{:.2}", 100.0 * s.success_rate),
             format_or_na(s.subtask_completion.map(|c| 100.0 * c), 1),
@@ -398,7 +407,11 @@ pub(crate) fn table(report: &BenchReport) -> Table {
             pm(&s.norm_base_error, 1.0, 4),
             pm(&s.tilt_use_rad, 180.0 / std::f64::consts::PI, 2),
             pm(&s.saturation_rate, 100.0, 2),
-        ]);
+        ];
+        if mpc {
+            row.push(pm(&s.fallback_rate, 100.0, 2));
+        }
+        table.add_row(row);
     }
     table
 }

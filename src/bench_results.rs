@@ -34,6 +34,7 @@ pub(crate) fn rollout_json(r: &RolloutResult) -> Value {
         "norm_base_error": s.norm_base_error,
         "tilt_use_rad": s.tilt_use_rad,
         "saturation_rate": s.saturation_rate,
+        "fallback_rate": s.fallback_rate,
         "mcap": r.mcap,
     });
     if let (Some(why), Some(object)) = (&r.divergence, value.as_object_mut()) {
@@ -146,6 +147,7 @@ pub(crate) fn task_json_of(
         "norm_base_error": s.norm_base_error.mean,
         "tilt_use_rad": s.tilt_use_rad.mean,
         "saturation_rate": s.saturation_rate.mean,
+        "fallback_rate": s.fallback_rate.mean,
         "spread_over_successes": {
             "norm_ee_error": spread_json(&s.norm_ee_error),
             "norm_base_error": spread_json(&s.norm_base_error),

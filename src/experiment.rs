@@ -609,6 +609,7 @@ mod tests {
                         norm_base_error: spread(base),
                         tilt_use_rad: spread(tilt),
                         saturation_rate: spread(sat),
+                        fallback_rate: Spread::default(),
                     },
                 });
             }

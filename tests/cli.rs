@@ -888,6 +888,13 @@ fn bench_takes_the_mpcs_settings_from_a_toml_file() {
     // The fields the file leaves out keep their defaults.
     assert_eq!(gains["horizon_s"], 0.8, "{gains}");
     assert_eq!(v["tasks"]["press-button"]["rollouts"], 1);
+    // The MPC flies the whole quarter second of free flight itself: its IK-PID fallback's
+    // share is 0, in the results and in the table's last column.
+    let button = &v["tasks"]["press-button"];
+    assert_eq!(button["fallback_rate"], 0.0, "{button}");
+    assert_eq!(button["per_rollout"][0]["fallback_rate"], 0.0, "{button}");
+    let table = stdout(&out);
+    assert!(table.contains("IK-PID fallback (%)"), "{table}");
 }
 
 #[test]
@@ -942,8 +949,13 @@ fn bench_writes_the_documented_results_and_one_log_per_rollout() {
         );
     }
     assert_eq!(slider["rollouts"], 2);
-    // The oracle has no rotors and no arm reach: those figures are undefined, null.
+    // The oracle has no rotors and no arm reach: those figures are undefined, null; and no
+    // MPC, so no fallback share (nor its column).
     assert!(slider["saturation_rate"].is_null() && slider["norm_ee_error"].is_null());
+    assert!(
+        slider["fallback_rate"].is_null() && slider["per_rollout"][0]["fallback_rate"].is_null()
+    );
+    assert!(!table.contains("IK-PID fallback"), "{table}");
     // Press Button has no subtasks.
     assert!(v["tasks"]["press-button"]["subtask_completion"].is_null());
     assert_eq!(

@@ -33,6 +33,8 @@ pub struct TrackingRecord {
     pub base_actual: Isometry3<f64>,
     /// Rotor saturation indicator of the tick; `None` for a vehicle without rotors.
     pub saturated: Option<bool>,
+    /// Whether the whole-body MPC's IK-PID fallback flew the tick; `None` without the MPC.
+    pub fallback: Option<bool>,
 }
 
 /// Geodesic angle between two orientations, rad, in [0, π].
@@ -119,6 +121,9 @@ pub struct RolloutSummary {
     pub tilt_use_rad: Option<f64>,
     /// Share of ticks with saturated rotors; `None` without rotors.
     pub saturation_rate: Option<f64>,
+    /// Share of ticks the whole-body MPC's IK-PID fallback flew; `None` without the MPC.
+    #[serde(default)]
+    pub fallback_rate: Option<f64>,
     /// Ticks scored (records less the last).
     pub ticks: usize,
     /// Statistics of the EE position error, m.
@@ -190,6 +195,11 @@ pub fn summarize_rollout(
         .collect();
     let reach = (arm_reach_m.is_finite() && arm_reach_m > 0.0).then_some(arm_reach_m);
     let saturation: Vec<bool> = used.iter().filter_map(|r| r.saturated).collect();
+    let fallback: Vec<bool> = used.iter().filter_map(|r| r.fallback).collect();
+    let share = |flags: &[bool]| {
+        (!flags.is_empty())
+            .then(|| flags.iter().filter(|s| **s).count() as f64 / flags.len() as f64)
+    };
     RolloutSummary {
         success,
         subtask_completion,
@@ -210,8 +220,8 @@ pub fn summarize_rollout(
             .map(|r| tilt_rad(&r.base_actual.rotation))
             .filter(|x| x.is_finite())
             .reduce(f64::max),
-        saturation_rate: (!saturation.is_empty())
-            .then(|| saturation.iter().filter(|s| **s).count() as f64 / saturation.len() as f64),
+        saturation_rate: share(&saturation),
+        fallback_rate: share(&fallback),
         ticks: used.len(),
         ee_pos_error_stats: Stats::of(ee_pos),
     }
@@ -276,6 +286,10 @@ pub struct RunSummary {
     pub tilt_use_rad: Spread,
     /// Saturation rate over successful rollouts.
     pub saturation_rate: Spread,
+    /// Share of ticks the MPC's IK-PID fallback flew, over every rollout (failed ones
+    /// included: where the fallback flies is part of why a rollout fails); undefined without
+    /// the MPC.
+    pub fallback_rate: Spread,
 }
 
 /// Reduces rollouts to a run.
@@ -295,6 +309,7 @@ pub fn summarize_run(rollouts: &[RolloutSummary]) -> RunSummary {
         norm_base_error: Spread::of(ok.iter().map(|r| r.norm_base_error)),
         tilt_use_rad: Spread::of(ok.iter().map(|r| r.tilt_use_rad)),
         saturation_rate: Spread::of(ok.iter().map(|r| r.saturation_rate)),
+        fallback_rate: Spread::of(rollouts.iter().map(|r| r.fallback_rate)),
     }
 }
 
@@ -328,6 +343,7 @@ mod tests {
             base_desired: pose(0.0, 1.0, 0.0),
             base_actual: pose(base_err, 1.0, roll),
             saturated,
+            fallback: None,
         }
     }
 
@@ -388,6 +404,49 @@ mod tests {
         ];
         let s = summarize_rollout(&records, true, None, 1.0);
         assert!((s.saturation_rate.unwrap_or(f64::NAN) - 0.5).abs() < EXACT);
+    }
+
+    #[test]
+    fn the_fallback_rate_counts_the_mpcs_ticks_and_the_run_takes_every_rollout() {
+        let flown = |flags: &[Option<bool>]| {
+            let records: Vec<TrackingRecord> = flags
+                .iter()
+                .map(|&fallback| TrackingRecord {
+                    fallback,
+                    ..record(0.0, 0.0, 0.0, None)
+                })
+                .collect();
+            records
+        };
+        // 1 of 4 scored ticks on the fallback (the last record dropped).
+        let mpc = flown(&[
+            Some(false),
+            Some(true),
+            Some(false),
+            Some(false),
+            Some(true),
+        ]);
+        let s = summarize_rollout(&mpc, false, None, 1.0);
+        assert_eq!(s.fallback_rate, Some(0.25));
+        let all = flown(&[Some(true), Some(true), Some(true)]);
+        let t = summarize_rollout(&all, true, None, 1.0);
+        assert_eq!(t.fallback_rate, Some(1.0));
+        // Without the MPC: undefined.
+        let pid = summarize_rollout(&flown(&[None, None]), true, None, 1.0);
+        assert_eq!(pid.fallback_rate, None);
+        // Over every rollout, the failed one included (the saturation over successes only).
+        let run = summarize_run(&[s, t]);
+        assert_eq!(
+            (run.fallback_rate.mean, run.fallback_rate.count),
+            (Some(0.625), 2)
+        );
+        // A rollout summary written before the field reads it as undefined.
+        let mut old = serde_json::to_value(&pid).unwrap_or_default();
+        if let Some(o) = old.as_object_mut() {
+            o.remove("fallback_rate");
+        }
+        let read: RolloutSummary = serde_json::from_value(old).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(read.fallback_rate, None);
     }
 
     #[test]

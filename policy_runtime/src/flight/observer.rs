@@ -357,6 +357,10 @@ impl Observer for BenchMetrics {
                 base_desired: tick.record.base_target,
                 base_actual: m.base.pose(),
                 saturated: None,
+                fallback: tick
+                    .record
+                    .mpc
+                    .map(|s| s.mode == controllers::mpc::MpcMode::IkPid),
             },
             tick.record.allocation_saturated,
         ));
