@@ -897,6 +897,38 @@ fn bench_takes_the_mpcs_settings_from_a_toml_file() {
     assert!(table.contains("IK-PID fallback (%)"), "{table}");
 }
 
+/// NDT's goal is 7 m up; the MPC's base ceiling (10 m, the reference's profile 4 m) lets the
+/// MPC climb to it and fly the whole inspection itself: no tick on its IK-PID fallback
+/// (with the 4 m ceiling the QP turned infeasible at 4 m and the fallback flew 54 % of the
+/// rollout, tilting 20°).
+#[test]
+fn the_mpc_flies_ndts_inspection_height_itself() {
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let json = dir.path().join("results.json");
+    let out = amstack(&[
+        "bench",
+        "--controller",
+        "mpc",
+        "--task",
+        "ndt",
+        "--rollouts",
+        "1",
+        "--jobs",
+        "1",
+        "--json",
+        &json.to_string_lossy(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&json).unwrap_or_default();
+    let v: serde_json::Value =
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+    let ndt = &v["tasks"]["ndt"]["per_rollout"][0];
+    assert_eq!(ndt["fallback_rate"], 0.0, "{ndt}");
+    assert_eq!(ndt["success"], true, "{ndt}");
+    let tilt = ndt["tilt_use_rad"].as_f64().unwrap_or(f64::NAN);
+    assert!(tilt < 0.1, "{ndt}");
+}
+
 #[test]
 fn bench_writes_the_documented_results_and_one_log_per_rollout() {
     let dir = match tempfile::tempdir() {
