@@ -689,8 +689,9 @@ impl FlightStack {
 
     /// A tick the MPC hands to its fallback: the stack's own end-effector path — whole-body IK
     /// and the base controller (PID6 with the reference gains for the `mpc` controller), both
-    /// reset from the measured state on the tick it takes over, the IK resolving the arm's
-    /// redundancy about the posture it was handed (fading to its configured rest,
+    /// reset from the measured state on the tick it takes over, the IK (after a hand-over for
+    /// the rotors' sake) resolving the arm's redundancy about the posture it was handed
+    /// (fading to its configured rest,
     /// `MpcConfig::fallback_posture_time_constant_s`) — then what it flew goes back to the
     /// MPC, whose filter continues from it.
     fn mpc_fallback_tick(
@@ -706,8 +707,12 @@ impl FlightStack {
                     .ik
                     .reset(&measurement.base.pose(), &measurement.joint_positions);
             }
+            // Only a hand-over for the rotors' sake continues the MPC's motion: after failed
+            // solves the MPC's own posture is where its QP stopped being solvable, and the
+            // IK's rest posture takes the arm out of it.
             if let Some(mpc) = &mut self.mpc {
-                mpc.handed_posture = Some((measurement.joint_positions.clone(), 0));
+                mpc.handed_posture = (status.failure == Some(SolveFailure::RotorSaturation))
+                    .then(|| (measurement.joint_positions.clone(), 0));
             }
         }
         // The IK keeps the posture it was handed, fading to its configured rest.

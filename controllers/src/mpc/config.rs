@@ -225,7 +225,9 @@ pub struct MpcConfig {
     /// Ticks the shifted previous solution is held after a failed solve before the IK-PID
     /// path takes over. Default 12 (0.1 s at 120 Hz).
     pub fallback_hold_ticks: u32,
-    /// Time constant of the arm posture the IK-PID path keeps when it takes over, s: its
+    /// Time constant of the arm posture the IK-PID path keeps when it takes over because
+    /// the MPC's solution would saturate a rotor (not after failed solves, where the MPC's
+    /// posture is where its QP stopped being solvable), s: its
     /// whole-body IK resolves the arm's redundancy about the posture it was handed (its rest
     /// term moved to the measured arm joints), fading to the IK's configured rest posture as
     /// `e^(−t/τ)`, so a motion under way (Toss Ball's swing, with the arm reaching forward)

@@ -25,8 +25,9 @@
 //!   reports the mode (and [`FallbackEvent::IkPidTookOver`] on the tick it starts), and the
 //!   caller flies its own end-effector path (the flight stack's whole-body IK with the
 //!   vehicle's preset and PID6 with the reference gains, both reset from the measured state
-//!   when it takes over, the IK's rest posture the arm posture it was handed, fading to its
-//!   configured one over [`MpcConfig::fallback_posture_time_constant_s`]), then hands the
+//!   when it takes over; after a saturation hand-over the IK's rest posture is the arm
+//!   posture it was handed, fading to its configured one over
+//!   [`MpcConfig::fallback_posture_time_constant_s`]), then hands the
 //!   MPC what it flew ([`WholeBodyMpc::fallback_flown`])
 //!   so the filter continues from the applied command. The command returned on such a tick
 //!   is the held solution, for reference only;
