@@ -706,6 +706,7 @@ impl FlightStack {
                 let _ = interface
                     .ik
                     .reset(&measurement.base.pose(), &measurement.joint_positions);
+                interface.ik.restore_rest_configuration();
             }
             // Only a hand-over for the rotors' sake continues the MPC's motion: after failed
             // solves the MPC's own posture is where its QP stopped being solvable, and the
