@@ -115,10 +115,10 @@ struct EeInterface {
 struct MpcInterface {
     controller: WholeBodyMpc,
     limits: BaseLimits,
-    /// While the IK-PID fallback flies: the joint configuration it was handed and the ticks
-    /// it has flown since (its IK's rest posture fades from it,
-    /// `MpcConfig::fallback_posture_time_constant_s`).
-    handed_posture: Option<(Vec<f64>, u32)>,
+    /// While the IK-PID fallback flies after a hand-over for the rotors' sake: the joint
+    /// configuration it was handed (its IK's rest posture fades from it over the fallback's
+    /// ticks, `MpcConfig::fallback_posture_time_constant_s`).
+    handed_posture: Option<Vec<f64>>,
 }
 
 /// How thrusts are chosen from the allocation.
@@ -713,23 +713,23 @@ impl FlightStack {
             // IK's rest posture takes the arm out of it.
             if let Some(mpc) = &mut self.mpc {
                 mpc.handed_posture = (status.failure == Some(SolveFailure::RotorSaturation))
-                    .then(|| (measurement.joint_positions.clone(), 0));
+                    .then(|| measurement.joint_positions.clone());
             }
         }
         // The IK keeps the posture it was handed, fading to its configured rest.
-        if let (Some(mpc), Some(interface)) = (&mut self.mpc, &mut self.ee)
-            && let Some((handed, ticks)) = &mut mpc.handed_posture
+        if let (Some(mpc), Some(interface)) = (&self.mpc, &mut self.ee)
+            && let Some(handed) = &mpc.handed_posture
         {
             let tau = mpc.controller.config().fallback_posture_time_constant_s;
+            let flown_s = f64::from(mpc.controller.fallback_ticks()) * self.dt_s;
             let share = if tau > 0.0 {
-                (-f64::from(*ticks) * self.dt_s / tau).exp()
+                (-flown_s / tau).exp()
             } else {
                 0.0
             };
             // A handed configuration of the wrong length or non-finite is refused; the IK
             // then keeps the rest it has.
             let _ = interface.ik.blend_rest_configuration(handed, share);
-            *ticks = ticks.saturating_add(1);
         }
         let (target, ik) = self.ee_to_base_joint(ee);
         // The posture was followed at the start of the MPC's tick.

@@ -463,6 +463,12 @@ impl WholeBodyMpc {
         command
     }
 
+    /// Ticks the IK-PID path has flown since it took over: 0 on the takeover tick, and
+    /// while the MPC (or its held solution) flies.
+    pub fn fallback_ticks(&self) -> u32 {
+        self.ik_pid_ticks
+    }
+
     /// The input the MPC path applied last (world force without gravity, world torque, arm
     /// references; None before the first tick).
     pub fn last_input(&self) -> Option<InputVector> {
