@@ -1,10 +1,12 @@
 //! Rigid-body dynamics of a vehicle's floating-base tree, the way robotics engines compute it:
 //! the joint-space mass matrix by the composite-rigid-body algorithm (CRBA), the bias forces
 //! (Coriolis, centrifugal, gravity) and inverse dynamics by recursive Newton–Euler (RNEA),
-//! forward dynamics through a Cholesky factorisation of the symmetric positive-definite mass
-//! matrix. Fixed-size 6 × 6 spatial blocks, one body per group of links joined by fixed
-//! joints; the mass matrix, the bias forces, forward dynamics and the implicit-drive stepper
-//! allocate nothing once a [`Workspace`] exists.
+//! forward dynamics through the factorisation M = Lᵀ·D·L of the symmetric positive-definite
+//! mass matrix in the tree's own sparsity (Featherstone's LTDL, as MuJoCo and Pinocchio
+//! factor it: `crate::tree_factor`). Fixed-size 3 × 3 and 6-vector spatial algebra (the
+//! joint transforms by Rodrigues' formula, no quaternions), one body per group of links
+//! joined by fixed joints; the mass matrix, the bias forces, forward dynamics and the
+//! implicit-drive stepper allocate nothing once a [`Workspace`] exists.
 //!
 //! Conventions (Pinocchio's, so its numbers compare one for one):
 //! - generalised velocity ν = [v_B, ω_B, q̇]: the base origin's velocity and the base's angular
@@ -17,12 +19,14 @@
 //!   base origin, in base axes; joint efforts]; gravity (0, 0, −g) in world axes enters b
 //!   through the base's attitude.
 //!
-//! Sources: R. Featherstone, *Rigid Body Dynamics Algorithms* (2008), ch. 5–6 (RNEA, CRBA);
+//! Sources: R. Featherstone, *Rigid Body Dynamics Algorithms* (2008), ch. 5–6 (RNEA, CRBA,
+//! LTDL);
 //! the spatial algebra rewritten for the [linear; angular] order.
 
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Matrix6, UnitQuaternion, Vector3, Vector6};
 
 use crate::model::{JointKind, KinematicModel, LinkId};
+use crate::tree_factor::{NO_PARENT, TreeFactor};
 use crate::vehicle::GRAVITY_MPS2;
 
 /// How a body moves against its parent.
@@ -45,6 +49,8 @@ struct Body {
     dof: usize,
     /// The joint frame in the parent body's frame (the body frame is the joint frame moved).
     parent_from_joint: Isometry3<f64>,
+    /// The same as a rotation matrix and a translation (the recursions' form).
+    parent_from_joint_xf: Transform,
     motion: Motion,
     /// Spatial inertia about the body origin, body axes.
     inertia: Inertia,
@@ -86,14 +92,21 @@ impl Inertia {
 
     /// The same inertia in the parent frame (Xᵀ I X with X the motion transform child ←
     /// parent): h' = R h + m p, I' = R I Rᵀ − m[p]×[p]× − [p]×[Rh]× − [Rh]×[p]×.
+    ///
+    /// With [a]×[b]× = b·aᵀ − (a·b)·1 the last three terms are
+    /// m(|p|²·1 − p·pᵀ) + 2(p·Rh)·1 − Rh·pᵀ − p·(Rh)ᵀ, written out entry by entry (each
+    /// product in an order that keeps the sum symmetric to the bit).
     fn in_parent(&self, x: &Transform) -> Self {
-        let rh = x.r * self.h;
-        let (px, rhx) = (skew(&x.p), skew(&rh));
-        Self {
-            m: self.m,
-            h: rh + x.p * self.m,
-            i: x.r * self.i * x.r.transpose() - px * px * self.m - px * rhx - rhx * px,
+        let (p, q, m) = (&x.p, x.r * self.h, self.m);
+        let mut i = x.r * self.i * x.r.transpose();
+        let diagonal = m * p.norm_squared() + 2.0 * p.dot(&q);
+        for c in 0..3 {
+            for r in 0..3 {
+                i[(r, c)] -= m * (p[r] * p[c]) + (q[r] * p[c] + p[r] * q[c]);
+            }
+            i[(c, c)] += diagonal;
         }
+        Self { m, h: q + p * m, i }
     }
 
     fn add(&mut self, other: &Self) {
@@ -166,6 +179,10 @@ pub struct ArticulatedBody {
     /// Each joint's position limits (lower, upper), configuration order; None for a joint
     /// without (a continuous one): [`Self::step`] holds them.
     limits: Vec<Option<(f64, f64)>>,
+    /// The tree of ν's entries for M's factor, parents first: the base's six in a chain, then
+    /// one per body (body order), each under its parent body's last; and the ν column of each.
+    factor_parent: Vec<usize>,
+    factor_order: Vec<usize>,
 }
 
 /// Buffers of the recursions, sized for one [`ArticulatedBody`].
@@ -180,14 +197,16 @@ pub struct Workspace {
     f: Vec<Vector6<f64>>,
     /// Motion subspace of every body's joint (body axes).
     s: Vec<Vector6<f64>>,
-    /// The mass matrix and its factor.
+    /// The mass matrix.
     m: DMatrix<f64>,
     rhs: DVector<f64>,
-    /// The stepper's accelerations, its matrix and the effort of each drive pushing at its
-    /// limit (None: the drive acts implicitly).
+    /// The stepper's accelerations; the factors of its matrix M̃ (M, the implicit drives'
+    /// terms and the held joints' weights on the diagonal) with every drive implicit and
+    /// with some at their limits; the effort of each drive pushing at its limit (None: the
+    /// drive acts implicitly).
     acc: DVector<f64>,
-    lhs: DMatrix<f64>,
-    lhs_capped: DMatrix<f64>,
+    factor: TreeFactor,
+    capped_factor: TreeFactor,
     capped: Vec<Option<f64>>,
     /// The joint limits a step holds: (ν column, the acceleration that lands the joint on
     /// its bound, +1 for an upper bound / −1 for a lower one); the accelerations before them,
@@ -277,6 +296,38 @@ impl Motion {
         }
     }
 
+    /// The body frame in the parent's, the joint frame being `parent_from_joint`, at joint
+    /// position q (as [`Self::joint_from_body`], without quaternions: a revolute joint's
+    /// rotation by Rodrigues' formula, cos q·1 + sin q·[a]× + (1 − cos q)·a·aᵀ).
+    fn parent_from_body(&self, parent_from_joint: &Transform, q: f64) -> Transform {
+        let (r0, p0) = (&parent_from_joint.r, &parent_from_joint.p);
+        match self {
+            Self::Revolute(a) => {
+                let (s, c) = q.sin_cos();
+                let t = 1.0 - c;
+                let joint = Matrix3::new(
+                    c + t * a.x * a.x,
+                    t * a.x * a.y - s * a.z,
+                    t * a.x * a.z + s * a.y,
+                    t * a.x * a.y + s * a.z,
+                    c + t * a.y * a.y,
+                    t * a.y * a.z - s * a.x,
+                    t * a.x * a.z - s * a.y,
+                    t * a.y * a.z + s * a.x,
+                    c + t * a.z * a.z,
+                );
+                Transform {
+                    r: r0 * joint,
+                    p: *p0,
+                }
+            }
+            Self::Prismatic(a) => Transform {
+                r: *r0,
+                p: p0 + r0 * (a * q),
+            },
+        }
+    }
+
     /// The body frame in the joint frame at joint position q.
     fn joint_from_body(&self, q: f64) -> Isometry3<f64> {
         match self {
@@ -301,6 +352,7 @@ impl ArticulatedBody {
             column: 0,
             dof: 0,
             parent_from_joint: Isometry3::identity(),
+            parent_from_joint_xf: Transform::IDENTITY,
             motion: Motion::Revolute(Vector3::z()),
             inertia: Inertia::ZERO,
         }];
@@ -325,6 +377,9 @@ impl ArticulatedBody {
                         column: 6 + dof,
                         dof,
                         parent_from_joint: body_from_parent * joint.parent_from_joint,
+                        parent_from_joint_xf: Transform::of(
+                            &(body_from_parent * joint.parent_from_joint),
+                        ),
                         motion,
                         inertia: Inertia::ZERO,
                     });
@@ -356,12 +411,23 @@ impl ArticulatedBody {
                     .map(|l| (l.lower, l.upper))
             })
             .collect();
+        // The factor's tree: ν's base entries 0…5 in a chain, body i ≥ 1 at 5 + i.
+        let mut factor_parent: Vec<usize> = (0..6usize)
+            .map(|k| k.checked_sub(1).unwrap_or(NO_PARENT))
+            .collect();
+        let mut factor_order: Vec<usize> = (0..6).collect();
+        for body in bodies.iter().skip(1) {
+            factor_parent.push(5 + body.parent.unwrap_or(0));
+            factor_order.push(body.column);
+        }
         Self {
             link_inertia: bodies.iter().map(|b| b.inertia).collect(),
             bodies,
             link_body,
             dof: model.dof(),
             limits,
+            factor_parent,
+            factor_order,
         }
     }
 
@@ -441,8 +507,8 @@ impl ArticulatedBody {
             m: DMatrix::zeros(self.nv(), self.nv()),
             rhs: DVector::zeros(self.nv()),
             acc: DVector::zeros(self.nv()),
-            lhs: DMatrix::zeros(self.nv(), self.nv()),
-            lhs_capped: DMatrix::zeros(self.nv(), self.nv()),
+            factor: TreeFactor::new(&self.factor_parent, &self.factor_order),
+            capped_factor: TreeFactor::new(&self.factor_parent, &self.factor_order),
             capped: Vec::new(),
             limit_rows: Vec::with_capacity(self.dof),
             free_acc: DVector::zeros(self.nv()),
@@ -461,9 +527,9 @@ impl ArticulatedBody {
             "configuration length must equal the model's DoF"
         );
         for (i, body) in self.bodies.iter().enumerate().skip(1) {
-            let parent_from_body =
-                body.parent_from_joint * body.motion.joint_from_body(q[body.dof]);
-            ws.x[i] = Transform::of(&parent_from_body);
+            ws.x[i] = body
+                .motion
+                .parent_from_body(&body.parent_from_joint_xf, q[body.dof]);
             ws.s[i] = body.motion.subspace();
         }
     }
@@ -483,7 +549,7 @@ impl ArticulatedBody {
             let carried = ws.ic[i].in_parent(&ws.x[i]);
             ws.ic[p].add(&carried);
         }
-        out.fill(0.0);
+        out.as_mut_slice().fill(0.0);
         out.fixed_view_mut::<6, 6>(0, 0)
             .copy_from(&ws.ic[0].matrix());
         for i in 1..self.bodies.len() {
@@ -635,19 +701,13 @@ impl ArticulatedBody {
         self.mass_matrix(q, ws, &mut m);
         rhs.neg_mut();
         rhs += tau;
-        // The factor is computed in M's own storage and handed back to the workspace.
-        let ok = match nalgebra::Cholesky::new(m) {
-            Some(chol) => {
-                chol.solve_mut(&mut rhs);
-                nu_dot.copy_from(&rhs);
-                ws.m = chol.unpack();
-                true
-            }
-            None => {
-                ws.m = DMatrix::zeros(self.nv(), self.nv());
-                false
-            }
-        };
+        ws.factor.load(m.as_slice());
+        let ok = ws.factor.factorize();
+        if ok {
+            ws.factor.solve_mut(rhs.as_mut_slice());
+            nu_dot.copy_from(&rhs);
+        }
+        ws.m = m;
         ws.rhs = rhs;
         ok
     }
@@ -708,17 +768,18 @@ impl ArticulatedBody {
         // (0 × 0 placeholders do not allocate.)
         let mut m = std::mem::replace(&mut ws.m, DMatrix::zeros(0, 0));
         self.mass_matrix(&state.q, ws, &mut m);
-        let augment = |lhs: &mut DMatrix<f64>, capped: &[Option<f64>], locks: &[(usize, f64)]| {
-            lhs.copy_from(&m);
+        // Factors M̃: M with the implicit drives' terms and the held joints' weights.
+        let augment = |f: &mut TreeFactor, capped: &[Option<f64>], locks: &[(usize, f64)]| {
+            f.load(m.as_slice());
             for (d, c) in drives.iter().zip(capped) {
                 if c.is_none() {
-                    let col = 6 + d.dof;
-                    lhs[(col, col)] += h * (h * d.stiffness + d.damping);
+                    f.add_diagonal(6 + d.dof, h * (h * d.stiffness + d.damping));
                 }
             }
             for &(col, _) in locks {
-                lhs[(col, col)] += LOCK_WEIGHT;
+                f.add_diagonal(col, LOCK_WEIGHT);
             }
+            f.factorize()
         };
         // A joint the last step left on a bound is held there from the start (a joint resting
         // on its bound, as a folded arm under gravity does at every step), by a weight on its
@@ -736,13 +797,13 @@ impl ArticulatedBody {
         capped.clear();
         capped.resize(drives.len(), None);
         // The factor of M + h(hK + D) with every drive implicit, kept for the n steps.
-        let mut lhs = std::mem::replace(&mut ws.lhs, DMatrix::zeros(0, 0));
-        augment(&mut lhs, &capped, &locks);
-        let mut factor = nalgebra::Cholesky::new(lhs);
+        let mut factor = std::mem::take(&mut ws.factor);
+        let mut factor_ok = augment(&mut factor, &capped, &locks);
+        // The factor with drives at their limits, when `use_capped`.
+        let mut capped_factor = std::mem::take(&mut ws.capped_factor);
         let mut rhs = std::mem::replace(&mut ws.rhs, DVector::zeros(0));
         let mut acc = std::mem::replace(&mut ws.acc, DVector::zeros(0));
-        let mut spare = std::mem::replace(&mut ws.lhs_capped, DMatrix::zeros(0, 0));
-        let mut ok = factor.is_some();
+        let mut ok = factor_ok;
         for k in 0..n {
             // τ − b + Σ Jᵀf_ext at this step's state (the first step's joint transforms are
             // the mass matrix's).
@@ -752,14 +813,15 @@ impl ArticulatedBody {
             } else {
                 self.rnea(&attitude, &state.q, &state.nu, None, external, ws, &mut rhs);
             }
-            rhs.neg_mut();
-            rhs += tau;
-            let mut capped_factor = None;
+            for (r, t) in rhs.as_mut_slice().iter_mut().zip(tau.as_slice()) {
+                *r = t - *r;
+            }
+            let mut use_capped = false;
             for round in 0..2 {
-                let Some(f0) = &factor else {
+                if !factor_ok {
                     ok = false;
                     break;
-                };
+                }
                 capped.fill(None);
                 // The drives' efforts are a box-constrained implicit law: each is its spring and
                 // damper at the end of the step, K(r − q − h·q̇⁺) − D·q̇⁺, unless that passes its
@@ -771,7 +833,7 @@ impl ArticulatedBody {
                 // damper (D·h/I ≫ 1 on a light wrist) then flips a saturated drive between ±limit
                 // from one step to the next.
                 for pass in 0..DRIVE_PASSES {
-                    acc.copy_from(&rhs);
+                    acc.as_mut_slice().copy_from_slice(rhs.as_slice());
                     for (d, c) in drives.iter().zip(&capped) {
                         let col = 6 + d.dof;
                         let (q, qd) = (state.q[d.dof], state.nu[col]);
@@ -780,13 +842,14 @@ impl ArticulatedBody {
                     }
                     // The held joints: the weight times the landing acceleration (the
                     // right-hand side without it kept, for the bounds' forces below).
-                    ws.free_acc.copy_from(&acc);
+                    ws.free_acc.as_mut_slice().copy_from_slice(acc.as_slice());
                     for &(col, side) in &locks {
                         acc[col] += LOCK_WEIGHT * self.landing(state, h, col, side);
                     }
-                    match &capped_factor {
-                        None => f0.solve_mut(&mut acc),
-                        Some(f) => nalgebra::Cholesky::solve_mut(f, &mut acc),
+                    if use_capped {
+                        capped_factor.solve_mut(acc.as_mut_slice());
+                    } else {
+                        factor.solve_mut(acc.as_mut_slice());
                     }
                     if pass + 1 == DRIVE_PASSES {
                         break;
@@ -813,25 +876,16 @@ impl ArticulatedBody {
                     if !again {
                         break;
                     }
-                    if let Some(f) = capped_factor.take() {
-                        spare = nalgebra::Cholesky::unpack(f);
-                    }
+                    use_capped = false;
                     if capped.iter().all(Option::is_none) {
                         continue;
                     }
                     // Drives at their limit: this step's own factor.
-                    let mut other = std::mem::replace(&mut spare, DMatrix::zeros(0, 0));
-                    if other.shape() != (nv, nv) {
-                        other = DMatrix::zeros(nv, nv);
+                    if !augment(&mut capped_factor, &capped, &locks) {
+                        ok = false;
+                        break;
                     }
-                    augment(&mut other, &capped, &locks);
-                    match nalgebra::Cholesky::new(other) {
-                        Some(f) => capped_factor = Some(f),
-                        None => {
-                            ok = false;
-                            break;
-                        }
-                    }
+                    use_capped = true;
                 }
                 // A held joint whose bound would pull it (its force toward the bound's
                 // outside) is let go: the step again, without the weights.
@@ -852,17 +906,16 @@ impl ArticulatedBody {
                     break;
                 }
                 locks.clear();
-                if let Some(f) = capped_factor.take() {
-                    spare = nalgebra::Cholesky::unpack(f);
-                }
-                let mut lhs = factor
-                    .take()
-                    .map_or_else(|| DMatrix::zeros(nv, nv), nalgebra::Cholesky::unpack);
+                use_capped = false;
                 capped.fill(None);
-                augment(&mut lhs, &capped, &locks);
-                factor = nalgebra::Cholesky::new(lhs);
+                factor_ok = augment(&mut factor, &capped, &locks);
             }
-            if ok && let Some(f) = capped_factor.as_ref().or(factor.as_ref()) {
+            if ok {
+                let f = if use_capped {
+                    &mut capped_factor
+                } else {
+                    &mut factor
+                };
                 self.hold_limits(state, h, f, &mut acc, ws);
                 // Held on this step: the weighted joints still on their bounds, and those
                 // the limits caught.
@@ -873,9 +926,6 @@ impl ArticulatedBody {
                         ws.locked.push((col, side));
                     }
                 }
-            }
-            if let Some(f) = capped_factor.take() {
-                spare = nalgebra::Cholesky::unpack(f);
             }
             if !ok || !acc.iter().all(|a| a.is_finite()) {
                 ok = false;
@@ -891,8 +941,8 @@ impl ArticulatedBody {
             pose.translation.vector += pose.rotation * (v * h);
             pose.rotation *= UnitQuaternion::from_scaled_axis(w * h);
         }
-        ws.lhs = factor.map_or_else(|| DMatrix::zeros(nv, nv), nalgebra::Cholesky::unpack);
-        ws.lhs_capped = spare;
+        ws.factor = factor;
+        ws.capped_factor = capped_factor;
         ws.rhs = rhs;
         ws.m = m;
         ws.acc = acc;
@@ -916,7 +966,7 @@ impl ArticulatedBody {
         &self,
         state: &TreeState,
         h: f64,
-        factor: &nalgebra::Cholesky<f64, nalgebra::Dyn>,
+        factor: &mut TreeFactor,
         acc: &mut DVector<f64>,
         ws: &mut Workspace,
     ) {
@@ -949,12 +999,13 @@ impl ArticulatedBody {
         for _pass in 0..=self.dof {
             // M̃⁻¹ e for each held joint, all in one solve.
             let k = rows.len();
-            let mut cols = ws.limit_cols.columns_mut(0, k);
+            let nv = self.nv();
+            let cols = &mut ws.limit_cols.as_mut_slice()[..nv * k];
             cols.fill(0.0);
-            for (j, &(c, _, _)) in rows.iter().enumerate() {
-                cols[(c, j)] = 1.0;
+            for (col, &(c, _, _)) in cols.chunks_exact_mut(nv).zip(rows.iter()) {
+                col[c] = 1.0;
+                factor.solve_mut(col);
             }
-            factor.solve_mut(&mut cols);
             let cols = ws.limit_cols.columns(0, k);
             let s = |i: usize, j: usize| cols[(rows[i].0, j)];
             let r = |i: usize| rows[i].1 - ws.free_acc[rows[i].0];
@@ -1315,6 +1366,85 @@ mod tests {
             tree.inverse_dynamics(&attitude, &q, &nu, &acc, &external, &mut ws, &mut back);
             let gap = (&back - &tau).amax();
             assert!(gap < 1e-9, "{}: τ back off by {gap:e}", v.id);
+        }
+    }
+
+    /// A URDF may list a child's joint before its parent's: the configuration then numbers
+    /// the child first, and M's factor (which runs parents first) goes through the tree's
+    /// order. The FA-Hexa with its first arm joint listed last gives the same accelerations,
+    /// renumbered, as the FA-Hexa as shipped.
+    #[test]
+    fn a_urdf_listing_a_child_joint_before_its_parent_gives_the_same_dynamics() {
+        use crate::model::KinematicModel;
+        let text = include_str!("../vehicles/fa-hexa.urdf");
+        let start = text
+            .find("<joint name=\"arm_link1_pitch_joint\"")
+            .unwrap_or_else(|| panic!("the first arm joint"));
+        let end = start
+            + text[start..]
+                .find("</joint>")
+                .unwrap_or_else(|| panic!("its end"))
+            + "</joint>".len();
+        let moved = &text[start..end];
+        let close = text.rfind("</robot>").unwrap_or_else(|| panic!("</robot>"));
+        let reordered = format!(
+            "{}{}{moved}\n{}",
+            &text[..start],
+            &text[end..close],
+            &text[close..]
+        );
+        let shipped =
+            KinematicModel::from_urdf("fa-hexa.urdf", text).unwrap_or_else(|e| panic!("{e}"));
+        let listed = KinematicModel::from_urdf("reordered.urdf", &reordered)
+            .unwrap_or_else(|e| panic!("{e}"));
+        // The shipped configuration index of each of the reordered model's.
+        let to_shipped: Vec<usize> = (0..listed.dof())
+            .map(|d| {
+                let name = &listed.dof_joint(d).name;
+                (0..shipped.dof())
+                    .find(|&e| shipped.dof_joint(e).name == *name)
+                    .unwrap_or_else(|| panic!("{name}: not in the shipped model"))
+            })
+            .collect();
+        assert_ne!(
+            to_shipped,
+            (0..shipped.dof()).collect::<Vec<_>>(),
+            "not reordered"
+        );
+        let column = |d: usize| 6 + to_shipped[d];
+        let (a, b) = (
+            ArticulatedBody::new(&shipped),
+            ArticulatedBody::new(&listed),
+        );
+        let (mut wa, mut wb) = (a.workspace(), b.workspace());
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let attitude = UnitQuaternion::from_euler_angles(0.2, -0.1, 0.4);
+        for _ in 0..5 {
+            let qa: Vec<f64> = (0..shipped.dof())
+                .map(|_| rng.random_range(-0.5..0.5))
+                .collect();
+            let nua = DVector::from_fn(a.nv(), |_, _| rng.random_range(-1.0..1.0));
+            let taua = DVector::from_fn(a.nv(), |_, _| rng.random_range(-5.0..5.0));
+            let qb: Vec<f64> = (0..listed.dof()).map(|d| qa[to_shipped[d]]).collect();
+            let renumber = |x: &DVector<f64>| {
+                DVector::from_fn(b.nv(), |k, _| if k < 6 { x[k] } else { x[column(k - 6)] })
+            };
+            let (mut acc_a, mut acc_b) = (DVector::zeros(a.nv()), DVector::zeros(b.nv()));
+            assert!(a.forward_dynamics(&attitude, &qa, &nua, &taua, &[], &mut wa, &mut acc_a));
+            assert!(b.forward_dynamics(
+                &attitude,
+                &qb,
+                &renumber(&nua),
+                &renumber(&taua),
+                &[],
+                &mut wb,
+                &mut acc_b
+            ));
+            let gap = (renumber(&acc_a) - &acc_b).amax();
+            assert!(
+                gap < 1e-12 * acc_a.amax().max(1.0),
+                "accelerations off by {gap:e}"
+            );
         }
     }
 

@@ -32,6 +32,7 @@ mod px4_hil;
 pub mod random;
 mod rotor;
 mod state;
+mod tree_factor;
 mod vehicle;
 mod vehicle_file;
 mod wrench;

@@ -1299,6 +1299,31 @@ impl Twin {
         colliders: impl Fn() -> I,
         filter: QueryFilter<'a>,
     ) -> bool {
+        // A half-space (the ground) has an unbounded box: its boundary plane tells.
+        let may_touch = |b: &Aabb, other: &Collider, other_box: &Aabb| match boundary_plane(other) {
+            Some((n, p)) => box_height_over_plane(b, &n, &p) < CONTACT_MARGIN_M,
+            None => b.loosened(CONTACT_MARGIN_M).intersects(other_box),
+        };
+        // First the box around the colliders' bounding spheres: it holds their exact boxes
+        // (which take a cylinder six support points each), so with nothing near it the
+        // exact test below finds nothing either — the same answer, most ticks of free
+        // flight without the exact boxes.
+        let Some(loose) = colliders()
+            .map(|c| {
+                let s = c.shape().compute_bounding_sphere(c.position());
+                Aabb::from_half_extents(s.center, Vector::splat(s.radius))
+            })
+            .reduce(|a, b| a.merged(&b))
+        else {
+            return false;
+        };
+        let mut near_loose = self
+            .world
+            .intersect_aabb_conservative(loose.loosened(CONTACT_MARGIN_M), filter)
+            .filter(|(_, other)| may_touch(&loose, other, &other.compute_aabb()));
+        if near_loose.next().is_none() {
+            return false;
+        }
         let Some(whole) = colliders()
             .map(|c| c.compute_aabb())
             .reduce(|a, b| a.merged(&b))
@@ -1308,13 +1333,8 @@ impl Twin {
         self.world
             .intersect_aabb_conservative(whole.loosened(CONTACT_MARGIN_M), filter)
             .any(|(_, other)| {
-                // A half-space (the ground) has an unbounded box: its boundary plane tells.
-                let plane = boundary_plane(other);
                 let other_box = other.compute_aabb();
-                let may_touch = |b: &Aabb| match &plane {
-                    Some((n, p)) => box_height_over_plane(b, n, p) < CONTACT_MARGIN_M,
-                    None => b.loosened(CONTACT_MARGIN_M).intersects(&other_box),
-                };
+                let may_touch = |b: &Aabb| may_touch(b, other, &other_box);
                 may_touch(&whole)
                     && colliders().any(|c| {
                         may_touch(&c.compute_aabb())
