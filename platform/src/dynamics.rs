@@ -95,7 +95,7 @@ impl Inertia {
     ///
     /// With [a]×[b]× = b·aᵀ − (a·b)·1 the last three terms are
     /// m(|p|²·1 − p·pᵀ) + 2(p·Rh)·1 − Rh·pᵀ − p·(Rh)ᵀ, written out entry by entry (each
-    /// product in an order that keeps the sum symmetric to the bit).
+    /// product ordered so that this term is symmetric to the bit).
     fn in_parent(&self, x: &Transform) -> Self {
         let (p, q, m) = (&x.p, x.r * self.h, self.m);
         let mut i = x.r * self.i * x.r.transpose();

@@ -1299,9 +1299,11 @@ impl Twin {
         colliders: impl Fn() -> I,
         filter: QueryFilter<'a>,
     ) -> bool {
-        // A half-space (the ground) has an unbounded box: its boundary plane tells.
-        let may_touch = |b: &Aabb, other: &Collider, other_box: &Aabb| match boundary_plane(other) {
-            Some((n, p)) => box_height_over_plane(b, &n, &p) < CONTACT_MARGIN_M,
+        // Whether box `b` comes within the margin of another collider, by its box or, for a
+        // half-space (the ground, whose box is unbounded), its boundary plane.
+        type Plane = Option<(Vector3<f64>, Vector3<f64>)>;
+        let may_touch = |b: &Aabb, plane: &Plane, other_box: &Aabb| match plane {
+            Some((n, p)) => box_height_over_plane(b, n, p) < CONTACT_MARGIN_M,
             None => b.loosened(CONTACT_MARGIN_M).intersects(other_box),
         };
         // First the box around the colliders' bounding spheres: it holds their exact boxes
@@ -1320,7 +1322,7 @@ impl Twin {
         let mut near_loose = self
             .world
             .intersect_aabb_conservative(loose.loosened(CONTACT_MARGIN_M), filter)
-            .filter(|(_, other)| may_touch(&loose, other, &other.compute_aabb()));
+            .filter(|(_, other)| may_touch(&loose, &boundary_plane(other), &other.compute_aabb()));
         if near_loose.next().is_none() {
             return false;
         }
@@ -1333,8 +1335,8 @@ impl Twin {
         self.world
             .intersect_aabb_conservative(whole.loosened(CONTACT_MARGIN_M), filter)
             .any(|(_, other)| {
-                let other_box = other.compute_aabb();
-                let may_touch = |b: &Aabb| may_touch(b, other, &other_box);
+                let (plane, other_box) = (boundary_plane(other), other.compute_aabb());
+                let may_touch = |b: &Aabb| may_touch(b, &plane, &other_box);
                 may_touch(&whole)
                     && colliders().any(|c| {
                         may_touch(&c.compute_aabb())
