@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Opt-in peer check of amstack's rigid-body dynamics (platform::ArticulatedBody: CRBA mass
-# matrix, RNEA bias forces) against Pinocchio, a dynamics library that is not ours, on the five
+# matrix, RNEA bias forces, forward dynamics through M's LᵀDL factor) against Pinocchio, a dynamics library that is not ours, on the five
 # built-in vehicles' URDFs. Not part of CI: Pinocchio's wheels and their cmeel prefix (Boost,
 # hpp-fcl, assimp) take ~440 MB, so it lives in its own venv.
 #
@@ -10,8 +10,9 @@
 #   AMSTACK_PIN_VENV  the venv (default: $HOME/.cache/amstack-pin-venv)
 #
 # Writes `amstack platforms --dynamics` to a temporary file and prints, per vehicle, the largest
-# difference of M and of b from Pinocchio's (`crba`, `rnea` with zero acceleration) over the
-# samples; exits 1 if any exceeds 1e-9 relative to the largest entry.
+# difference of M, of b and of the forward dynamics from Pinocchio's (`crba`, `rnea` with zero
+# acceleration, `aba`) over the samples; exits 1 if any exceeds 1e-9 relative to the largest
+# entry.
 set -euo pipefail
 SAMPLES="${1:-50}"
 SEED="${2:-0}"

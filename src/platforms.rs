@@ -20,8 +20,10 @@ Warnings name physically impossible data: the FA-Hexa's and UA-Hexa's base inert
 reference's diag(0.198, 0.198, 0.460), whose Izz exceeds Ixx + Iyy (kept for comparable results).
 
 `--dynamics FILE.json` writes each vehicle's rigid-body dynamics at seeded random states: the
-joint-space mass matrix M(q) (composite-rigid-body algorithm) and the bias forces b(q, ν)
-(Coriolis, centrifugal, gravity; recursive Newton-Euler), with M ν̇ + b = τ. ν is the base
+joint-space mass matrix M(q) (composite-rigid-body algorithm), the bias forces b(q, ν)
+(Coriolis, centrifugal, gravity; recursive Newton-Euler), with M ν̇ + b = τ, and the forward
+dynamics ν̇ = M⁻¹(τ − b) at generalised forces τ drawn in ±5 (M's LᵀDL factor in the tree's
+order). ν is the base
 origin's velocity and the base's angular velocity in base axes (Pinocchio's free-flyer
 convention), then the joint rates; joint positions are drawn within their limits, rates in
 ±1.5, the base attitude's roll and pitch in ±0.5 rad. `scripts/pinocchio-peer.sh` checks the
@@ -65,6 +67,10 @@ struct DynamicsSample {
     mass_matrix: Vec<Vec<f64>>,
     /// Bias forces b(q, ν), gravity included.
     bias: Vec<f64>,
+    /// Generalised forces τ (base force and torque in base axes, then joint efforts).
+    tau: Vec<f64>,
+    /// Forward dynamics ν̇ at τ.
+    acceleration: Vec<f64>,
 }
 
 /// One vehicle's `--dynamics` entry.
@@ -83,6 +89,8 @@ fn dynamics(v: &Vehicle, samples: u32, seed: u64) -> VehicleDynamics {
     let tree = platform::ArticulatedBody::new(&v.model);
     let mut ws = tree.workspace();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    // τ from a stream of its own, so that the states stay those of earlier files.
+    let mut tau_rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x7461_7500);
     let joints = (0..v.model.dof())
         .map(|d| v.model.dof_joint(d).name.clone())
         .collect();
@@ -94,6 +102,21 @@ fn dynamics(v: &Vehicle, samples: u32, seed: u64) -> VehicleDynamics {
             tree.mass_matrix(&s.q, &mut ws, &mut m);
             let mut b = DVector::zeros(tree.nv());
             tree.bias(&attitude, &s.q, &s.nu, &mut ws, &mut b);
+            let tau = DVector::from_fn(tree.nv(), |_, _| {
+                rand::Rng::random_range(&mut tau_rng, -5.0..5.0)
+            });
+            let mut acceleration = DVector::from_element(tree.nv(), f64::NAN);
+            // M is positive definite for every built-in vehicle (a failed factor leaves NaN,
+            // which the peer check reports).
+            let _ = tree.forward_dynamics(
+                &attitude,
+                &s.q,
+                &s.nu,
+                &tau,
+                &[],
+                &mut ws,
+                &mut acceleration,
+            );
             let w = attitude.quaternion();
             DynamicsSample {
                 nu: s.nu.iter().copied().collect(),
@@ -101,6 +124,8 @@ fn dynamics(v: &Vehicle, samples: u32, seed: u64) -> VehicleDynamics {
                 attitude_wxyz: [w.w, w.i, w.j, w.k],
                 mass_matrix: m.row_iter().map(|r| r.iter().copied().collect()).collect(),
                 bias: b.iter().copied().collect(),
+                tau: tau.iter().copied().collect(),
+                acceleration: acceleration.iter().copied().collect(),
             }
         })
         .collect();

@@ -117,7 +117,7 @@ fn platforms_json_holds_the_figures_keyed_by_vehicle_id() {
 }
 
 #[test]
-fn platforms_dynamics_writes_each_vehicles_mass_matrix_and_bias() {
+fn platforms_dynamics_writes_each_vehicles_mass_matrix_bias_and_forward_dynamics() {
     let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let path = dir.path().join("dynamics.json");
     let file = path.to_string_lossy();
@@ -155,6 +155,16 @@ fn platforms_dynamics_writes_each_vehicles_mass_matrix_and_bias() {
             }
         }
         assert_eq!(s["bias"].as_array().map(Vec::len), Some(12));
+        // The forward dynamics at τ: M ν̇ + b = τ.
+        let v = |key: &str, i: usize| s[key][i].as_f64().unwrap_or(f64::NAN);
+        for r in 0..12 {
+            let lhs = (0..12).map(|c| m(r, c) * v("acceleration", c)).sum::<f64>() + v("bias", r);
+            assert!(
+                (lhs - v("tau", r)).abs() < 1e-9,
+                "row {r}: M ν̇ + b = {lhs}, τ = {}",
+                v("tau", r)
+            );
+        }
     }
     // Seeded: the same flags write the same file.
     let again = dir.path().join("again.json");
