@@ -15,6 +15,7 @@
 //! | [`RandomStream::Barometer`] | seed, stream 6 | the simulated barometer (bias, drift, noise) |
 //! | [`RandomStream::Gnss`] | seed, stream 7 | the simulated GNSS receiver |
 //! | [`RandomStream::VisualDomain`] | seed, stream 8 | the cameras' visual domain randomisation |
+//! | [`RandomStream::DynamicsForces`] | seed, stream 9 | `amstack platforms --dynamics`'s generalised forces τ (its states: seed, stream 0) |
 //! | [`RandomStream::TrackActionNoise`] | seed XOR `"action"`, stream 0 | `amstack track`'s action noise on the reference's base + joint target |
 //!
 //! `TrackActionNoise` is its own seeding for a historical reason: `track` drew its action
@@ -47,6 +48,9 @@ pub enum RandomStream {
     VisualDomain,
     /// `amstack track`'s action noise (its historical seeding, kept for its results).
     TrackActionNoise,
+    /// The generalised forces at which `amstack platforms --dynamics` writes the forward
+    /// dynamics.
+    DynamicsForces,
 }
 
 /// `"action"` in ASCII: the historical seed offset of [`RandomStream::TrackActionNoise`].
@@ -66,6 +70,7 @@ impl RandomStream {
             Self::Gnss => (seed, 7),
             Self::VisualDomain => (seed, 8),
             Self::TrackActionNoise => (seed ^ TRACK_ACTION_SEED_XOR, 0),
+            Self::DynamicsForces => (seed, 9),
         };
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         rng.set_stream(stream);
@@ -109,6 +114,7 @@ mod tests {
             RandomStream::Gnss,
             RandomStream::VisualDomain,
             RandomStream::TrackActionNoise,
+            RandomStream::DynamicsForces,
         ];
         let firsts: Vec<u64> = all.iter().map(|s| s.rng(seed).next_u64()).collect();
         for (i, a) in firsts.iter().enumerate() {

@@ -11,9 +11,9 @@
 //! (fingers beside each other); the speed is in the loops' plainness: one flat row-major
 //! array, no generic storage, nothing allocated.
 
-/// The sizes factored by loops compiled for the size (the vehicles' 10…14 degrees of
-/// freedom among them): unrolled and without bounds checks, for the same numbers (see
-/// [`factorize_dense`]).
+/// The sizes factored by loops compiled for the size (the built-in vehicles' 8, 12 and 16
+/// degrees of freedom among them): unrolled and without bounds checks, for the same numbers
+/// on a tree's M (see [`factorize_dense`]).
 const DENSE: std::ops::RangeInclusive<usize> = 7..=16;
 
 /// λ(k) of a root: no parent.
@@ -23,7 +23,7 @@ pub(crate) const NO_PARENT: usize = usize::MAX;
 /// L(k, i) at the ancestors i of k; every other entry is unused. The factor's numbering is
 /// the tree's (parents first); the matrix's may be another (a URDF numbers its joints in
 /// file order), mapped by `order`.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default)]
 pub(crate) struct TreeFactor {
     n: usize,
     /// The ancestors of every degree of freedom, nearest first (λ(k), λ(λ(k)), …): those
@@ -102,8 +102,9 @@ impl TreeFactor {
     }
 
     /// Loads the symmetric `m` (n × n, column-major: a symmetric matrix's column-major
-    /// storage is its row-major one) for [`Self::factorize`]; entries outside the tree's
-    /// pattern are not read by it.
+    /// storage is its row-major one) for [`Self::factorize`]. The tree's loops read only the
+    /// tree's pattern; the size's read the whole lower triangle, which is zero outside the
+    /// pattern in a tree's mass matrix (the CRBA writes nothing there).
     ///
     /// # Panics
     /// If `m` is not n × n long.
